@@ -1,0 +1,45 @@
+//! One logging shim for the whole firmware: `defmt` on the target, `log` on the host, nothing
+//! when neither feature is on (the pattern of Embassy's `fmt.rs`). The backend is chosen by this
+//! crate's features at the macro's definition, so every crate of the workspace logs through
+//! `remodaq_shared::{info, warn, ...}` with the same call sites. Format strings must suit both
+//! backends: plain `{}` / `{:?}` placeholders only.
+
+#[cfg(all(feature = "defmt", feature = "log"))]
+compile_error!("features `defmt` and `log` are mutually exclusive");
+
+#[cfg(feature = "defmt")]
+#[doc(hidden)]
+pub use defmt as __backend;
+#[cfg(feature = "log")]
+#[doc(hidden)]
+pub use log as __backend;
+
+#[cfg(any(feature = "defmt", feature = "log"))]
+#[doc(hidden)]
+#[macro_export]
+macro_rules! __log {
+    ($level:ident, $($arg:tt)*) => { $crate::fmt::__backend::$level!($($arg)*) };
+}
+
+#[cfg(not(any(feature = "defmt", feature = "log")))]
+#[doc(hidden)]
+#[macro_export]
+macro_rules! __log {
+    ($level:ident, $fmt:literal $(, $arg:expr)* $(,)?) => {{ $( let _ = &$arg; )* }};
+}
+
+/// Log at trace level.
+#[macro_export]
+macro_rules! trace { ($($arg:tt)*) => { $crate::__log!(trace, $($arg)*) }; }
+/// Log at debug level.
+#[macro_export]
+macro_rules! debug { ($($arg:tt)*) => { $crate::__log!(debug, $($arg)*) }; }
+/// Log at info level.
+#[macro_export]
+macro_rules! info { ($($arg:tt)*) => { $crate::__log!(info, $($arg)*) }; }
+/// Log at warn level.
+#[macro_export]
+macro_rules! warn { ($($arg:tt)*) => { $crate::__log!(warn, $($arg)*) }; }
+/// Log at error level.
+#[macro_export]
+macro_rules! error { ($($arg:tt)*) => { $crate::__log!(error, $($arg)*) }; }

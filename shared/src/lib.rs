@@ -1,0 +1,11 @@
+//! RemoDAQ-8300 common firmware library (`no_std`, host tested): Modbus/TCP, the settings
+//! store, network settings, board traits and the logging shim.
+#![no_std]
+#![warn(missing_docs)]
+
+#[cfg(test)]
+extern crate std;
+
+pub mod fmt;
+
+pub mod modbus;

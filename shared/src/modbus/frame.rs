@@ -1,0 +1,72 @@
+//! MBAP framing (spec §1.1): a stream of bytes is cut into frames by the header's length field.
+//!
+//! - protocol id != 0: the frame is discarded, the connection kept;
+//! - length < 2 or > 254: the stream is out of sync, the connection must be closed;
+//! - any unit id is accepted and echoed.
+
+use super::pdu::MAX_PDU;
+
+/// MBAP header length (transaction id, protocol id, length, unit id).
+pub const MBAP_LEN: usize = 7;
+/// Largest Modbus/TCP frame: header + 253-byte PDU.
+pub const MAX_ADU: usize = MBAP_LEN + MAX_PDU;
+
+/// The MBAP header of a request, echoed in its response.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Header {
+    /// Transaction id, echoed.
+    pub transaction: u16,
+    /// Unit id, echoed.
+    pub unit: u8,
+}
+
+/// What the front of a receive buffer holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Frame {
+    /// Not enough bytes yet to decide.
+    Incomplete,
+    /// A request of `len` bytes (header + PDU) whose PDU starts at [`MBAP_LEN`].
+    Request {
+        /// The header to echo.
+        header: Header,
+        /// Total frame length.
+        len: usize,
+    },
+    /// A complete frame with a protocol id other than 0: drop its `len` bytes.
+    Discard {
+        /// Total frame length.
+        len: usize,
+    },
+    /// The length field is out of bounds: the stream cannot be resynchronised.
+    Desync,
+}
+
+/// Classifies the bytes at the front of `buf`.
+pub fn classify(buf: &[u8]) -> Frame {
+    if buf.len() < 6 {
+        return Frame::Incomplete;
+    }
+    let protocol = u16::from_be_bytes([buf[2], buf[3]]);
+    let length = usize::from(u16::from_be_bytes([buf[4], buf[5]]));
+    if !(2..=MAX_PDU + 1).contains(&length) {
+        return Frame::Desync;
+    }
+    let len = 6 + length;
+    if buf.len() < len {
+        return Frame::Incomplete;
+    }
+    if protocol != 0 {
+        return Frame::Discard { len };
+    }
+    Frame::Request { header: Header { transaction: u16::from_be_bytes([buf[0], buf[1]]), unit: buf[6] }, len }
+}
+
+/// Writes the response header for a PDU of `pdu_len` bytes into `out[..MBAP_LEN]`.
+pub fn write_header(out: &mut [u8], header: Header, pdu_len: usize) {
+    out[0..2].copy_from_slice(&header.transaction.to_be_bytes());
+    out[2..4].copy_from_slice(&[0, 0]);
+    out[4..6].copy_from_slice(&((pdu_len + 1) as u16).to_be_bytes());
+    out[6] = header.unit;
+}

@@ -1,0 +1,174 @@
+//! The Modbus/TCP connection server, generic over the transport (`embedded-io-async`), so the
+//! same code serves embassy-net sockets on the target and std sockets on the host.
+//!
+//! Connection policy (spec §1.1): at most [`MAX_CONNECTIONS`] clients are served at once. A
+//! board runs [`SOCKETS`] = `MAX_CONNECTIONS + 1` connection tasks, so a newcomer is always
+//! accepted; when that makes one too many, [`Slots`] closes the connection idle the longest.
+//! A connection idle for [`IDLE_TIMEOUT`] is closed.
+
+use core::cell::RefCell;
+
+use embassy_futures::select::{select, Either};
+use embassy_sync::blocking_mutex::raw::RawMutex;
+use embassy_sync::blocking_mutex::Mutex as BlockingMutex;
+use embassy_sync::mutex::Mutex;
+use embassy_sync::signal::Signal;
+use embassy_time::{with_timeout, Duration, Instant};
+use embedded_io_async::{Read, Write};
+
+use super::frame::{classify, write_header, Frame, MAX_ADU, MBAP_LEN};
+use super::pdu::{handle_pdu, MAX_PDU};
+use super::RegisterMap;
+
+/// Clients served at once.
+pub const MAX_CONNECTIONS: usize = 8;
+/// Connection tasks a board runs: one more than [`MAX_CONNECTIONS`], to accept a newcomer.
+pub const SOCKETS: usize = MAX_CONNECTIONS + 1;
+/// A connection without a byte received for this long is closed.
+pub const IDLE_TIMEOUT: Duration = Duration::from_secs(300);
+
+/// Receive buffer: one full frame plus room for the start of a pipelined one.
+const RX_BUF: usize = 2 * MAX_ADU;
+
+/// Why a connection ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Ended {
+    /// The peer closed its side.
+    PeerClosed,
+    /// Nothing received for [`IDLE_TIMEOUT`].
+    Idle,
+    /// Closed to make room for a new client.
+    Evicted,
+    /// A length field out of bounds: the stream is out of sync.
+    Desync,
+    /// The transport failed.
+    Io,
+}
+
+/// Book-keeping of the connection tasks: which are serving a client, since when idle, and a
+/// signal to close each one.
+pub struct Slots<R: RawMutex, const N: usize> {
+    last_activity: BlockingMutex<R, RefCell<[Option<Instant>; N]>>,
+    evict: [Signal<R, ()>; N],
+    max_active: usize,
+}
+
+impl<R: RawMutex, const N: usize> Slots<R, N> {
+    /// `N` connection tasks of which at most `max_active` may serve a client at once.
+    pub const fn new(max_active: usize) -> Self {
+        Self {
+            last_activity: BlockingMutex::new(RefCell::new([None; N])),
+            evict: [const { Signal::new() }; N],
+            max_active,
+        }
+    }
+
+    /// Marks `slot` as serving a new client; returns the slot told to close to make room.
+    pub fn open(&self, slot: usize) -> Option<usize> {
+        self.evict[slot].reset();
+        self.last_activity.lock(|cell| {
+            let mut slots = cell.borrow_mut();
+            slots[slot] = Some(Instant::now());
+            let active = slots.iter().filter(|s| s.is_some()).count();
+            if active <= self.max_active {
+                return None;
+            }
+            let victim = slots
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| *i != slot)
+                .filter_map(|(i, s)| s.map(|t| (i, t)))
+                .min_by_key(|(_, t)| *t)
+                .map(|(i, _)| i)?;
+            slots[victim] = None;
+            self.evict[victim].signal(());
+            Some(victim)
+        })
+    }
+
+    /// Records traffic on `slot`.
+    pub fn touch(&self, slot: usize) {
+        self.last_activity.lock(|cell| {
+            if let Some(t) = cell.borrow_mut()[slot].as_mut() {
+                *t = Instant::now();
+            }
+        });
+    }
+
+    /// Marks `slot` free.
+    pub fn close(&self, slot: usize) {
+        self.last_activity.lock(|cell| cell.borrow_mut()[slot] = None);
+    }
+
+    /// Number of slots serving a client.
+    pub fn active(&self) -> usize {
+        self.last_activity.lock(|cell| cell.borrow().iter().filter(|s| s.is_some()).count())
+    }
+}
+
+/// Serves one accepted connection in `slot` until it ends; the caller then closes the socket.
+pub async fn serve<R: RawMutex, M: RegisterMap, T: Read + Write, const N: usize>(
+    io: &mut T,
+    map: &Mutex<R, M>,
+    slots: &Slots<R, N>,
+    slot: usize,
+) -> Ended {
+    if let Some(victim) = slots.open(slot) {
+        crate::info!("modbus: connection limit reached, closing idle connection {}", victim);
+    }
+    let ended = serve_frames(io, map, slots, slot).await;
+    slots.close(slot);
+    ended
+}
+
+async fn serve_frames<R: RawMutex, M: RegisterMap, T: Read + Write, const N: usize>(
+    io: &mut T,
+    map: &Mutex<R, M>,
+    slots: &Slots<R, N>,
+    slot: usize,
+) -> Ended {
+    let mut rx = [0u8; RX_BUF];
+    let mut filled = 0usize;
+    let mut tx = [0u8; MAX_ADU];
+    let mut pdu = [0u8; MAX_PDU];
+    loop {
+        // Answer every complete frame already buffered, in order.
+        let mut consumed = 0usize;
+        loop {
+            match classify(&rx[consumed..filled]) {
+                Frame::Incomplete => break,
+                Frame::Desync => return Ended::Desync,
+                Frame::Discard { len } => consumed += len,
+                Frame::Request { header, len } => {
+                    let request = &rx[consumed + MBAP_LEN..consumed + len];
+                    let pdu_len = {
+                        let mut map = map.lock().await;
+                        handle_pdu(&mut *map, request, &mut pdu).await
+                    };
+                    write_header(&mut tx, header, pdu_len);
+                    tx[MBAP_LEN..MBAP_LEN + pdu_len].copy_from_slice(&pdu[..pdu_len]);
+                    if io.write_all(&tx[..MBAP_LEN + pdu_len]).await.is_err() || io.flush().await.is_err() {
+                        return Ended::Io;
+                    }
+                    consumed += len;
+                }
+            }
+        }
+        rx.copy_within(consumed..filled, 0);
+        filled -= consumed;
+
+        // A partial frame never exceeds MAX_ADU (classify bounds the length), so there is room.
+        let read = select(with_timeout(IDLE_TIMEOUT, io.read(&mut rx[filled..])), slots.evict[slot].wait()).await;
+        match read {
+            Either::First(Ok(Ok(0))) => return Ended::PeerClosed,
+            Either::First(Ok(Ok(n))) => {
+                filled += n;
+                slots.touch(slot);
+            }
+            Either::First(Ok(Err(_))) => return Ended::Io,
+            Either::First(Err(_)) => return Ended::Idle,
+            Either::Second(()) => return Ended::Evicted,
+        }
+    }
+}

@@ -1,0 +1,129 @@
+//! Framing tests through the connection server (spec §1.1): MBAP rules, pipelining, segments.
+mod common;
+
+use common::{hex, Script, TestMap};
+use embassy_sync::blocking_mutex::raw::NoopRawMutex;
+use embassy_sync::mutex::Mutex;
+use futures_executor::block_on;
+use remodaq_shared::modbus::server::{serve, Ended, Slots};
+
+fn run(segments: &[&[u8]]) -> (Vec<u8>, Ended) {
+    let map = Mutex::<NoopRawMutex, _>::new(TestMap::default());
+    let slots = Slots::<NoopRawMutex, 2>::new(1);
+    let mut io = Script::new(segments);
+    let ended = block_on(serve(&mut io, &map, &slots, 0));
+    assert_eq!(slots.active(), 0, "slot released");
+    (io.outgoing, ended)
+}
+
+fn one(frame: &str) -> (Vec<u8>, Ended) {
+    run(&[&hex(frame)])
+}
+
+#[test]
+fn manual_framing_example() {
+    // 8318 manual Figure 2.1/2.2: read two registers; the manual prints the response's length
+    // field as 06, the correct value for 1 + 1 + 1 + 4 bytes is 07 (erratum).
+    let map = Mutex::<NoopRawMutex, _>::new(TestMap::default());
+    block_on(async { map.lock().await.regs[6..8].copy_from_slice(&[0x7FFF, 0x7FFF]) });
+    let slots = Slots::<NoopRawMutex, 1>::new(1);
+    let mut io = Script::new(&[&hex("00 00 00 00 00 06 01 04 00 06 00 02")]);
+    assert_eq!(block_on(serve(&mut io, &map, &slots, 0)), Ended::PeerClosed);
+    assert_eq!(io.outgoing, hex("00 00 00 00 00 07 01 04 04 7F FF 7F FF"));
+}
+
+#[test]
+fn transaction_and_unit_ids_are_echoed() {
+    for unit in ["00", "01", "FF"] {
+        let (out, ended) = one(&format!("12 34 00 00 00 06 {unit} 03 01 00 00 01"));
+        assert_eq!(out, hex(&format!("12 34 00 00 00 05 {unit} 03 02 83 18")));
+        assert_eq!(ended, Ended::PeerClosed);
+    }
+}
+
+#[test]
+fn exception_response_is_framed() {
+    let (out, _) = one("00 07 00 00 00 06 01 03 02 00 00 01");
+    assert_eq!(out, hex("00 07 00 00 00 03 01 83 02"));
+}
+
+#[test]
+fn protocol_id_not_zero_is_discarded_and_connection_kept() {
+    let (out, ended) = one("00 01 00 01 00 06 01 03 01 00 00 01 00 02 00 00 00 06 01 03 01 00 00 01");
+    assert_eq!(out, hex("00 02 00 00 00 05 01 03 02 83 18"));
+    assert_eq!(ended, Ended::PeerClosed);
+}
+
+#[test]
+fn length_1_and_255_close_the_connection() {
+    for len in ["00 01", "00 FF", "00 00", "01 00"] {
+        let (out, ended) = one(&format!("00 01 00 00 {len} 01 03 01 00 00 01"));
+        assert!(out.is_empty());
+        assert_eq!(ended, Ended::Desync, "length {len}");
+    }
+    // A good request before the bad header is still answered.
+    let (out, ended) = one("00 01 00 00 00 06 01 03 01 00 00 01 00 02 00 00 00 01 01");
+    assert_eq!(out, hex("00 01 00 00 00 05 01 03 02 83 18"));
+    assert_eq!(ended, Ended::Desync);
+}
+
+#[test]
+fn length_2_is_a_bare_function_code() {
+    let (out, _) = one("00 01 00 00 00 02 01 03");
+    assert_eq!(out, hex("00 01 00 00 00 03 01 83 03"));
+}
+
+#[test]
+fn write_of_123_registers_in_one_frame() {
+    // 16 with 123 registers: 1 + 2 + 2 + 1 + 246 = 252 PDU bytes + unit = length 253.
+    let values = "00 01 ".repeat(123);
+    let (out, ended) = one(&format!("00 09 00 00 00 FD 01 10 00 00 00 7B F6 {values}"));
+    assert_eq!(out, hex("00 09 00 00 00 06 01 10 00 00 00 7B"));
+    assert_eq!(ended, Ended::PeerClosed);
+}
+
+#[test]
+fn length_254_is_in_bounds() {
+    // The largest legal frame (253-byte PDU) is read whole and answered: here a 123-register
+    // write with one byte too many, so exception 03, and the connection stays in sync.
+    let values = "00 01 ".repeat(123);
+    let (out, ended) = one(&format!("00 09 00 00 00 FE 01 10 00 00 00 7B F6 {values} 00 00 0A 00 00 00 06 01 03 01 00 00 01"));
+    assert_eq!(out, hex("00 09 00 00 00 03 01 90 03 00 0A 00 00 00 05 01 03 02 83 18"));
+    assert_eq!(ended, Ended::PeerClosed);
+}
+
+#[test]
+fn two_requests_in_one_segment_are_answered_in_order() {
+    let (out, _) = one("00 01 00 00 00 06 01 06 00 05 00 2A 00 02 00 00 00 06 01 03 00 05 00 01");
+    assert_eq!(out, hex("00 01 00 00 00 06 01 06 00 05 00 2A 00 02 00 00 00 05 01 03 02 00 2A"));
+}
+
+#[test]
+fn one_request_in_three_segments_is_reassembled() {
+    let frame = hex("00 03 00 00 00 06 01 03 01 00 00 01");
+    let (out, ended) = run(&[&frame[..2], &frame[2..9], &frame[9..]]);
+    assert_eq!(out, hex("00 03 00 00 00 05 01 03 02 83 18"));
+    assert_eq!(ended, Ended::PeerClosed);
+}
+
+#[test]
+fn byte_at_a_time_pipelined_stream() {
+    let stream = hex("00 01 00 00 00 06 01 03 01 00 00 01 00 02 00 00 00 06 01 03 01 00 00 01");
+    let segments: Vec<&[u8]> = stream.chunks(1).collect();
+    let (out, _) = run(&segments);
+    assert_eq!(out, hex("00 01 00 00 00 05 01 03 02 83 18 00 02 00 00 00 05 01 03 02 83 18"));
+}
+
+#[test]
+fn slots_evict_the_longest_idle() {
+    let slots = Slots::<NoopRawMutex, 3>::new(2);
+    assert_eq!(slots.open(0), None);
+    std::thread::sleep(std::time::Duration::from_millis(2));
+    assert_eq!(slots.open(1), None);
+    std::thread::sleep(std::time::Duration::from_millis(2));
+    slots.touch(0); // slot 1 is now the longest idle
+    assert_eq!(slots.open(2), Some(1));
+    assert_eq!(slots.active(), 2);
+    slots.close(1); // the evicted task closing does not disturb the count
+    assert_eq!(slots.active(), 2);
+}
