@@ -9,3 +9,5 @@ extern crate std;
 pub mod fmt;
 
 pub mod modbus;
+pub mod ram_flash;
+pub mod settings;

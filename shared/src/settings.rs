@@ -1,0 +1,240 @@
+//! Typed, versioned settings on `sequential-storage` over any async `NorFlash` (spec §1.3).
+//!
+//! A module's settings are one [`Schema`] value stored as one record, so a change of several
+//! fields is committed atomically. The record is `MAGIC, schema version, fields...` where each
+//! field is `tag, length, bytes`: a newer firmware adds tags, and decoding starts from the
+//! factory defaults, so a record written by an older firmware still loads (missing fields keep
+//! their defaults) and unknown or malformed fields are skipped.
+//!
+//! [`SettingsStore::commit`] returns only once the record is in flash (durable on
+//! acknowledgement); on failure the value in force stays the old one. A blank store, or one that
+//! cannot be read back, gives factory defaults with a log line, and the store keeps working.
+
+use core::ops::Range;
+
+use embedded_storage_async::nor_flash::NorFlash;
+use sequential_storage::cache::{Cache, Uncached};
+use sequential_storage::map::{MapConfig, MapStorage};
+
+/// First byte of every settings record.
+const MAGIC: u8 = 0x5D;
+/// The map key of the settings record.
+const RECORD_KEY: u8 = 1;
+/// Largest encoded record.
+pub const MAX_RECORD: usize = 448;
+/// Work buffer: key + record, rounded up to flash words.
+const BUF_LEN: usize = MAX_RECORD + 64;
+
+/// Builds a record's fields.
+pub struct RecordWriter<'a> {
+    buf: &'a mut [u8],
+    len: usize,
+    overflow: bool,
+}
+
+impl RecordWriter<'_> {
+    /// Appends field `tag` with `value` (at most 255 bytes).
+    pub fn put(&mut self, tag: u8, value: &[u8]) {
+        let end = self.len + 2 + value.len();
+        if value.len() > 255 || end > self.buf.len() {
+            self.overflow = true;
+            return;
+        }
+        self.buf[self.len] = tag;
+        self.buf[self.len + 1] = value.len() as u8;
+        self.buf[self.len + 2..end].copy_from_slice(value);
+        self.len = end;
+    }
+    /// Appends a little-endian `u16` field.
+    pub fn put_u16(&mut self, tag: u8, value: u16) {
+        self.put(tag, &value.to_le_bytes());
+    }
+    /// Appends a little-endian `u32` field.
+    pub fn put_u32(&mut self, tag: u8, value: u32) {
+        self.put(tag, &value.to_le_bytes());
+    }
+}
+
+/// Reads a record's fields.
+#[derive(Clone, Copy)]
+pub struct RecordReader<'a> {
+    fields: &'a [u8],
+}
+
+impl<'a> RecordReader<'a> {
+    /// A reader over raw field bytes (tests).
+    #[doc(hidden)]
+    pub fn default_for_tests(fields: &'a [u8]) -> Self {
+        Self { fields }
+    }
+
+    /// The bytes of field `tag` (the last one if repeated); `None` if absent or truncated.
+    pub fn get(&self, tag: u8) -> Option<&'a [u8]> {
+        let mut rest = self.fields;
+        let mut found = None;
+        while let [t, len, tail @ ..] = rest {
+            let len = usize::from(*len);
+            let value = tail.get(..len)?;
+            if *t == tag {
+                found = Some(value);
+            }
+            rest = &tail[len..];
+        }
+        found
+    }
+    /// Field `tag` as exactly `N` bytes.
+    pub fn array<const N: usize>(&self, tag: u8) -> Option<[u8; N]> {
+        self.get(tag)?.try_into().ok()
+    }
+    /// Field `tag` as a little-endian `u16`.
+    pub fn u16(&self, tag: u8) -> Option<u16> {
+        self.array(tag).map(u16::from_le_bytes)
+    }
+    /// Field `tag` as a little-endian `u32`.
+    pub fn u32(&self, tag: u8) -> Option<u32> {
+        self.array(tag).map(u32::from_le_bytes)
+    }
+}
+
+/// A module's persisted settings.
+pub trait Schema: Clone + PartialEq {
+    /// Version written into new records (increase when fields change meaning).
+    const VERSION: u8;
+    /// Factory defaults.
+    fn defaults() -> Self;
+    /// Writes every field.
+    fn encode(&self, w: &mut RecordWriter<'_>);
+    /// Starts from `defaults()` and takes every field of `r` it knows and finds valid.
+    fn decode(version: u8, r: &RecordReader<'_>) -> Self;
+}
+
+/// Encodes `value` into `out`; returns the record length, or `None` if it does not fit.
+pub fn encode_record<S: Schema>(value: &S, out: &mut [u8]) -> Option<usize> {
+    if out.len() < 2 {
+        return None;
+    }
+    out[0] = MAGIC;
+    out[1] = S::VERSION;
+    let (_, fields) = out.split_at_mut(2);
+    let mut w = RecordWriter { buf: fields, len: 0, overflow: false };
+    value.encode(&mut w);
+    (!w.overflow).then_some(2 + w.len)
+}
+
+/// Decodes a record; `None` if it is not a settings record at all.
+pub fn decode_record<S: Schema>(record: &[u8]) -> Option<S> {
+    match record {
+        [MAGIC, version, fields @ ..] => Some(S::decode(*version, &RecordReader { fields })),
+        _ => None,
+    }
+}
+
+/// Why a commit failed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum StoreError {
+    /// The flash reported an error (or lost power) during the write.
+    Flash,
+    /// The store found its content corrupted.
+    Corrupted,
+    /// The record does not fit.
+    TooLarge,
+}
+
+#[repr(C, align(4))]
+struct Buffer([u8; BUF_LEN]);
+
+/// Where the settings are, how they load, how they commit.
+pub struct SettingsStore<F: NorFlash, S: Schema> {
+    map: MapStorage<u8, F, Cache<Uncached, Uncached, Uncached, u8>>,
+    buf: Buffer,
+    current: S,
+}
+
+impl<F: NorFlash, S: Schema> SettingsStore<F, S> {
+    /// Checks a flash range at compile time when used in a `const` block.
+    pub const fn config(range: Range<u32>) -> MapConfig<F> {
+        MapConfig::new(range)
+    }
+
+    /// Opens the store and loads the settings; factory defaults when blank or unreadable.
+    pub async fn open(flash: F, config: MapConfig<F>) -> Self {
+        let mut store = Self {
+            map: MapStorage::new(flash, config, Cache::new_uncached()),
+            buf: Buffer([0; BUF_LEN]),
+            current: S::defaults(),
+        };
+        store.current = store.load().await;
+        store
+    }
+
+    async fn load(&mut self) -> S {
+        match self.map.fetch_item::<&[u8]>(&mut self.buf.0, &RECORD_KEY).await {
+            Ok(Some(record)) => match decode_record::<S>(record) {
+                Some(value) => value,
+                None => {
+                    crate::warn!("settings: record not recognised, using factory defaults");
+                    S::defaults()
+                }
+            },
+            Ok(None) => {
+                crate::info!("settings: store is blank, using factory defaults");
+                S::defaults()
+            }
+            Err(sequential_storage::Error::Corrupted { .. }) => {
+                crate::error!("settings: store corrupted, erasing it and using factory defaults");
+                if self.map.erase_all().await.is_err() {
+                    crate::error!("settings: erasing the store failed");
+                }
+                S::defaults()
+            }
+            Err(_) => {
+                crate::error!("settings: store unreadable, using factory defaults");
+                S::defaults()
+            }
+        }
+    }
+
+    /// The settings in force.
+    pub fn get(&self) -> &S {
+        &self.current
+    }
+
+    /// Commits `value` to flash, then puts it in force. On error the old value stays in force.
+    pub async fn commit(&mut self, value: S) -> Result<(), StoreError> {
+        let mut record = [0u8; MAX_RECORD];
+        let len = encode_record(&value, &mut record).ok_or(StoreError::TooLarge)?;
+        match self.map.store_item::<&[u8]>(&mut self.buf.0, &RECORD_KEY, &&record[..len]).await {
+            Ok(()) => {
+                self.current = value;
+                Ok(())
+            }
+            Err(sequential_storage::Error::Corrupted { .. }) => {
+                crate::error!("settings: store corrupted during commit");
+                Err(StoreError::Corrupted)
+            }
+            Err(sequential_storage::Error::ItemTooBig | sequential_storage::Error::BufferTooSmall(_)) => {
+                Err(StoreError::TooLarge)
+            }
+            Err(_) => {
+                crate::error!("settings: commit failed");
+                Err(StoreError::Flash)
+            }
+        }
+    }
+
+    /// Commits the settings in force changed by `change` (see [`Self::commit`]).
+    pub async fn update(&mut self, change: impl FnOnce(&mut S)) -> Result<(), StoreError> {
+        let mut value = self.current.clone();
+        change(&mut value);
+        if value == self.current {
+            return Ok(());
+        }
+        self.commit(value).await
+    }
+
+    /// Gives the flash back (e.g. to reopen the store after a simulated restart).
+    pub fn into_flash(self) -> F {
+        self.map.destroy().0
+    }
+}
