@@ -11,3 +11,6 @@ pub mod fmt;
 pub mod modbus;
 pub mod ram_flash;
 pub mod settings;
+pub mod health;
+pub mod identity;
+pub mod net;

@@ -1,0 +1,36 @@
+//! The simulated module's command line (spec host-build.md).
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+use clap::Parser;
+
+/// Options common to both simulated modules.
+#[derive(Debug, Parser)]
+#[command(
+    version,
+    about = "A RemoDAQ-8300 module simulated on this PC: the module's application with simulated inputs, Modbus/TCP on std sockets and settings in a flash image file."
+)]
+pub struct Options {
+    /// Where the Modbus/TCP server listens, as ADDR:PORT. Default: 127.0.0.1 and the port from
+    /// the module's settings (factory default 8000).
+    #[arg(long, value_name = "ADDR:PORT")]
+    pub listen: Option<SocketAddr>,
+
+    /// The settings flash image. Settings survive a restart with the same file; a missing file
+    /// is a blank flash (factory defaults). Default: `remodaq-<model>.flash` in the OS temp dir.
+    #[arg(long, value_name = "FILE")]
+    pub flash: Option<PathBuf>,
+}
+
+impl Options {
+    /// The flash image path, defaulting to a file named after the model in the temp dir.
+    pub fn flash_path(&self, model: &str) -> PathBuf {
+        self.flash.clone().unwrap_or_else(|| std::env::temp_dir().join(format!("remodaq-{model}.flash")))
+    }
+
+    /// The listen address: `--listen`, else 127.0.0.1 on the settings' port.
+    pub fn listen_addr(&self, settings_port: u16) -> SocketAddr {
+        self.listen.unwrap_or_else(|| SocketAddr::from(([127, 0, 0, 1], settings_port)))
+    }
+}

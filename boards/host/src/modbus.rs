@@ -1,0 +1,48 @@
+//! The Modbus/TCP listener of the simulated module: each connection task accepts on the shared
+//! std listener and runs the shared connection server on the socket.
+
+use std::net::{TcpListener, TcpStream};
+
+use async_io::Async;
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::mutex::Mutex;
+use embedded_io_adapters::futures_03::FromFutures;
+use remodaq_shared::modbus::server::{serve, Slots, SOCKETS};
+use remodaq_shared::modbus::RegisterMap;
+
+/// The Modbus/TCP listener.
+pub type Listener = Async<TcpListener>;
+
+/// The connection slots of a module.
+pub type ModbusSlots = Slots<CriticalSectionRawMutex, SOCKETS>;
+
+/// Binds the Modbus/TCP listener.
+pub fn bind(addr: std::net::SocketAddr) -> std::io::Result<Listener> {
+    Async::<TcpListener>::bind(addr)
+}
+
+/// Connection task `slot`: accept, serve until the connection ends, repeat.
+pub async fn connection_task<M: RegisterMap>(
+    listener: &Listener,
+    map: &Mutex<CriticalSectionRawMutex, M>,
+    slots: &ModbusSlots,
+    slot: usize,
+) -> ! {
+    loop {
+        let (stream, peer) = match listener.accept().await {
+            Ok(accepted) => accepted,
+            Err(e) => {
+                log::warn!("modbus: accept failed: {e}");
+                async_io::Timer::after(std::time::Duration::from_millis(100)).await;
+                continue;
+            }
+        };
+        let _ = stream.get_ref().set_nodelay(true);
+        log::debug!("modbus: slot {slot} serves {peer}");
+        let mut io = FromFutures::new(stream);
+        let ended = serve(&mut io, map, slots, slot).await;
+        log::debug!("modbus: slot {slot} closed {peer}: {ended:?}");
+        let stream: Async<TcpStream> = io.into_inner();
+        let _ = stream.get_ref().shutdown(std::net::Shutdown::Both);
+    }
+}
