@@ -61,7 +61,11 @@ impl<F: NorFlash> RegisterMap for Map8318<F> {
             REG_ENABLE_MASK => v <= 0x00FF,
             _ => false,
         });
-        if ok { Ok(()) } else { Err(Exception::IllegalDataValue) }
+        if ok {
+            Ok(())
+        } else {
+            Err(Exception::IllegalDataValue)
+        }
     }
 
     async fn apply(&mut self, start: u16, values: &WriteValues<'_>) -> Result<(), Exception> {

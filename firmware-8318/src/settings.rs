@@ -47,7 +47,11 @@ impl Schema for Settings {
         let d = Self::defaults();
         Self {
             net: NetConfig::decode(r),
-            input_type: r.array::<1>(tag::INPUT_TYPE).map(|[t]| t).filter(|t| INPUT_TYPES.contains(t)).unwrap_or(d.input_type),
+            input_type: r
+                .array::<1>(tag::INPUT_TYPE)
+                .map(|[t]| t)
+                .filter(|t| INPUT_TYPES.contains(t))
+                .unwrap_or(d.input_type),
             cjc_offset: r
                 .array(tag::CJC_OFFSET)
                 .map(i16::from_le_bytes)

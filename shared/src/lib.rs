@@ -8,9 +8,9 @@ extern crate std;
 
 pub mod fmt;
 
-pub mod modbus;
-pub mod ram_flash;
-pub mod settings;
 pub mod health;
 pub mod identity;
+pub mod modbus;
 pub mod net;
+pub mod ram_flash;
+pub mod settings;

@@ -38,7 +38,11 @@ impl NetConfig {
     /// A usable configuration: contiguous mask, unicast address, non-zero port.
     pub fn is_valid(&self) -> bool {
         let ip = u32::from_be_bytes(self.ip);
-        self.prefix_len().is_some_and(|p| (1..=30).contains(&p)) && ip != 0 && self.ip[0] < 224 && self.ip[0] != 127 && self.port != 0
+        self.prefix_len().is_some_and(|p| (1..=30).contains(&p))
+            && ip != 0
+            && self.ip[0] < 224
+            && self.ip[0] != 127
+            && self.port != 0
     }
 
     /// Writes the fields into a settings record.
@@ -58,7 +62,11 @@ impl NetConfig {
             gateway: r.array(tag::GATEWAY).unwrap_or(f.gateway),
             port: r.u16(tag::PORT).unwrap_or(f.port),
         };
-        if cfg.is_valid() { cfg } else { f }
+        if cfg.is_valid() {
+            cfg
+        } else {
+            f
+        }
     }
 }
 

@@ -98,7 +98,7 @@ impl<const SIZE: usize, const PAGE: usize> RamFlash<SIZE, PAGE> {
     /// Blocking erase of `from..to` (page aligned).
     pub fn erase_now(&mut self, from: u32, to: u32) -> Result<(), RamFlashError> {
         let range = Self::range(from, to.saturating_sub(from) as usize)?;
-        if range.start % PAGE != 0 || range.end % PAGE != 0 {
+        if !range.start.is_multiple_of(PAGE) || !range.end.is_multiple_of(PAGE) {
             return Err(RamFlashError::NotAligned);
         }
         for page in range.step_by(PAGE) {
@@ -111,7 +111,7 @@ impl<const SIZE: usize, const PAGE: usize> RamFlash<SIZE, PAGE> {
     /// Blocking write of `data` at `offset` (word aligned); NOR: bits only go from 1 to 0.
     pub fn write_now(&mut self, offset: u32, data: &[u8]) -> Result<(), RamFlashError> {
         let range = Self::range(offset, data.len())?;
-        if range.start % 4 != 0 || data.len() % 4 != 0 {
+        if !range.start.is_multiple_of(4) || !data.len().is_multiple_of(4) {
             return Err(RamFlashError::NotAligned);
         }
         for (i, word) in data.chunks_exact(4).enumerate() {

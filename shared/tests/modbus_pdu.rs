@@ -68,7 +68,10 @@ fn code_15_writes_bits_lsb_first() {
 fn unknown_function_is_exception_01() {
     let mut map = TestMap::default();
     for f in ["07", "08", "11", "17", "2B", "7F", "00"] {
-        assert_eq!(ask(&mut map, &format!("{f} 00 00 00 01")), format!("{:02X} 01", u8::from_str_radix(f, 16).unwrap() | 0x80));
+        assert_eq!(
+            ask(&mut map, &format!("{f} 00 00 00 01")),
+            format!("{:02X} 01", u8::from_str_radix(f, 16).unwrap() | 0x80)
+        );
     }
 }
 
@@ -78,7 +81,10 @@ fn quantity_zero_and_limit_plus_one_are_exception_03() {
     for (f, limit) in [("01", 2000u16), ("02", 2000), ("03", 125), ("04", 125)] {
         assert_eq!(ask(&mut map, &format!("{f} 00 00 00 00")), format!("8{} 03", &f[1..]));
         let over = limit + 1;
-        assert_eq!(ask(&mut map, &format!("{f} 00 00 {:02X} {:02X}", over >> 8, over & 0xFF)), format!("8{} 03", &f[1..]));
+        assert_eq!(
+            ask(&mut map, &format!("{f} 00 00 {:02X} {:02X}", over >> 8, over & 0xFF)),
+            format!("8{} 03", &f[1..])
+        );
     }
     // Write codes: quantity 0 and limit + 1, with a byte count that would match.
     assert_eq!(ask(&mut map, "0F 00 10 00 00 00"), "8F 03");

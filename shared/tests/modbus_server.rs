@@ -87,7 +87,8 @@ fn length_254_is_in_bounds() {
     // The largest legal frame (253-byte PDU) is read whole and answered: here a 123-register
     // write with one byte too many, so exception 03, and the connection stays in sync.
     let values = "00 01 ".repeat(123);
-    let (out, ended) = one(&format!("00 09 00 00 00 FE 01 10 00 00 00 7B F6 {values} 00 00 0A 00 00 00 06 01 03 01 00 00 01"));
+    let (out, ended) =
+        one(&format!("00 09 00 00 00 FE 01 10 00 00 00 7B F6 {values} 00 00 0A 00 00 00 06 01 03 01 00 00 01"));
     assert_eq!(out, hex("00 09 00 00 00 03 01 90 03 00 0A 00 00 00 05 01 03 02 83 18"));
     assert_eq!(ended, Ended::PeerClosed);
 }

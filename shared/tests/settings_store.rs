@@ -125,7 +125,10 @@ fn unknown_and_malformed_fields_are_skipped() {
 
 /// True when a page that held data before reads all erased after.
 fn erased_a_page(before: &[u8; SIZE], after: &[u8; SIZE]) -> bool {
-    before.chunks(PAGE).zip(after.chunks(PAGE)).any(|(b, a)| b.iter().any(|x| *x != 0xFF) && a.iter().all(|x| *x == 0xFF))
+    before
+        .chunks(PAGE)
+        .zip(after.chunks(PAGE))
+        .any(|(b, a)| b.iter().any(|x| *x != 0xFF) && a.iter().all(|x| *x == 0xFF))
 }
 
 #[test]

@@ -34,7 +34,8 @@ pub async fn start<S: Schema>(model: &str, port_of: impl Fn(&S) -> u16) -> Start
     let options = cli::Options::parse();
     let path: PathBuf = options.flash_path(model);
     let flash = flash::FileFlash::open(&path).unwrap_or_else(|e| fail(&format!("flash image {}: {e}", path.display())));
-    let store = SettingsStore::open(flash, const { SettingsStore::<flash::FileFlash, S>::config(0..flash::SIZE as u32) }).await;
+    let store =
+        SettingsStore::open(flash, const { SettingsStore::<flash::FileFlash, S>::config(0..flash::SIZE as u32) }).await;
     let addr = options.listen_addr(port_of(store.get()));
     let listener = modbus::bind(addr).unwrap_or_else(|e| fail(&format!("cannot listen on {addr}: {e}")));
     let local = listener.get_ref().local_addr().map_or(addr, |a| a);

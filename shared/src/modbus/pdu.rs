@@ -53,12 +53,25 @@ fn check_range<M: RegisterMap>(map: &M, table: Table, start: u16, quantity: u16,
     }
     let ok = (0..quantity).all(|i| {
         let access = map.access(table, start + i);
-        if write { access.writable() } else { access.readable() }
+        if write {
+            access.writable()
+        } else {
+            access.readable()
+        }
     });
-    if ok { Ok(()) } else { Err(Exception::IllegalDataAddress) }
+    if ok {
+        Ok(())
+    } else {
+        Err(Exception::IllegalDataAddress)
+    }
 }
 
-async fn execute<M: RegisterMap>(map: &mut M, function: u8, data: &[u8], resp: &mut [u8; MAX_PDU]) -> Result<usize, Exception> {
+async fn execute<M: RegisterMap>(
+    map: &mut M,
+    function: u8,
+    data: &[u8],
+    resp: &mut [u8; MAX_PDU],
+) -> Result<usize, Exception> {
     resp[0] = function;
     match function {
         READ_COILS | READ_DISCRETE_INPUTS => {

@@ -1,0 +1,172 @@
+//! The STM32 board: the Nucleo-F429ZI reference hardware (STM32F429ZI, LAN8742A RMII PHY).
+//! Every pin, clock and peripheral choice of the firmware is made here and nowhere else; a port
+//! to the RemoDAQ PCB changes this crate only.
+#![no_std]
+#![cfg(target_os = "none")]
+
+pub mod modbus;
+
+use embassy_executor::Spawner;
+use embassy_net::{Ipv4Address, Ipv4Cidr, Stack, StackResources, StaticConfigV4};
+use embassy_stm32::eth::{Ethernet, GenericPhy, PacketQueue, Sma};
+use embassy_stm32::flash::{Async, Bank2Region1, Flash};
+use embassy_stm32::gpio::{Level, Output, Speed};
+use embassy_stm32::peripherals::{ETH, ETH_SMA, IWDG};
+use embassy_stm32::rng::Rng;
+use embassy_stm32::time::Hertz;
+use embassy_stm32::wdg::IndependentWatchdog;
+use embassy_stm32::{bind_interrupts, eth, flash, peripherals, rng, Config};
+use embassy_time::{Duration, Timer};
+use remodaq_shared::health::{self, Heartbeat};
+use remodaq_shared::net::{mac_from_uid, NetConfig};
+use remodaq_shared::{error, info};
+use static_cell::StaticCell;
+
+bind_interrupts!(struct Irqs {
+    ETH => eth::InterruptHandler;
+    HASH_RNG => rng::InterruptHandler<peripherals::RNG>;
+    FLASH => flash::InterruptHandler;
+});
+
+/// The Ethernet device of this board.
+pub type Device = Ethernet<'static, ETH, GenericPhy<Sma<'static, ETH_SMA>>>;
+/// The settings flash: bank 2, sectors 12-15 (16 KiB each, 0x0810_0000), see `memory.x`.
+pub type SettingsFlash = Bank2Region1<'static, Async>;
+/// Size of [`SettingsFlash`] used for settings.
+pub const SETTINGS_SIZE: u32 = 64 * 1024;
+
+/// Sockets: Modbus connection tasks plus the discovery socket to come, plus DHCP-free slack.
+const STACK_SOCKETS: usize = remodaq_shared::modbus::server::SOCKETS + 3;
+/// Independent watchdog period; fed every [`FEED_EVERY`] while all watched tasks beat.
+const WATCHDOG_TIMEOUT_US: u32 = 4_000_000;
+const FEED_EVERY: Duration = Duration::from_millis(1000);
+
+/// Liveness of the watched tasks (network, application), read by the watchdog task.
+pub static HEARTBEAT: Heartbeat = Heartbeat::new(health::NET | health::APP);
+
+/// The board's network side, started by [`Board::start`] once the settings are loaded.
+pub struct Board {
+    /// MAC address (from the unique id).
+    pub mac: [u8; 6],
+    parts: Parts,
+}
+
+struct Parts {
+    eth: Device,
+    seed: u64,
+    iwdg: embassy_stm32::Peri<'static, IWDG>,
+    led: Output<'static>,
+}
+
+/// Clocks at 180 MHz from the ST-LINK's 8 MHz MCO (HSE bypass), then the peripherals.
+/// Returns the board and the settings flash.
+pub fn init() -> (Board, SettingsFlash) {
+    let mut config = Config::default();
+    {
+        use embassy_stm32::rcc::*;
+        config.rcc.hse = Some(Hse { freq: Hertz(8_000_000), mode: HseMode::Bypass });
+        config.rcc.pll_src = PllSource::HSE;
+        config.rcc.pll = Some(Pll {
+            prediv: PllPreDiv::DIV4,
+            mul: PllMul::MUL180,
+            divp: Some(PllPDiv::DIV2), // 180 MHz
+            divq: None,
+            divr: None,
+        });
+        config.rcc.ahb_pre = AHBPrescaler::DIV1;
+        config.rcc.apb1_pre = APBPrescaler::DIV4;
+        config.rcc.apb2_pre = APBPrescaler::DIV2;
+        config.rcc.sys = Sysclk::PLL1_P;
+    }
+    let p = embassy_stm32::init(config);
+
+    let mut rng = Rng::new(p.RNG, Irqs);
+    let mut seed = [0u8; 8];
+    rng.fill_bytes(&mut seed);
+
+    let mac = mac_from_uid(&embassy_stm32::uid::uid());
+
+    static PACKETS: StaticCell<PacketQueue<4, 4>> = StaticCell::new();
+    // Nucleo-F429ZI RMII: REF_CLK PA1, MDIO PA2, MDC PC1, CRS_DV PA7, RXD0 PC4, RXD1 PC5,
+    // TX_EN PG11, TXD0 PG13, TXD1 PB13.
+    let eth = Ethernet::new(
+        PACKETS.init(PacketQueue::<4, 4>::new()),
+        p.ETH,
+        Irqs,
+        p.PA1,
+        p.PA7,
+        p.PC4,
+        p.PC5,
+        p.PG13,
+        p.PB13,
+        p.PG11,
+        mac,
+        p.ETH_SMA,
+        p.PA2,
+        p.PC1,
+    );
+
+    let settings_flash = Flash::new(p.FLASH, Irqs).into_regions().bank2_region1;
+    // LD1 (green, PB0): the "identify" LED.
+    let led = Output::new(p.PB0, Level::Low, Speed::Low);
+
+    (Board { mac, parts: Parts { eth, seed: u64::from_le_bytes(seed), iwdg: p.IWDG, led } }, settings_flash)
+}
+
+impl Board {
+    /// Starts the network with the stored settings (QEMU-free static IPv4) and the watchdog.
+    pub fn start(self, spawner: &Spawner, net: &NetConfig) -> Stack<'static> {
+        let Parts { eth, seed, iwdg, led } = self.parts;
+        let prefix = net.prefix_len().unwrap_or(24);
+        let gateway = (net.gateway != [0; 4]).then(|| Ipv4Address::from(net.gateway));
+        let config = embassy_net::Config::ipv4_static(StaticConfigV4 {
+            address: Ipv4Cidr::new(Ipv4Address::from(net.ip), prefix),
+            gateway,
+            dns_servers: heapless::Vec::new(),
+        });
+        static RESOURCES: StaticCell<StackResources<STACK_SOCKETS>> = StaticCell::new();
+        let (stack, runner) = embassy_net::new(eth, config, RESOURCES.init(StackResources::new()), seed);
+        spawn(spawner, net_task(runner), "net");
+        spawn(spawner, watchdog_task(IndependentWatchdog::new(iwdg, WATCHDOG_TIMEOUT_US), led), "watchdog");
+        info!("network: {}.{}.{}.{}/{} port {}", net.ip[0], net.ip[1], net.ip[2], net.ip[3], prefix, net.port);
+        stack
+    }
+}
+
+/// Spawns a task, logging (instead of panicking) if its pool is exhausted.
+pub fn spawn<S>(
+    spawner: &Spawner,
+    token: Result<embassy_executor::SpawnToken<S>, embassy_executor::SpawnError>,
+    name: &str,
+) {
+    match token {
+        Ok(token) => spawner.spawn(token),
+        Err(_) => error!("cannot start task {}", name),
+    }
+}
+
+#[embassy_executor::task]
+async fn net_task(mut runner: embassy_net::Runner<'static, Device>) -> ! {
+    let beat = async {
+        loop {
+            HEARTBEAT.beat(health::NET);
+            Timer::after(FEED_EVERY / 2).await;
+        }
+    };
+    match embassy_futures::select::select(runner.run(), beat).await {
+        embassy_futures::select::Either::First(never) | embassy_futures::select::Either::Second(never) => never,
+    }
+}
+
+#[embassy_executor::task]
+async fn watchdog_task(mut wdg: IndependentWatchdog<'static, IWDG>, _led: Output<'static>) -> ! {
+    wdg.unleash();
+    loop {
+        Timer::after(FEED_EVERY).await;
+        if HEARTBEAT.all_alive() {
+            wdg.pet();
+        } else {
+            error!("watchdog: a task stopped beating, not feeding");
+        }
+    }
+}
