@@ -3,9 +3,8 @@
 use remodaq_shared::net::NetConfig;
 use remodaq_shared::settings::{RecordReader, RecordWriter, Schema};
 
-/// Input type codes of spec §2.2.
-pub const INPUT_TYPES: [u8; 18] =
-    [0x00, 0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x0E, 0x0F, 0x10, 0x11, 0x12, 0x13, 0x14, 0x15, 0x16, 0x17, 0x18];
+use crate::input::InputType;
+
 /// CJC offset limit: ±50.00 °C in 0.01 °C.
 pub const CJC_OFFSET_LIMIT: i16 = 5000;
 
@@ -14,7 +13,7 @@ pub const CJC_OFFSET_LIMIT: i16 = 5000;
 pub struct Settings {
     /// Network settings.
     pub net: NetConfig,
-    /// Input type code (40201), one of [`INPUT_TYPES`].
+    /// Input type code (40201), one of spec §2.2 ([`InputType::from_code`]).
     pub input_type: u8,
     /// CJC offset (40216) in 0.01 °C, within ±[`CJC_OFFSET_LIMIT`].
     pub cjc_offset: i16,
@@ -50,7 +49,7 @@ impl Schema for Settings {
             input_type: r
                 .array::<1>(tag::INPUT_TYPE)
                 .map(|[t]| t)
-                .filter(|t| INPUT_TYPES.contains(t))
+                .filter(|t| InputType::from_code(*t).is_some())
                 .unwrap_or(d.input_type),
             cjc_offset: r
                 .array(tag::CJC_OFFSET)
