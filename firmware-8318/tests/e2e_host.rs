@@ -19,12 +19,18 @@ async fn read(ctx: &mut Context, addr: u16, n: u16) -> Result<Vec<u16>, Exceptio
     timeout(LIMIT, ctx.read_holding_registers(addr, n)).await.expect("answer in time").expect("transport")
 }
 
+/// A fresh (removed) file in this test run's temp dir.
 fn flash_file(name: &str) -> std::path::PathBuf {
-    let dir = std::env::temp_dir().join(format!("remodaq-e2e-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join(name);
+    let path = flash_file_keep(name);
     let _ = std::fs::remove_file(&path);
     path
+}
+
+/// The same path as [`flash_file`], content kept (for a restart).
+fn flash_file_keep(name: &str) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!("remodaq-e2e-8318-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir.join(name)
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -122,4 +128,99 @@ async fn nine_simultaneous_clients_all_get_answers() {
         total_reconnects += timeout(Duration::from_secs(60), task).await.expect("clients finish").expect("client ok");
     }
     eprintln!("9 clients x 30 answers; connections closed to make room: {total_reconnects}");
+}
+
+/// Reads `n` registers until `check` accepts them (values change at the next 100 ms cycle).
+async fn read_until(ctx: &mut Context, addr: u16, n: u16, check: impl Fn(&[u16]) -> bool) -> Vec<u16> {
+    let mut last = Vec::new();
+    for _ in 0..100 {
+        last = read(ctx, addr, n).await.expect("no exception");
+        if check(&last) {
+            return last;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    panic!("registers {addr:#06x}+{n} stayed at {last:04x?}");
+}
+
+async fn write(ctx: &mut Context, addr: u16, value: u16) {
+    let w = timeout(LIMIT, ctx.write_single_register(addr, value)).await.unwrap().unwrap();
+    assert_eq!(w, Ok(()), "write {value:#06x} to {addr:#06x}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn scenario_values_over_modbus() {
+    use remodaq_8318::input::InputType;
+    use remodaq_8318::thermocouple::{Inverse, TcType};
+
+    let dir = flash_file("scenario").with_extension("d");
+    std::fs::create_dir_all(&dir).unwrap();
+    let scenario = dir.join("scenario.toml");
+    std::fs::write(
+        &scenario,
+        "cjc_celsius = 25.0\n[ch0]\nmillivolts = 41.276\n[ch1]\nvolts = 1.2\n[ch2]\nmilliamps = 12.0\n[ch3]\nopen = true\n",
+    )
+    .unwrap();
+    let module = SimModule::start_with(BIN, &flash_file("scenario.flash"), &["--scenario", scenario.to_str().unwrap()]);
+    let mut ctx = connect(module.addr).await;
+
+    // Type K (factory): 41.276 mV at the terminals, cold junction at 25 °C.
+    let Inverse::Celsius(t) = TcType::K.temperature_c(41.276 + TcType::K.emf_mv(25.0).unwrap()) else { panic!() };
+    assert!((t - 1024.5).abs() < 1.5, "hot junction near 1024 °C per the NIST table: {t}");
+    let k = InputType::from_code(0x0F).unwrap();
+    let v = read_until(&mut ctx, 0, 9, |v| v[8] == 2500).await;
+    assert_eq!(v[0], k.raw(t), "thermocouple channel");
+    assert_eq!(v[3], 0xFFFF, "open thermocouple");
+    assert_eq!(v[4], k.raw(25.0), "0 mV reads the cold junction temperature");
+
+    // ±2.5 V: channel 1 at 1.2 V.
+    write(&mut ctx, 0xC8, 0x05).await;
+    let v = read_until(&mut ctx, 0, 9, |v| v[4] == 0x8000).await;
+    assert_eq!(v[1], InputType::from_code(0x05).unwrap().raw(1200.0), "voltage channel");
+    assert_eq!(v[1], 0xBD70);
+
+    // ±20 mA: channel 2 at 12 mA.
+    write(&mut ctx, 0xC8, 0x06).await;
+    let v = read_until(&mut ctx, 0, 9, |v| v[2] == 52428).await;
+    assert_eq!(v[2], InputType::from_code(0x06).unwrap().raw(12.0), "current channel");
+    assert_eq!(v[1], InputType::from_code(0x06).unwrap().raw(9.6), "1.2 V on the 125 ohm shunt reads 9.6 mA");
+
+    // Disabling channels reads 0000h; a CJC offset of -2.00 °C shows in 40009.
+    write(&mut ctx, 0xDC, 0x00F0).await;
+    write(&mut ctx, 0xD7, 0xFF38).await;
+    let v = read_until(&mut ctx, 0, 9, |v| v[8] == 2300).await;
+    assert_eq!(v[..4], [0, 0, 0, 0]);
+
+    // The scenario file is re-read when it changes.
+    std::fs::write(&scenario, "cjc_celsius = 30.0\n[ch4]\nmilliamps = -20.0\n").unwrap();
+    let v = read_until(&mut ctx, 0, 9, |v| v[8] == 2800).await;
+    assert_eq!(v[4], 0);
+
+    // Type code, enable mask and CJC offset survive a restart.
+    module.kill();
+    let module =
+        SimModule::start_with(BIN, &flash_file_keep("scenario.flash"), &["--scenario", scenario.to_str().unwrap()]);
+    let mut ctx = connect(module.addr).await;
+    assert_eq!(read(&mut ctx, 0xC8, 1).await, Ok(vec![0x06]));
+    assert_eq!(read(&mut ctx, 0xD7, 1).await, Ok(vec![0xFF38]));
+    assert_eq!(read(&mut ctx, 0xDC, 1).await, Ok(vec![0x00F0]));
+    read_until(&mut ctx, 0, 9, |v| v[8] == 2800 && v[..4] == [0; 4]).await;
+}
+
+#[test]
+fn bad_scenario_is_a_clear_error() {
+    let dir = flash_file("bad").with_extension("d");
+    std::fs::create_dir_all(&dir).unwrap();
+    let scenario = dir.join("bad.toml");
+    std::fs::write(&scenario, "[ch0]\nmillivolts = 1.0\nvolts = 2.0\n").unwrap();
+    let out = std::process::Command::new(BIN)
+        .args(["--listen", "127.0.0.1:0", "--flash"])
+        .arg(flash_file("bad.flash"))
+        .arg("--scenario")
+        .arg(&scenario)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("line 1") && stderr.contains("exactly one"), "{stderr}");
 }

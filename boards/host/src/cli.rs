@@ -21,6 +21,11 @@ pub struct Options {
     /// is a blank flash (factory defaults). Default: `remodaq-<model>.flash` in the OS temp dir.
     #[arg(long, value_name = "FILE")]
     pub flash: Option<PathBuf>,
+
+    /// The simulated signals at the terminals (TOML, see the README). The file is read again
+    /// when it changes. Without it: 8318 inputs at 0 mV with 25 °C terminals; 8350 inputs low.
+    #[arg(long, value_name = "FILE")]
+    pub scenario: Option<PathBuf>,
 }
 
 impl Options {

@@ -5,6 +5,7 @@
 pub mod cli;
 pub mod flash;
 pub mod modbus;
+pub mod scenario;
 pub mod testing;
 
 /// Logging to stderr through `log`; `RUST_LOG` overrides the default level (info).
@@ -44,7 +45,8 @@ pub async fn start<S: Schema>(model: &str, port_of: impl Fn(&S) -> u16) -> Start
     Started { options, store, listener: Box::leak(Box::new(listener)) }
 }
 
-fn fail(message: &str) -> ! {
+/// Exits the process with a clear message and status 2 (start-up errors).
+pub fn fail(message: &str) -> ! {
     eprintln!("error: {message}");
     std::process::exit(2)
 }

@@ -18,9 +18,15 @@ impl SimModule {
     /// Starts `binary` on an ephemeral loopback port with the flash image `flash`, and waits
     /// (at most 20 s) for its "listening on" log line.
     pub fn start(binary: &str, flash: &Path) -> Self {
+        Self::start_with(binary, flash, &[])
+    }
+
+    /// As [`Self::start`], with more command-line arguments (e.g. `--scenario FILE`).
+    pub fn start_with(binary: &str, flash: &Path, args: &[&str]) -> Self {
         let mut child = Command::new(binary)
             .args(["--listen", "127.0.0.1:0", "--flash"])
             .arg(flash)
+            .args(args)
             .env("RUST_LOG", "info")
             .stdout(Stdio::null())
             .stderr(Stdio::piped())

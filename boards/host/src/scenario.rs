@@ -1,0 +1,207 @@
+//! Scenario files (spec host-build.md): the signals at the simulated module's terminals, in
+//! TOML, re-read when the file changes. A missing or malformed file at start is a clear error
+//! naming the line; a change that breaks the file later is logged (with its line) and the
+//! previous scenario stays in force until the file is fixed.
+
+use std::path::{Path, PathBuf};
+use std::time::SystemTime;
+
+use serde::Deserialize;
+use toml::Spanned;
+
+/// A scenario file and its last good content.
+pub struct Watched<T> {
+    path: PathBuf,
+    modified: Option<SystemTime>,
+    current: T,
+    parse: fn(&str) -> Result<T, String>,
+}
+
+impl<T> Watched<T> {
+    /// Reads and parses `path`; the error names the file and the line.
+    pub fn load(path: &Path, parse: fn(&str) -> Result<T, String>) -> Result<Self, String> {
+        let modified = modified(path);
+        let text = std::fs::read_to_string(path).map_err(|e| format!("scenario {}: {e}", path.display()))?;
+        let current = parse(&text).map_err(|e| format!("scenario {}: {e}", path.display()))?;
+        Ok(Self { path: path.to_path_buf(), modified, current, parse })
+    }
+
+    /// The scenario in force, re-read first if the file changed since the last read.
+    pub fn refresh(&mut self) -> &T {
+        let modified = modified(&self.path);
+        if modified != self.modified {
+            self.modified = modified;
+            match std::fs::read_to_string(&self.path).map_err(|e| e.to_string()).and_then(|t| (self.parse)(&t)) {
+                Ok(new) => {
+                    self.current = new;
+                    log::info!("scenario {}: reloaded", self.path.display());
+                }
+                Err(e) => log::error!("scenario {}: {e}; keeping the previous scenario", self.path.display()),
+            }
+        }
+        &self.current
+    }
+}
+
+fn modified(path: &Path) -> Option<SystemTime> {
+    std::fs::metadata(path).and_then(|m| m.modified()).ok()
+}
+
+/// 1-based line of byte `offset` in `text`.
+fn line_of(text: &str, offset: usize) -> usize {
+    text[..offset.min(text.len())].matches('\n').count() + 1
+}
+
+fn toml_error(e: toml::de::Error, text: &str) -> String {
+    match e.span() {
+        Some(span) => format!("line {}: {}", line_of(text, span.start), e.message()),
+        None => e.message().to_string(),
+    }
+}
+
+/// What is connected to an analog input's terminals (8318).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Terminal {
+    /// A voltage or thermocouple emf, mV.
+    Millivolts(f64),
+    /// A voltage, V.
+    Volts(f64),
+    /// A current through the input's shunt, mA.
+    Milliamps(f64),
+    /// Nothing: an open input (a burnt-out thermocouple).
+    Open,
+}
+
+/// The 8318's terminals.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Analog {
+    /// Cold-junction (terminal block) temperature, °C.
+    pub cjc_celsius: f64,
+    /// Channels 0-7.
+    pub channels: [Terminal; 8],
+}
+
+impl Default for Analog {
+    /// Without a scenario: 25 °C terminals, 0 mV on every channel.
+    fn default() -> Self {
+        Self { cjc_celsius: 25.0, channels: [Terminal::Millivolts(0.0); 8] }
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawAnalog {
+    cjc_celsius: Option<f64>,
+    ch0: Option<Spanned<RawChannel>>,
+    ch1: Option<Spanned<RawChannel>>,
+    ch2: Option<Spanned<RawChannel>>,
+    ch3: Option<Spanned<RawChannel>>,
+    ch4: Option<Spanned<RawChannel>>,
+    ch5: Option<Spanned<RawChannel>>,
+    ch6: Option<Spanned<RawChannel>>,
+    ch7: Option<Spanned<RawChannel>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawChannel {
+    millivolts: Option<f64>,
+    volts: Option<f64>,
+    milliamps: Option<f64>,
+    open: Option<bool>,
+}
+
+/// Parses an 8318 scenario.
+pub fn parse_analog(text: &str) -> Result<Analog, String> {
+    let raw: RawAnalog = toml::from_str(text).map_err(|e| toml_error(e, text))?;
+    let mut analog = Analog { cjc_celsius: raw.cjc_celsius.unwrap_or(25.0), ..Analog::default() };
+    if !analog.cjc_celsius.is_finite() {
+        return Err("cjc_celsius must be a finite number".into());
+    }
+    let channels = [raw.ch0, raw.ch1, raw.ch2, raw.ch3, raw.ch4, raw.ch5, raw.ch6, raw.ch7];
+    for (n, channel) in channels.into_iter().enumerate() {
+        let Some(channel) = channel else { continue };
+        let line = line_of(text, channel.span().start);
+        let c = channel.into_inner();
+        let given = [
+            c.millivolts.map(Terminal::Millivolts),
+            c.volts.map(Terminal::Volts),
+            c.milliamps.map(Terminal::Milliamps),
+        ];
+        let mut terminals: Vec<Terminal> = given.into_iter().flatten().collect();
+        match c.open {
+            Some(true) => terminals.push(Terminal::Open),
+            Some(false) if terminals.is_empty() => terminals.push(Terminal::Millivolts(0.0)),
+            _ => {}
+        }
+        match terminals.as_slice() {
+            [t] if !matches!(t, Terminal::Millivolts(v) | Terminal::Volts(v) | Terminal::Milliamps(v) if !v.is_finite()) => {
+                analog.channels[n] = *t
+            }
+            [_] => return Err(format!("line {line}: [ch{n}] value must be a finite number")),
+            _ => {
+                return Err(format!(
+                    "line {line}: [ch{n}] needs exactly one of millivolts, volts, milliamps, open = true"
+                ))
+            }
+        }
+    }
+    Ok(analog)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_spec_example() {
+        let text = "cjc_celsius = 25.0\n\n[ch0]\nmillivolts = 41.276\n[ch1]\nvolts = 1.2\n[ch2]\nmilliamps = 12.0\n[ch3]\nopen = true\n";
+        let a = parse_analog(text).unwrap();
+        assert_eq!(a.cjc_celsius, 25.0);
+        assert_eq!(
+            a.channels[..5],
+            [
+                Terminal::Millivolts(41.276),
+                Terminal::Volts(1.2),
+                Terminal::Milliamps(12.0),
+                Terminal::Open,
+                Terminal::Millivolts(0.0)
+            ]
+        );
+        assert_eq!(parse_analog("").unwrap(), Analog::default());
+    }
+
+    #[test]
+    fn errors_name_the_line() {
+        let e = parse_analog("cjc_celsius = 20\n[ch0]\nmillivolts = 1\nvolts = 2\n").unwrap_err();
+        assert!(e.starts_with("line 2:") && e.contains("exactly one"), "{e}");
+        let e = parse_analog("[ch1]\nmillivolts = 1\n\n[ch9]\nvolts = 1\n").unwrap_err();
+        assert!(e.starts_with("line 4:"), "{e}");
+        let e = parse_analog("[ch0]\nmilivolts = 1\n").unwrap_err();
+        assert!(e.starts_with("line 2:"), "{e}");
+        let e = parse_analog("[ch0]\nmillivolts = \"a\"\n").unwrap_err();
+        assert!(e.starts_with("line 2:"), "{e}");
+        let e = parse_analog("cjc_celsius = 20\nnot toml at all\n").unwrap_err();
+        assert!(e.starts_with("line 2:"), "{e}");
+        let e = parse_analog("[ch0]\nmillivolts = nan\n").unwrap_err();
+        assert!(e.contains("finite"), "{e}");
+    }
+
+    #[test]
+    fn a_broken_change_keeps_the_previous_scenario() {
+        let dir = std::env::temp_dir().join(format!("remodaq-scenario-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("s.toml");
+        std::fs::write(&path, "[ch0]\nvolts = 1.0\n").unwrap();
+        let mut w = Watched::load(&path, parse_analog).unwrap();
+        assert_eq!(w.refresh().channels[0], Terminal::Volts(1.0));
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        std::fs::write(&path, "[ch0]\nvolts = \n").unwrap();
+        assert_eq!(w.refresh().channels[0], Terminal::Volts(1.0));
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        std::fs::write(&path, "[ch0]\nvolts = 2.0\n").unwrap();
+        assert_eq!(w.refresh().channels[0], Terminal::Volts(2.0));
+        assert!(Watched::load(&dir.join("missing.toml"), parse_analog).err().unwrap().contains("missing.toml"));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
