@@ -33,7 +33,7 @@ pub enum Measurement {
 #[allow(async_fn_in_trait)]
 pub trait AnalogFrontEnd {
     /// A conversion failed.
-    type Error: core::fmt::Debug;
+    type Error: remodaq_shared::fmt::Loggable;
 
     /// Converts `channel` (0..8) with a gain that covers ±`span_mv` at the terminals. With
     /// `detect_open` (thermocouples), an open input is reported as [`Measurement::Open`].

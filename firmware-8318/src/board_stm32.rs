@@ -7,14 +7,16 @@ use embassy_executor::Spawner;
 use embassy_net::Stack;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::mutex::Mutex;
-use embassy_time::{Duration, Ticker};
+use remodaq_8318::acquisition::{self, AnalogFrontEnd, Measurement};
+use remodaq_8318::ad7124::{ntc_celsius, Ad7124, Error as AdcError};
 use remodaq_8318::map::Map8318;
 use remodaq_8318::settings::Settings;
+use remodaq_board_stm32::analog::{AdcSpi, NtcInput};
 use remodaq_board_stm32::modbus::{connection_task, ModbusSlots};
 use remodaq_board_stm32::{spawn, SettingsFlash, HEARTBEAT, SETTINGS_SIZE};
-use remodaq_shared::health;
 use remodaq_shared::modbus::server::{Slots, MAX_CONNECTIONS, SOCKETS};
 use remodaq_shared::settings::SettingsStore;
+use remodaq_shared::{error, health};
 use static_cell::StaticCell;
 
 type Map = Mutex<CriticalSectionRawMutex, Map8318<SettingsFlash>>;
@@ -24,7 +26,7 @@ static SLOTS: ModbusSlots = Slots::new(MAX_CONNECTIONS);
 
 /// Starts the module's tasks.
 pub async fn run(spawner: Spawner) {
-    let (board, settings_flash) = remodaq_board_stm32::init();
+    let (board, settings_flash, io) = remodaq_board_stm32::init();
     let store = SettingsStore::<SettingsFlash, Settings>::open(
         settings_flash,
         const { SettingsStore::<SettingsFlash, Settings>::config(0..SETTINGS_SIZE) },
@@ -36,7 +38,8 @@ pub async fn run(spawner: Spawner) {
     for slot in 0..SOCKETS {
         spawn(&spawner, modbus_task(stack, net.port, map, slot), "modbus");
     }
-    spawn(&spawner, app_task(map), "app");
+    let (spi, ntc) = io.analog.start();
+    spawn(&spawner, app_task(FrontEnd { adc: Ad7124::new(spi), ntc, ready: false }, map), "app");
 }
 
 #[embassy_executor::task(pool_size = SOCKETS)]
@@ -44,14 +47,59 @@ async fn modbus_task(stack: Stack<'static>, port: u16, map: &'static Map, slot: 
     connection_task(stack, port, map, &SLOTS, slot).await
 }
 
-/// The application cycle (10 Hz): takes the register map's lock each cycle, so a request stuck
-/// holding it stops the heartbeat and the watchdog resets the module.
+/// The acquisition cycle (10 Hz); each completed cycle is the application's heartbeat.
 #[embassy_executor::task]
-async fn app_task(map: &'static Map) -> ! {
-    let mut ticker = Ticker::every(Duration::from_millis(100));
-    loop {
-        ticker.next().await;
-        drop(map.lock().await);
-        HEARTBEAT.beat(health::APP);
+async fn app_task(mut fe: FrontEnd, map: &'static Map) -> ! {
+    acquisition::run(&mut fe, map, || HEARTBEAT.beat(health::APP)).await
+}
+
+/// The analog front end of this board: the AD7124-8 and the cold-junction NTC. A chip that
+/// fails to initialise is tried again at the next conversion (its channels read FFFFh).
+struct FrontEnd {
+    adc: Ad7124<AdcSpi>,
+    ntc: NtcInput,
+    ready: bool,
+}
+
+/// Why the front end could not convert.
+#[derive(Debug, defmt::Format)]
+enum FrontEndError {
+    /// The AD7124-8 did not answer as expected.
+    Adc,
+    /// The NTC reads shorted or open.
+    Ntc,
+}
+
+impl FrontEnd {
+    async fn adc<T>(
+        &mut self,
+        result: Result<
+            T,
+            AdcError<embedded_hal_bus::spi::DeviceError<embassy_stm32::spi::Error, core::convert::Infallible>>,
+        >,
+    ) -> Result<T, FrontEndError> {
+        result.map_err(|e| {
+            self.ready = false;
+            error!("AD7124-8: {}", defmt::Debug2Format(&e));
+            FrontEndError::Adc
+        })
+    }
+}
+
+impl AnalogFrontEnd for FrontEnd {
+    type Error = FrontEndError;
+
+    async fn measure(&mut self, channel: u8, span_mv: f64, detect_open: bool) -> Result<Measurement, Self::Error> {
+        if !self.ready {
+            let init = self.adc.init().await;
+            self.adc(init).await?;
+            self.ready = true;
+        }
+        let m = self.adc.measure(channel, span_mv, detect_open).await;
+        Ok(self.adc(m).await?.map_or(Measurement::Open, Measurement::Millivolts))
+    }
+
+    async fn cold_junction_c(&mut self) -> Result<f64, Self::Error> {
+        ntc_celsius(self.ntc.ratio()).ok_or(FrontEndError::Ntc)
     }
 }

@@ -5,6 +5,7 @@
 #![warn(missing_docs)]
 
 pub mod acquisition;
+pub mod ad7124;
 pub mod input;
 pub mod map;
 pub mod settings;

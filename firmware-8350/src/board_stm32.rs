@@ -24,7 +24,7 @@ static SLOTS: ModbusSlots = Slots::new(MAX_CONNECTIONS);
 
 /// Starts the module's tasks.
 pub async fn run(spawner: Spawner) {
-    let (board, settings_flash) = remodaq_board_stm32::init();
+    let (board, settings_flash, _io) = remodaq_board_stm32::init();
     let store = SettingsStore::<SettingsFlash, Settings>::open(
         settings_flash,
         const { SettingsStore::<SettingsFlash, Settings>::config(0..SETTINGS_SIZE) },

@@ -43,3 +43,16 @@ macro_rules! warn { ($($arg:tt)*) => { $crate::__log!(warn, $($arg)*) }; }
 /// Log at error level.
 #[macro_export]
 macro_rules! error { ($($arg:tt)*) => { $crate::__log!(error, $($arg)*) }; }
+
+/// What a value needs to be logged with `{:?}` by every backend: `Debug`, and on the target
+/// `defmt::Format`. Use it as the bound of generic error types that are logged.
+#[cfg(feature = "defmt")]
+pub trait Loggable: core::fmt::Debug + defmt::Format {}
+#[cfg(feature = "defmt")]
+impl<T: core::fmt::Debug + defmt::Format + ?Sized> Loggable for T {}
+
+/// What a value needs to be logged with `{:?}` by every backend (here: `Debug`).
+#[cfg(not(feature = "defmt"))]
+pub trait Loggable: core::fmt::Debug {}
+#[cfg(not(feature = "defmt"))]
+impl<T: core::fmt::Debug + ?Sized> Loggable for T {}

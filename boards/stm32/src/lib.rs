@@ -4,6 +4,7 @@
 #![no_std]
 #![cfg(target_os = "none")]
 
+pub mod analog;
 pub mod modbus;
 
 use embassy_executor::Spawner;
@@ -58,9 +59,15 @@ struct Parts {
     led: Output<'static>,
 }
 
+/// The peripherals reserved for the modules' I/O, started by the module's board file.
+pub struct Io {
+    /// The 8318's analog front end.
+    pub analog: analog::AnalogPeripherals,
+}
+
 /// Clocks at 180 MHz from the ST-LINK's 8 MHz MCO (HSE bypass), then the peripherals.
-/// Returns the board and the settings flash.
-pub fn init() -> (Board, SettingsFlash) {
+/// Returns the board, the settings flash and the module I/O peripherals.
+pub fn init() -> (Board, SettingsFlash, Io) {
     let mut config = Config::default();
     {
         use embassy_stm32::rcc::*;
@@ -110,7 +117,20 @@ pub fn init() -> (Board, SettingsFlash) {
     // LD1 (green, PB0): the "identify" LED.
     let led = Output::new(p.PB0, Level::Low, Speed::Low);
 
-    (Board { mac, parts: Parts { eth, seed: u64::from_le_bytes(seed), iwdg: p.IWDG, led } }, settings_flash)
+    let io = Io {
+        analog: analog::AnalogPeripherals {
+            spi: p.SPI1,
+            sck: p.PB3,
+            miso: p.PB4,
+            mosi: p.PB5,
+            cs: p.PD14,
+            tx_dma: p.DMA2_CH3,
+            rx_dma: p.DMA2_CH2,
+            adc: p.ADC1,
+            ntc: p.PA3,
+        },
+    };
+    (Board { mac, parts: Parts { eth, seed: u64::from_le_bytes(seed), iwdg: p.IWDG, led } }, settings_flash, io)
 }
 
 impl Board {

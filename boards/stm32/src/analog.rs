@@ -1,0 +1,62 @@
+//! The 8318's analog front end on this board: an AD7124-8 on SPI1 (mode 3, 4 MHz, DMA) with
+//! its chip select on PD14, and the cold-junction NTC divider (10 kohm from VDDA, NTC to
+//! ground) on ADC1 at PA3, read ratiometrically against VDDA. On the Nucleo-F429ZI: SCK PB3,
+//! MISO PB4, MOSI PB5 (SPI1's alternate pins: PA7 is the Ethernet's CRS_DV), CS PD14 (D10),
+//! NTC PA3 (A0).
+
+use embassy_stm32::adc::{Adc, SampleTime};
+use embassy_stm32::gpio::{Level, Output, Speed};
+use embassy_stm32::mode::Async;
+use embassy_stm32::peripherals::{ADC1, DMA2_CH2, DMA2_CH3, PA3, PB3, PB4, PB5, PD14, SPI1};
+use embassy_stm32::spi::{self, Spi, MODE_3};
+use embassy_stm32::time::Hertz;
+use embassy_stm32::{bind_interrupts, dma, Peri};
+use embassy_time::Delay;
+use embedded_hal_bus::spi::ExclusiveDevice;
+
+bind_interrupts!(struct Irqs {
+    DMA2_STREAM2 => dma::InterruptHandler<DMA2_CH2>;
+    DMA2_STREAM3 => dma::InterruptHandler<DMA2_CH3>;
+});
+
+/// The AD7124-8 as an `embedded-hal-async` SPI device.
+pub type AdcSpi = ExclusiveDevice<Spi<'static, Async, spi::mode::Master>, Output<'static>, Delay>;
+
+/// The peripherals reserved for the analog front end.
+pub struct AnalogPeripherals {
+    pub(crate) spi: Peri<'static, SPI1>,
+    pub(crate) sck: Peri<'static, PB3>,
+    pub(crate) miso: Peri<'static, PB4>,
+    pub(crate) mosi: Peri<'static, PB5>,
+    pub(crate) cs: Peri<'static, PD14>,
+    pub(crate) tx_dma: Peri<'static, DMA2_CH3>,
+    pub(crate) rx_dma: Peri<'static, DMA2_CH2>,
+    pub(crate) adc: Peri<'static, ADC1>,
+    pub(crate) ntc: Peri<'static, PA3>,
+}
+
+/// The cold-junction sensor input.
+pub struct NtcInput {
+    adc: Adc<'static, ADC1>,
+    pin: Peri<'static, PA3>,
+}
+
+impl NtcInput {
+    /// V(NTC) / VDDA, 0..1.
+    pub fn ratio(&mut self) -> f64 {
+        f64::from(self.adc.blocking_read(&mut self.pin, SampleTime::CYCLES480)) / 4095.0
+    }
+}
+
+impl AnalogPeripherals {
+    /// Brings up the SPI bus and the ADC: the AD7124-8 device and the NTC input.
+    pub fn start(self) -> (AdcSpi, NtcInput) {
+        let mut config = spi::Config::default();
+        config.mode = MODE_3;
+        config.frequency = Hertz(4_000_000);
+        let bus = Spi::new(self.spi, self.sck, self.mosi, self.miso, self.tx_dma, self.rx_dma, Irqs, config);
+        let cs = Output::new(self.cs, Level::High, Speed::High);
+        let Ok(device) = ExclusiveDevice::new(bus, cs, Delay);
+        (device, NtcInput { adc: Adc::new(self.adc), pin: self.ntc })
+    }
+}

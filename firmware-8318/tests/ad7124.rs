@@ -1,0 +1,195 @@
+//! The AD7124-8 driver against a register-level fake of the chip: the fake decodes the
+//! communications byte, keeps the register file, and converts the configured channel's input
+//! voltage with the configured gain, as the datasheet describes.
+
+use std::collections::HashMap;
+
+use embedded_hal_async::spi::{ErrorType, Operation, SpiDevice};
+use futures_executor::block_on;
+use remodaq_8318::ad7124::{code_to_mv, gain_for_span, ntc_celsius, reg, Ad7124, Error};
+
+#[derive(Default)]
+struct FakeChip {
+    regs: HashMap<u8, u32>,
+    /// Input voltage per pair, mV; `None` = open.
+    inputs: [Option<f64>; 8],
+    /// Every register write, in order.
+    writes: Vec<(u8, u32)>,
+    resets: usize,
+    /// Conversions that never finish (a dead chip).
+    stuck: bool,
+    id: u8,
+}
+
+impl FakeChip {
+    fn new() -> Self {
+        Self { id: 0x14, ..Self::default() }
+    }
+
+    fn reg(&self, addr: u8) -> u32 {
+        match addr {
+            reg::ID => u32::from(self.id),
+            reg::STATUS => *self.regs.get(&addr).unwrap_or(&0x80),
+            _ => *self.regs.get(&addr).unwrap_or(&0),
+        }
+    }
+
+    fn convert(&mut self) {
+        let channel = self.reg(reg::CHANNEL_0);
+        let setup = ((channel >> 12) & 7) as u8;
+        let ainp = ((channel >> 5) & 0x1F) as usize;
+        let ainm = (channel & 0x1F) as usize;
+        assert!(channel & 0x8000 != 0, "channel enabled");
+        assert_eq!(ainm, ainp + 1, "differential pair");
+        let config = self.reg(reg::CONFIG_0 + setup);
+        assert!(config & (1 << 11) != 0, "bipolar");
+        assert_eq!((config >> 3) & 3, 0b10, "internal reference");
+        let gain = 1u32 << (config & 7);
+        let burnout = (config >> 9) & 3;
+        let (code, error) = match (self.inputs[ainp / 2], burnout) {
+            (None, 0) => (0x80_0123, false), // floating: some small reading
+            (None, _) => (0xFF_FFFF, true),  // pulled to positive full scale, saturated
+            (Some(mv), _) => {
+                let x = (mv * f64::from(gain) / 2500.0 * 8_388_608.0 + 8_388_608.0).round();
+                let saturated = !(0.0..=16_777_215.0).contains(&x);
+                (x.clamp(0.0, 16_777_215.0) as u32, saturated)
+            }
+        };
+        self.regs.insert(reg::DATA, code);
+        self.regs.insert(reg::STATUS, if error { 0x40 } else { 0 });
+    }
+}
+
+impl ErrorType for FakeChip {
+    type Error = core::convert::Infallible;
+}
+
+impl SpiDevice for FakeChip {
+    async fn transaction(&mut self, operations: &mut [Operation<'_, u8>]) -> Result<(), Self::Error> {
+        match operations {
+            [Operation::Write(bytes)] if bytes.iter().all(|b| *b == 0xFF) && bytes.len() == 8 => {
+                self.resets += 1;
+                self.regs.clear();
+            }
+            [Operation::Write(bytes)] => {
+                let addr = bytes[0] & 0x3F;
+                assert_eq!(bytes[0] & 0xC0, 0, "write: WEN and R/W low");
+                assert_eq!(bytes.len() - 1, reg::size(addr), "register {addr:#x} size");
+                let value = bytes[1..].iter().fold(0u32, |a, b| a << 8 | u32::from(*b));
+                self.writes.push((addr, value));
+                self.regs.insert(addr, value);
+                if addr == reg::ADC_CONTROL && (value >> 2) & 0xF == 1 && !self.stuck {
+                    self.convert();
+                }
+            }
+            [Operation::Write([comms]), Operation::Read(buf)] => {
+                assert_eq!(*comms & 0xC0, 0x40, "read: R/W high");
+                let addr = *comms & 0x3F;
+                assert_eq!(buf.len(), reg::size(addr), "register {addr:#x} size");
+                let value = self.reg(addr);
+                let n = buf.len();
+                for (i, b) in buf.iter_mut().enumerate() {
+                    *b = (value >> (8 * (n - 1 - i))) as u8;
+                }
+                if addr == reg::DATA {
+                    self.regs.insert(reg::STATUS, 0x80);
+                }
+            }
+            other => panic!("unexpected SPI transaction of {} operations", other.len()),
+        }
+        Ok(())
+    }
+}
+
+/// CONFIG bits: bipolar | REF_BUFP | REF_BUFM | AIN_BUFP | AIN_BUFM | REF_SEL = internal.
+const CONFIG: u32 = 0x800 | 0x100 | 0x080 | 0x040 | 0x020 | 0b10 << 3;
+/// CONFIG burnout field: 4 µA.
+const BURNOUT_4UA: u32 = 0b11 << 9;
+
+#[test]
+fn init_resets_checks_id_and_configures() {
+    let mut adc = Ad7124::new(FakeChip::new());
+    block_on(adc.init()).unwrap();
+    let chip = adc.into_inner();
+    assert_eq!(chip.resets, 1);
+    assert_eq!(chip.writes, vec![(reg::ADC_CONTROL, 0x0188), (reg::FILTER_0, 30), (reg::FILTER_0 + 1, 4)]);
+}
+
+#[test]
+fn wrong_id_is_an_error() {
+    let mut adc = Ad7124::new(FakeChip { id: 0x00, ..FakeChip::new() });
+    assert_eq!(block_on(adc.init()), Err(Error::Id(0x00)));
+}
+
+#[test]
+fn measures_each_pair_with_the_gain_of_its_span() {
+    let mut chip = FakeChip::new();
+    chip.inputs =
+        [Some(41.276), Some(-12.5), Some(1200.0), Some(-2400.0), Some(0.0), Some(99.0), Some(-0.001), Some(14.9)];
+    let mut adc = Ad7124::new(chip);
+    block_on(async {
+        adc.init().await.unwrap();
+        for (pair, span, mv) in
+            [(0u8, 100.0, 41.276), (1, 15.0, -12.5), (2, 2500.0, 1200.0), (3, 2500.0, -2400.0), (7, 15.0, 14.9)]
+        {
+            let got = adc.measure(pair, span, false).await.unwrap().unwrap();
+            let lsb = 2500.0 / f64::from(1u16 << gain_for_span(span)) / 8_388_608.0;
+            assert!((got - mv).abs() <= lsb, "pair {pair}: {got} mV, expected {mv}");
+        }
+    });
+    let chip = adc.into_inner();
+    // Pair 1 at ±15 mV: gain 128; CHANNEL_0 = enable | setup 0 | AIN2 | AIN3.
+    assert!(chip.writes.contains(&(reg::CONFIG_0, CONFIG | 7)), "{:x?}", chip.writes);
+    assert!(chip.writes.contains(&(reg::CHANNEL_0, 0x8000 | 2 << 5 | 3)));
+    // The same config is not rewritten for consecutive conversions at the same gain.
+    let config_writes = chip.writes.iter().filter(|w| w.0 == reg::CONFIG_0).count();
+    assert_eq!(config_writes, 4, "gains 16, 128, 1, 128: {:?}", chip.writes);
+}
+
+#[test]
+fn open_thermocouple_is_detected_with_burnout_currents_only_on_the_check() {
+    let mut chip = FakeChip::new();
+    chip.inputs[2] = None;
+    chip.inputs[3] = Some(20.0);
+    let mut adc = Ad7124::new(chip);
+    block_on(async {
+        adc.init().await.unwrap();
+        assert_eq!(adc.measure(2, 100.0, true).await.unwrap(), None);
+        let mv = adc.measure(3, 100.0, true).await.unwrap().unwrap();
+        assert!((mv - 20.0).abs() < 1e-4);
+    });
+    let chip = adc.into_inner();
+    // Setup 1 (open check) has the 4 µA burnout currents, setup 0 (measurement) has none.
+    assert!(chip.writes.contains(&(reg::CONFIG_0 + 1, CONFIG | BURNOUT_4UA | 4)), "{:x?}", chip.writes);
+    assert!(chip.writes.contains(&(reg::CONFIG_0, CONFIG | 4)));
+}
+
+#[test]
+fn a_stuck_conversion_times_out() {
+    let mut adc = Ad7124::new(FakeChip { stuck: true, ..FakeChip::new() });
+    block_on(async {
+        adc.init().await.unwrap();
+        assert_eq!(adc.measure(0, 100.0, false).await, Err(Error::Timeout));
+    });
+}
+
+#[test]
+fn gains_and_codes() {
+    assert_eq!([15.0, 50.0, 100.0, 500.0, 1000.0, 2500.0].map(gain_for_span), [7, 5, 4, 2, 1, 0]);
+    assert_eq!(code_to_mv(0x80_0000, 0), 0.0);
+    assert_eq!(code_to_mv(0, 0), -2500.0);
+    assert_eq!(code_to_mv(0xC0_0000, 4), 2500.0 / 2.0 / 16.0);
+}
+
+#[test]
+fn ntc_temperatures() {
+    assert!((ntc_celsius(0.5).unwrap() - 25.0).abs() < 1e-9);
+    // 10 kohm / beta 3435: R(T) = 10k exp(3435 (1/T - 1/298.15)): 28.70 kohm at 0 °C,
+    // 4.101 kohm at 50 °C; the divider ratio is R / (10k + R).
+    for (t, r) in [(0.0, 28_703.0), (50.0, 4_101.2)] {
+        let got = ntc_celsius(r / (10_000.0 + r)).unwrap();
+        assert!((got - t).abs() < 0.01, "{r} ohm: {got} °C");
+    }
+    assert_eq!(ntc_celsius(0.0), None);
+    assert_eq!(ntc_celsius(1.0), None);
+}
