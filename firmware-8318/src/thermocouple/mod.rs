@@ -8,9 +8,10 @@
 //! polynomials are good to ±0.05 °C only and leave gaps.
 //!
 //! f64, not f32: the polynomials reach t^14 with alternating coefficients, and f32 round-off
-//! alone costs hundredths of a degree; the Cortex-M4F has no double-precision FPU, so f64 is
-//! emulated, and the cost is measured by `examples/tc_accuracy.rs` (a few thousand cycles per
-//! conversion, a fraction of a percent of the CPU at 10 Hz x 8 channels).
+//! alone costs hundredths of a degree. The Cortex-M4F has no double-precision FPU, so f64 is
+//! emulated: `tools/m4-cost` measures 15 000 to 45 000 instructions per conversion (type M to
+//! type K), at most 0.25 ms at 180 MHz, so 8 channels at 10 Hz take about 2 % of the CPU.
+//! `examples/tc_accuracy.rs` measures the accuracy (largest deviation 1e-7 °C).
 
 mod nist;
 mod other;
@@ -90,6 +91,23 @@ impl TcType {
         TcType::L,
         TcType::M,
     ];
+
+    /// The type's letter.
+    pub fn letter(self) -> &'static str {
+        match self {
+            TcType::B => "B",
+            TcType::C => "C",
+            TcType::E => "E",
+            TcType::J => "J",
+            TcType::K => "K",
+            TcType::L => "L",
+            TcType::M => "M",
+            TcType::N => "N",
+            TcType::R => "R",
+            TcType::S => "S",
+            TcType::T => "T",
+        }
+    }
 
     /// The subranges of the reference function.
     pub fn pieces(self) -> &'static [Piece] {

@@ -1,0 +1,93 @@
+//! Cost of one thermocouple conversion (emf -> °C, f64) on a Cortex-M4F, measured in QEMU
+//! (netduinoplus2: an STM32F405, Cortex-M4F, with the STM32F429's memory layout) with
+//! `-icount shift=0`: virtual time then advances 1 ns per instruction and SysTick (core clock)
+//! follows it, so a run's tick count is proportional to the instructions it executed; a
+//! calibration loop of known length gives the ratio on every run.
+//!
+//! Run: `tools/m4-cost/run` (builds for thumbv7em-none-eabihf and starts QEMU).
+#![cfg_attr(target_os = "none", no_std, no_main)]
+
+#[cfg(not(target_os = "none"))]
+fn main() {
+    eprintln!("m4-cost runs on the target: use tools/m4-cost/run");
+}
+
+#[cfg(target_os = "none")]
+mod target {
+    use core::hint::black_box;
+
+    use cortex_m::peripheral::syst::SystClkSource;
+    use cortex_m_rt::entry;
+    use cortex_m_semihosting::{debug, hprintln};
+    use remodaq_8318::thermocouple::TcType;
+
+    const POINTS: u32 = 64;
+
+    fn now() -> u32 {
+        // SysTick counts down from its reload value.
+        0x00FF_FFFF - cortex_m::peripheral::SYST::get_current()
+    }
+
+    /// SysTick ticks taken by `f` (less than 2^24, i.e. 0.67 s of virtual time).
+    fn ticks(f: impl FnOnce()) -> u32 {
+        let start = now();
+        f();
+        now().wrapping_sub(start) & 0x00FF_FFFF
+    }
+
+    /// Device interrupt vectors: none are used. (cortex-m-rt's `device` feature is switched on
+    /// by the STM32 crates that `firmware-8318`'s target dependencies bring along.)
+    #[unsafe(link_section = ".vector_table.interrupts")]
+    #[unsafe(no_mangle)]
+    static __INTERRUPTS: [usize; 32] = [0; 32];
+
+    #[panic_handler]
+    fn panic(_: &core::panic::PanicInfo) -> ! {
+        debug::exit(debug::EXIT_FAILURE);
+        loop {
+            cortex_m::asm::wfi();
+        }
+    }
+
+    #[entry]
+    fn main() -> ! {
+        let Some(mut p) = cortex_m::Peripherals::take() else { panic!() };
+        p.SYST.set_clock_source(SystClkSource::Core);
+        p.SYST.set_reload(0x00FF_FFFF);
+        p.SYST.clear_current();
+        p.SYST.enable_counter();
+
+        // Calibration: 100 000 iterations of a 2-instruction loop = 200 000 instructions.
+        let cal = ticks(|| unsafe {
+            // SAFETY: a register-only countdown loop; touches no memory.
+            core::arch::asm!("1: subs {0}, {0}, #1", "bne 1b", inout(reg) 100_000u32 => _);
+        });
+        let per_tick = 200_000.0 / f64::from(cal.max(1));
+        hprintln!("calibration: 200000 instructions = {} ticks ({:.1} instructions per tick)", cal, per_tick);
+        hprintln!("{:<5} {:>14} {:>14} {:>12}", "type", "instr/conv", "forward evals", "µs @180MHz*");
+        for tc in TcType::ALL {
+            let (lo, hi) = tc.inverse_range();
+            let (elo, ehi) = (tc.emf_clamped_mv(lo), tc.emf_clamped_mv(hi));
+            let mut evals = 0usize;
+            let t = ticks(|| {
+                for i in 0..POINTS {
+                    let emf = elo + (ehi - elo) * (f64::from(i) + 0.5) / f64::from(POINTS);
+                    evals += black_box(tc.temperature_with_iterations(black_box(emf))).1;
+                }
+            });
+            let instr = f64::from(t) * per_tick / f64::from(POINTS);
+            hprintln!(
+                "{:<5} {:>14.0} {:>14.2} {:>12.1}",
+                tc.letter(),
+                instr,
+                evals as f64 / f64::from(POINTS),
+                instr / 180.0
+            );
+        }
+        hprintln!("* at one cycle per instruction: a lower bound; flash wait states and soft-float add some.");
+        debug::exit(debug::EXIT_SUCCESS);
+        loop {
+            cortex_m::asm::wfi();
+        }
+    }
+}
