@@ -1,31 +1,93 @@
-//! The 8350 on the host board: a simulated module on the PC.
+//! The 8350 on the host board: a simulated module on the PC. Its inputs are the scenario
+//! file's signals, sampled in simulated time at the boards' sample rate and fed through the same
+//! engine path as the STM32's captures; its outputs are computed tick by tick by the same pulse
+//! engine and logged when they change.
+
+use core::cell::RefCell;
 
 use embassy_executor::Spawner;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::mutex::Mutex;
+use embassy_time::{Duration, Instant, Ticker};
+use remodaq_8350::di::SAMPLE_RATE_HZ;
+use remodaq_8350::io::{self, Io, IoCell};
 use remodaq_8350::map::Map8350;
+use remodaq_8350::pulse::TICK_HZ;
 use remodaq_8350::settings::Settings;
 use remodaq_board_host::flash::FileFlash;
 use remodaq_board_host::modbus::{connection_task, Listener, ModbusSlots};
+use remodaq_board_host::scenario::{parse_digital, Digital, Watched};
 use remodaq_shared::modbus::server::{Slots, MAX_CONNECTIONS, SOCKETS};
 
-type Map = Mutex<CriticalSectionRawMutex, Map8350<FileFlash>>;
+type Map = Mutex<CriticalSectionRawMutex, Map8350<'static, FileFlash, CriticalSectionRawMutex>>;
+type Cell = IoCell<CriticalSectionRawMutex>;
 
 static SLOTS: ModbusSlots = Slots::new(MAX_CONNECTIONS);
 
 /// Starts the simulated module's tasks.
 pub async fn run(spawner: Spawner) {
     let started = remodaq_board_host::start::<Settings>("8350", |s| s.net.port).await;
-    let map: &'static Map = Box::leak(Box::new(Mutex::new(Map8350::new(started.store))));
+    let scenario = started
+        .options
+        .scenario
+        .as_deref()
+        .map(|path| Watched::load(path, parse_digital).unwrap_or_else(|e| remodaq_board_host::fail(&e)));
+    let cell: &'static Cell =
+        Box::leak(Box::new(IoCell::new(RefCell::new(Io::new(SAMPLE_RATE_HZ, started.store.get())))));
+    let map: &'static Map = Box::leak(Box::new(Mutex::new(Map8350::new(started.store, cell))));
     for slot in 0..SOCKETS {
         match modbus_task(started.listener, map, slot) {
             Ok(token) => spawner.spawn(token),
             Err(e) => log::error!("cannot start Modbus task {slot}: {e:?}"),
         }
     }
+    match io_task(scenario, cell) {
+        Ok(token) => spawner.spawn(token),
+        Err(e) => log::error!("cannot start the I/O task: {e:?}"),
+    }
 }
 
 #[embassy_executor::task(pool_size = SOCKETS)]
 async fn modbus_task(listener: &'static Listener, map: &'static Map, slot: usize) -> ! {
     connection_task(listener, map, &SLOTS, slot).await
+}
+
+/// Every 5 ms: the input samples and output ticks that fell due since the last run.
+#[embassy_executor::task]
+async fn io_task(mut scenario: Option<Watched<Digital>>, cell: &'static Cell) -> ! {
+    let start = Instant::now();
+    let mut current = Digital::default();
+    let (mut samples_done, mut ticks_done) = (0u64, 0u64);
+    let mut samples = [0u16; 1024];
+    let mut ticks = [0u8; 256];
+    let mut last_levels = 0u8;
+    let mut ticker = Ticker::every(Duration::from_millis(5));
+    loop {
+        ticker.next().await;
+        if let Some(watched) = scenario.as_mut() {
+            current = watched.refresh().clone();
+        }
+        let elapsed = start.elapsed().as_micros();
+        let samples_due = elapsed * u64::from(SAMPLE_RATE_HZ) / 1_000_000;
+        while samples_done < samples_due {
+            let n = (samples_due - samples_done).min(samples.len() as u64) as usize;
+            for (i, s) in samples[..n].iter_mut().enumerate() {
+                *s = current.sample_at((samples_done + i as u64) as f64 / f64::from(SAMPLE_RATE_HZ));
+            }
+            io::with(cell, |state| state.di.process(&samples[..n]));
+            samples_done += n as u64;
+        }
+        let ticks_due = elapsed * u64::from(TICK_HZ) / 1_000_000;
+        while ticks_done < ticks_due {
+            let n = (ticks_due - ticks_done).min(ticks.len() as u64) as usize;
+            io::with(cell, |state| state.pulse.fill(&mut ticks[..n]));
+            for &levels in &ticks[..n] {
+                if levels != last_levels {
+                    log::debug!("DO levels {levels:06b}");
+                    last_levels = levels;
+                }
+            }
+            ticks_done += n as u64;
+        }
+    }
 }

@@ -1,9 +1,14 @@
-//! RemoDAQ-8350 module logic (`no_std`, no hardware): settings schema and Modbus register map
-//! (spec §3). Boards supply the flash and, later, the digital I/O.
+//! RemoDAQ-8350 module logic (`no_std`, no hardware): the digital-input engine (state,
+//! counters, latches, frequency), the pulse/level output engine, the settings schema and the
+//! Modbus register map (spec §3). Boards supply the flash, the input capture and the output
+//! pattern path.
 #![no_std]
 #![warn(missing_docs)]
 
+pub mod di;
+pub mod io;
 pub mod map;
+pub mod pulse;
 pub mod settings;
 
 /// Module name register value (40211).

@@ -205,3 +205,96 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
+
+/// What drives a digital input (8350).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Signal {
+    /// A steady level.
+    Level(bool),
+    /// A 50 % duty square wave of this frequency (Hz), starting low.
+    Square(f64),
+}
+
+impl Signal {
+    /// The level at `t` seconds.
+    pub fn level_at(&self, t: f64) -> bool {
+        match *self {
+            Signal::Level(level) => level,
+            Signal::Square(hz) => (t * hz).fract() >= 0.5,
+        }
+    }
+}
+
+/// The 8350's inputs.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Digital {
+    /// DI0-DI11.
+    pub inputs: [Signal; 12],
+}
+
+impl Default for Digital {
+    /// Without a scenario: every input steady low.
+    fn default() -> Self {
+        Self { inputs: [Signal::Level(false); 12] }
+    }
+}
+
+impl Digital {
+    /// The port snapshot (bit n = DIn) at `t` seconds.
+    pub fn sample_at(&self, t: f64) -> u16 {
+        self.inputs.iter().enumerate().fold(0, |acc, (n, s)| if s.level_at(t) { acc | 1 << n } else { acc })
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawInput {
+    square_hz: Option<f64>,
+    level: Option<bool>,
+}
+
+/// Parses an 8350 scenario: `[diN]` tables with exactly one of `square_hz` or `level`.
+pub fn parse_digital(text: &str) -> Result<Digital, String> {
+    let raw: std::collections::BTreeMap<String, Spanned<RawInput>> =
+        toml::from_str(text).map_err(|e| toml_error(e, text))?;
+    let mut digital = Digital::default();
+    for (key, input) in raw {
+        let line = line_of(text, input.span().start);
+        let n: usize = key
+            .strip_prefix("di")
+            .and_then(|n| n.parse().ok())
+            .filter(|n| *n < 12)
+            .ok_or_else(|| format!("line {line}: unknown table [{key}]; inputs are [di0] to [di11]"))?;
+        let input = input.into_inner();
+        digital.inputs[n] = match (input.square_hz, input.level) {
+            (Some(hz), None) if hz.is_finite() && hz > 0.0 && hz <= 25_000.0 => Signal::Square(hz),
+            (Some(_), None) => return Err(format!("line {line}: [di{n}] square_hz must be in 0 < f <= 25000")),
+            (None, Some(level)) => Signal::Level(level),
+            _ => return Err(format!("line {line}: [di{n}] needs exactly one of square_hz, level")),
+        };
+    }
+    Ok(digital)
+}
+
+#[cfg(test)]
+mod digital_tests {
+    use super::*;
+
+    #[test]
+    fn the_spec_example_and_errors() {
+        let d = parse_digital("[di0]\nsquare_hz = 1000.0\n[di1]\nlevel = true\n").unwrap();
+        assert_eq!(d.inputs[0], Signal::Square(1000.0));
+        assert_eq!(d.inputs[1], Signal::Level(true));
+        assert_eq!(d.inputs[2], Signal::Level(false));
+        assert_eq!(d.sample_at(0.0), 0b10);
+        assert_eq!(d.sample_at(0.0006), 0b11);
+        let e = parse_digital("[di0]\nlevel = true\n\n[di12]\nlevel = true\n").unwrap_err();
+        assert!(e.starts_with("line 4:"), "{e}");
+        let e = parse_digital("[di3]\nlevel = true\nsquare_hz = 5.0\n").unwrap_err();
+        assert!(e.starts_with("line 1:") && e.contains("exactly one"), "{e}");
+        let e = parse_digital("[di3]\nsquare_hz = -5.0\n").unwrap_err();
+        assert!(e.contains("square_hz"), "{e}");
+        let e = parse_digital("[di3]\nlevle = true\n").unwrap_err();
+        assert!(e.starts_with("line 2:"), "{e}");
+    }
+}
