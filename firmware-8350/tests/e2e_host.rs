@@ -1,27 +1,145 @@
-//! End to end: the host build of the 8350 on a loopback port, driven by tokio-modbus.
+//! End to end: the host build of the 8350 on a loopback port, a 1 kHz square wave on DI0 from
+//! the scenario file, driven by tokio-modbus.
 
-use std::time::Duration;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
 
 use remodaq_board_host::testing::SimModule;
-use tokio::time::timeout;
-use tokio_modbus::client::{tcp, Reader, Writer};
+use tokio::time::{sleep, timeout};
+use tokio_modbus::client::{tcp, Context, Reader, Writer};
 use tokio_modbus::ExceptionCode;
 
 const BIN: &str = env!("CARGO_BIN_EXE_firmware-8350");
 const LIMIT: Duration = Duration::from_secs(10);
 
+fn temp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("remodaq-e2e-8350-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir.join(name)
+}
+
+async fn connect(module: &SimModule) -> Context {
+    timeout(LIMIT, tcp::connect(module.addr)).await.expect("connect in time").expect("connect")
+}
+
+async fn regs(ctx: &mut Context, addr: u16, n: u16) -> Vec<u16> {
+    timeout(LIMIT, ctx.read_holding_registers(addr, n)).await.unwrap().unwrap().expect("no exception")
+}
+
+async fn bits(ctx: &mut Context, addr: u16, n: u16) -> Vec<bool> {
+    timeout(LIMIT, ctx.read_coils(addr, n)).await.unwrap().unwrap().expect("no exception")
+}
+
+async fn write_reg(ctx: &mut Context, addr: u16, value: u16) {
+    let r = timeout(LIMIT, ctx.write_single_register(addr, value)).await.unwrap().unwrap();
+    assert_eq!(r, Ok(()), "write {value:#x} to {addr:#x}");
+}
+
+async fn write_regs(ctx: &mut Context, addr: u16, values: &[u16]) {
+    let r = timeout(LIMIT, ctx.write_multiple_registers(addr, values)).await.unwrap().unwrap();
+    assert_eq!(r, Ok(()), "write {values:x?} to {addr:#x}");
+}
+
+async fn write_bit(ctx: &mut Context, addr: u16, on: bool) {
+    let r = timeout(LIMIT, ctx.write_single_coil(addr, on)).await.unwrap().unwrap();
+    assert_eq!(r, Ok(()), "write {on} to bit {addr:#x}");
+}
+
+async fn counter(ctx: &mut Context, n: u16) -> u32 {
+    let v = regs(ctx, 2 * n, 2).await;
+    u32::from(v[0]) | u32::from(v[1]) << 16
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn identity_registers() {
-    let flash = std::env::temp_dir().join(format!("remodaq-e2e-8350-{}.flash", std::process::id()));
+async fn square_wave_counter_frequency_latch_pulses_and_restart() {
+    let scenario = temp("scenario.toml");
+    std::fs::write(&scenario, "[di0]\nsquare_hz = 1000.0\n[di2]\nlevel = false\n").unwrap();
+    let flash = temp("module.flash");
+    let _ = std::fs::remove_file(&flash);
+    let args = ["--scenario", scenario.to_str().unwrap()];
+    let module = SimModule::start_with(BIN, &flash, &args);
+    let mut ctx = connect(&module).await;
+
+    // Counter mode on DI0: about 1000 counts per second while running.
+    write_reg(&mut ctx, 0x100, 1).await;
+    let (c1, t1) = (counter(&mut ctx, 0).await, Instant::now());
+    sleep(Duration::from_millis(1500)).await;
+    let (c2, t2) = (counter(&mut ctx, 0).await, Instant::now());
+    let rate = f64::from(c2 - c1) / (t2 - t1).as_secs_f64();
+    assert!((800.0..1200.0).contains(&rate), "counted {rate:.0} per second");
+    // Stopped: the count stays.
+    write_bit(&mut ctx, 0x20, false).await;
+    let stopped = counter(&mut ctx, 0).await;
+    sleep(Duration::from_millis(300)).await;
+    assert_eq!(counter(&mut ctx, 0).await, stopped, "a stopped counter does not count");
+    write_bit(&mut ctx, 0x20, true).await;
+    sleep(Duration::from_millis(200)).await;
+    assert!(counter(&mut ctx, 0).await > stopped, "restarted");
+
+    // Frequency mode: 1000 Hz after the first full gate.
+    write_reg(&mut ctx, 0x100, 4).await;
+    let deadline = Instant::now() + Duration::from_secs(5);
+    let hz = loop {
+        let hz = counter(&mut ctx, 0).await;
+        if hz != 0 || Instant::now() > deadline {
+            break hz;
+        }
+        sleep(Duration::from_millis(100)).await;
+    };
+    assert!((999..=1001).contains(&hz), "frequency {hz}");
+
+    // Low-to-high latch on DI2: set by an edge (the scenario changes), cleared by the read.
+    write_reg(&mut ctx, 0x102, 2).await;
+    assert_eq!(bits(&mut ctx, 0x2B, 1).await, vec![false]);
+    std::fs::write(&scenario, "[di0]\nsquare_hz = 1000.0\n[di2]\nlevel = true\n").unwrap();
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while !bits(&mut ctx, 0x02, 1).await[0] {
+        assert!(Instant::now() < deadline, "DI2 never went high");
+        sleep(Duration::from_millis(50)).await;
+    }
+    assert_eq!(bits(&mut ctx, 0x2B, 1).await, vec![true], "latched");
+    assert_eq!(bits(&mut ctx, 0x2B, 1).await, vec![false], "cleared by the read");
+    assert_eq!(regs(&mut ctx, 0x12C, 1).await[0] & 0b100, 0b100, "all-DI register");
+
+    // A pulse train on DO0: 1 ms high, 1 ms low, 250 pulses = 0.5 s, then off.
+    write_reg(&mut ctx, 0x110, 1).await;
+    write_regs(&mut ctx, 0x18, &[10, 0]).await; // low width
+    write_regs(&mut ctx, 0x24, &[10, 0]).await; // high width
+    write_regs(&mut ctx, 0x30, &[250, 0]).await; // count
+    write_bit(&mut ctx, 0x10, true).await;
+    let started = Instant::now();
+    assert_eq!(bits(&mut ctx, 0x10, 1).await, vec![true], "running");
+    while bits(&mut ctx, 0x10, 1).await[0] {
+        assert!(started.elapsed() < Duration::from_secs(5), "the train never ended");
+        sleep(Duration::from_millis(20)).await;
+    }
+    let took = started.elapsed();
+    assert!(took >= Duration::from_millis(450) && took < Duration::from_millis(1500), "train took {took:?}");
+    assert_eq!(regs(&mut ctx, 0x12E, 1).await, vec![0], "output off after the last pulse");
+
+    // Modes and pulse settings survive a restart; counters and outputs do not persist.
+    module.kill();
+    let module = SimModule::start_with(BIN, &flash, &args);
+    let mut ctx = connect(&module).await;
+    assert_eq!(regs(&mut ctx, 0x100, 3).await, vec![4, 0, 2]);
+    assert_eq!(regs(&mut ctx, 0x110, 1).await, vec![1]);
+    assert_eq!(regs(&mut ctx, 0x18, 2).await, vec![10, 0]);
+    assert_eq!(regs(&mut ctx, 0x24, 2).await, vec![10, 0]);
+    assert_eq!(regs(&mut ctx, 0x30, 2).await, vec![250, 0]);
+    assert_eq!(bits(&mut ctx, 0x10, 1).await, vec![false]);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn identity_and_exceptions() {
+    let flash = temp("identity.flash");
     let _ = std::fs::remove_file(&flash);
     let module = SimModule::start(BIN, &flash);
-    let mut ctx = timeout(LIMIT, tcp::connect(module.addr)).await.unwrap().unwrap();
-    let name = timeout(LIMIT, ctx.read_holding_registers(0xD2, 1)).await.unwrap().unwrap();
-    assert_eq!(name, Ok(vec![0x8350]));
+    let mut ctx = connect(&module).await;
+    assert_eq!(regs(&mut ctx, 0xD2, 1).await, vec![0x8350]);
     let version = timeout(LIMIT, ctx.read_input_registers(0xD4, 1)).await.unwrap().unwrap();
     assert_eq!(version, Ok(vec![0xA100]));
     let w = timeout(LIMIT, ctx.write_single_register(0xD4, 0xA200)).await.unwrap().unwrap();
     assert_eq!(w, Err(ExceptionCode::IllegalDataAddress), "version is read only (decision)");
-    drop(module);
-    let _ = std::fs::remove_file(&flash);
+    let w = timeout(LIMIT, ctx.write_single_register(0x100, 9)).await.unwrap().unwrap();
+    assert_eq!(w, Err(ExceptionCode::IllegalDataValue));
 }
