@@ -5,6 +5,7 @@
 #![cfg(target_os = "none")]
 
 pub mod analog;
+pub mod digital;
 pub mod modbus;
 
 use embassy_executor::Spawner;
@@ -63,6 +64,8 @@ struct Parts {
 pub struct Io {
     /// The 8318's analog front end.
     pub analog: analog::AnalogPeripherals,
+    /// The 8350's digital inputs and outputs.
+    pub digital: digital::DigitalPeripherals,
 }
 
 /// Clocks at 180 MHz from the ST-LINK's 8 MHz MCO (HSE bypass), then the peripherals.
@@ -128,6 +131,27 @@ pub fn init() -> (Board, SettingsFlash, Io) {
             rx_dma: p.DMA2_CH2,
             adc: p.ADC1,
             ntc: p.PA3,
+        },
+        digital: digital::DigitalPeripherals {
+            tim_in: p.TIM1,
+            tim_out: p.TIM8,
+            dma_in: p.DMA2_CH5,
+            dma_out: p.DMA2_CH1,
+            di: [
+                p.PE2.into(),
+                p.PE3.into(),
+                p.PE4.into(),
+                p.PE5.into(),
+                p.PE6.into(),
+                p.PE7.into(),
+                p.PE8.into(),
+                p.PE9.into(),
+                p.PE10.into(),
+                p.PE11.into(),
+                p.PE12.into(),
+                p.PE13.into(),
+            ],
+            outputs: [p.PF12.into(), p.PF13.into(), p.PF14.into(), p.PF15.into(), p.PF3.into(), p.PF5.into()],
         },
     };
     (Board { mac, parts: Parts { eth, seed: u64::from_le_bytes(seed), iwdg: p.IWDG, led } }, settings_flash, io)

@@ -1,4 +1,5 @@
-//! Cost of one thermocouple conversion (emf -> °C, f64) on a Cortex-M4F, measured in QEMU
+//! Cost on a Cortex-M4F of one thermocouple conversion (8318: emf -> °C, f64) and of the 8350's
+//! engines (per input sample, per output tick), measured in QEMU
 //! (netduinoplus2: an STM32F405, Cortex-M4F, with the STM32F429's memory layout) with
 //! `-icount shift=0`: virtual time then advances 1 ns per instruction and SysTick (core clock)
 //! follows it, so a run's tick count is proportional to the instructions it executed; a
@@ -49,6 +50,54 @@ mod target {
         }
     }
 
+    /// The 8350's DI engine per sample (12 inputs) and pulse engine per tick (6 outputs).
+    fn engines(per_tick: f64) {
+        use remodaq_8350::di::{DiEngine, DiMode, CHANNELS, SAMPLE_RATE_HZ};
+        use remodaq_8350::pulse::{DoMode, PulseConfig, PulseEngine};
+
+        const N: usize = 5000;
+        static mut SAMPLES: [u16; N] = [0; N];
+        // SAFETY: single-threaded bare-metal program; the only reference to the buffer.
+        let samples = unsafe { &mut *core::ptr::addr_of_mut!(SAMPLES) };
+        let mut engine = DiEngine::new(SAMPLE_RATE_HZ);
+        for ch in 0..CHANNELS {
+            engine.set_mode(ch, if ch % 2 == 0 { DiMode::Counter } else { DiMode::Frequency });
+        }
+        let mut run = |label: &str, samples: &[u16]| {
+            let t = ticks(|| engine.process(black_box(samples)));
+            let edges: u32 = samples.windows(2).map(|w| (!w[0] & w[1]).count_ones()).sum();
+            let instr = f64::from(t) * per_tick;
+            let per_sample = instr / samples.len() as f64;
+            if edges == 0 {
+                hprintln!("{:<50} {:>6.1} instr/sample", label, per_sample);
+            } else {
+                let per_edge = instr / f64::from(edges);
+                hprintln!("{:<50} {:>6.1} instr/sample {:>6.1} instr/rising edge", label, per_sample, per_edge);
+            }
+            instr / samples.len() as f64
+        };
+        // Twelve 10 kHz square waves at 50 kHz sampling, phases spread over the period.
+        for (i, s) in samples.iter_mut().enumerate() {
+            *s = (0..CHANNELS).fold(0, |acc, ch| if (i + ch) % 5 < 2 { acc | 1 << ch } else { acc });
+        }
+        let busy = run("DI: 12 inputs at 10 kHz (12 edges per 5 samples)", samples);
+        samples.fill(0x0A5A);
+        run("DI: steady inputs (no edges)", samples);
+        hprintln!(
+            "DI at 50 kHz with 12 x 10 kHz: {:.1} % of a 180 MHz M4 at one cycle per instruction",
+            busy * f64::from(SAMPLE_RATE_HZ) / 180e6 * 100.0
+        );
+        let mut pulses = PulseEngine::new();
+        for n in 0..6 {
+            pulses.set_mode(n, DoMode::Pulse);
+            pulses.set_config(n, PulseConfig { high: 1, low: 1, count: 0 });
+            pulses.set_do(n, true);
+        }
+        let mut pattern = [0u8; 1000];
+        let t = ticks(|| pulses.fill(black_box(&mut pattern)));
+        hprintln!("pulse: 6 outputs at 5 kHz: {:.1} instr/tick (10 000 ticks/s)", f64::from(t) * per_tick / 1000.0);
+    }
+
     #[entry]
     fn main() -> ! {
         let Some(mut p) = cortex_m::Peripherals::take() else { panic!() };
@@ -85,6 +134,7 @@ mod target {
             );
         }
         hprintln!("* at one cycle per instruction: a lower bound; flash wait states and soft-float add some.");
+        engines(per_tick);
         debug::exit(debug::EXIT_SUCCESS);
         loop {
             cortex_m::asm::wfi();

@@ -1,0 +1,170 @@
+//! The 8350's digital I/O on this board, both paced by hardware timers so that timing never
+//! depends on when a task runs:
+//!
+//! - Inputs DI0-DI11 on PE2-PE13 (pull-down). TIM1's update event, 50 000 times a second,
+//!   triggers DMA2 stream 5 (channel 6) to copy GPIOE's input register into a 4096-sample
+//!   circular buffer (82 ms); the input task drains it every few ms. Edges are lost only if the
+//!   task falls 82 ms behind, and that is detected and logged (overrun).
+//! - Outputs DO0-DO5 on PF12, PF13, PF14, PF15, PF3, PF5. TIM8's update event, 10 000 times a
+//!   second (the pulse engine's 0.1 ms tick), triggers DMA2 stream 1 (channel 7) to copy one
+//!   word per tick from a 256-tick circular pattern into GPIOF's set/reset register; the output
+//!   task refills each half as it is played. A 5 kHz train is exact however busy the CPU is.
+
+use embassy_stm32::dma::{Channel, ReadableRingBuffer, TransferOptions, WritableRingBuffer};
+use embassy_stm32::gpio::{AnyPin, Input, Level, Output, Pull, Speed};
+use embassy_stm32::peripherals::{DMA2_CH1, DMA2_CH5, TIM1, TIM8};
+use embassy_stm32::time::Hertz;
+use embassy_stm32::timer::low_level::{RoundTo, Timer};
+use embassy_stm32::{bind_interrupts, dma, pac, Peri};
+use static_cell::StaticCell;
+
+bind_interrupts!(struct Irqs {
+    DMA2_STREAM5 => dma::InterruptHandler<DMA2_CH5>;
+    DMA2_STREAM1 => dma::InterruptHandler<DMA2_CH1>;
+});
+
+/// Input samples per second.
+pub const SAMPLE_RATE_HZ: u32 = 50_000;
+/// Output ticks per second.
+pub const TICK_HZ: u32 = 10_000;
+/// Capture ring, samples.
+const CAPTURE_LEN: usize = 4096;
+/// Output pattern ring, ticks.
+pub const PATTERN_LEN: usize = 256;
+/// DMA request (channel selection) of TIM1_UP on DMA2 stream 5, TIM8_UP on DMA2 stream 1.
+const TIM1_UP_REQUEST: u8 = 6;
+const TIM8_UP_REQUEST: u8 = 7;
+/// GPIOF bit of DO n.
+const DO_PINS: [u8; 6] = [12, 13, 14, 15, 3, 5];
+/// GPIOE bit of DI0.
+const DI_SHIFT: u16 = 2;
+
+/// The peripherals reserved for the digital I/O.
+pub struct DigitalPeripherals {
+    pub(crate) tim_in: Peri<'static, TIM1>,
+    pub(crate) tim_out: Peri<'static, TIM8>,
+    pub(crate) dma_in: Peri<'static, DMA2_CH5>,
+    pub(crate) dma_out: Peri<'static, DMA2_CH1>,
+    /// PE2..PE13, in DI order.
+    pub(crate) di: [Peri<'static, AnyPin>; 12],
+    /// PF12, PF13, PF14, PF15, PF3, PF5, in DO order (see `DO_PINS`).
+    pub(crate) outputs: [Peri<'static, AnyPin>; 6],
+}
+
+/// The capture ring ran over: samples were lost.
+#[derive(Debug, defmt::Format)]
+pub struct Overrun;
+
+/// The pattern ring ran dry: the outputs replayed old ticks.
+#[derive(Debug, defmt::Format)]
+pub struct Underrun;
+
+/// The running input capture.
+pub struct InputCapture {
+    ring: ReadableRingBuffer<'static, u16>,
+    _pins: [Input<'static>; 12],
+    _timer: Timer<'static, TIM1>,
+}
+
+impl InputCapture {
+    /// Takes the captured samples (bit n = DIn), oldest first; returns how many.
+    pub fn read(&mut self, out: &mut [u16]) -> Result<usize, Overrun> {
+        match self.ring.read(out) {
+            Ok((n, _)) => {
+                for s in &mut out[..n] {
+                    *s = (*s >> DI_SHIFT) & 0x0FFF;
+                }
+                Ok(n)
+            }
+            Err(_) => {
+                self.ring.clear();
+                Err(Overrun)
+            }
+        }
+    }
+}
+
+/// The running output pattern.
+pub struct OutputPattern {
+    ring: WritableRingBuffer<'static, u32>,
+    _pins: [Output<'static>; 6],
+    _timer: Timer<'static, TIM8>,
+}
+
+/// The set/reset word of one tick's levels (bit n = DOn).
+fn bsrr(levels: u8) -> u32 {
+    DO_PINS.iter().enumerate().fold(
+        0,
+        |word, (n, pin)| {
+            if levels >> n & 1 == 1 {
+                word | 1 << pin
+            } else {
+                word | 1 << (pin + 16)
+            }
+        },
+    )
+}
+
+impl OutputPattern {
+    /// Queues ticks (bit n = DOn), waiting for room in the pattern.
+    pub async fn write(&mut self, levels: &[u8]) -> Result<(), Underrun> {
+        let mut words = [0u32; PATTERN_LEN / 2];
+        let n = levels.len().min(words.len());
+        for (w, l) in words.iter_mut().zip(&levels[..n]) {
+            *w = bsrr(*l);
+        }
+        self.ring.write_exact(&words[..n]).await.map(|_| ()).map_err(|_| {
+            self.ring.clear();
+            Underrun
+        })
+    }
+}
+
+impl DigitalPeripherals {
+    /// Starts capture and output. `first_ticks` fills the pattern before the timer starts.
+    pub fn start(self, first_ticks: impl FnOnce(&mut [u8])) -> (InputCapture, OutputPattern) {
+        let pins = self.di.map(|pin| Input::new(pin, Pull::Down));
+        static CAPTURE: StaticCell<[u16; CAPTURE_LEN]> = StaticCell::new();
+        let buffer = CAPTURE.init([0; CAPTURE_LEN]);
+        // SAFETY: GPIOE's input register is a valid, always-readable peripheral address; the
+        // buffer is 'static and owned by the ring from here on.
+        let mut ring = unsafe {
+            ReadableRingBuffer::new(
+                Channel::new(self.dma_in, Irqs),
+                TIM1_UP_REQUEST,
+                pac::GPIOE.idr().as_ptr() as *mut u16,
+                buffer,
+                TransferOptions::default(),
+            )
+        };
+        ring.start();
+        let timer = Timer::new(self.tim_in);
+        timer.set_frequency(Hertz(SAMPLE_RATE_HZ), RoundTo::Slower);
+        timer.enable_update_dma(true);
+        timer.start();
+        let capture = InputCapture { ring, _pins: pins, _timer: timer };
+
+        let outputs = self.outputs.map(|pin| Output::new(pin, Level::Low, Speed::High));
+        static PATTERN: StaticCell<[u32; PATTERN_LEN]> = StaticCell::new();
+        let mut ticks = [0u8; PATTERN_LEN];
+        first_ticks(&mut ticks);
+        let buffer = PATTERN.init(ticks.map(bsrr));
+        // SAFETY: GPIOF's set/reset register is a valid, write-only peripheral address whose
+        // writes only change the pins of its set bits; the buffer is 'static.
+        let mut ring = unsafe {
+            WritableRingBuffer::new(
+                Channel::new(self.dma_out, Irqs),
+                TIM8_UP_REQUEST,
+                pac::GPIOF.bsrr().as_ptr() as *mut u32,
+                buffer,
+                TransferOptions::default(),
+            )
+        };
+        ring.start();
+        let timer = Timer::new(self.tim_out);
+        timer.set_frequency(Hertz(TICK_HZ), RoundTo::Slower);
+        timer.enable_update_dma(true);
+        timer.start();
+        (capture, OutputPattern { ring, _pins: outputs, _timer: timer })
+    }
+}
