@@ -2,7 +2,8 @@
 
 use embedded_storage_async::nor_flash::NorFlash;
 use remodaq_shared::modbus::{Access, Exception, RegisterMap, Table, WriteValues};
-use remodaq_shared::settings::SettingsStore;
+use remodaq_shared::module::SettingsAccess;
+use remodaq_shared::settings::{SettingsStore, StoreError};
 use remodaq_shared::{identity, warn};
 
 use crate::acquisition::{Snapshot, CHANNELS};
@@ -97,5 +98,15 @@ impl<F: NorFlash> RegisterMap for Map8318<F> {
             warn!("8318: settings commit failed: {:?}", e);
             Exception::ServerDeviceFailure
         })
+    }
+}
+
+impl<F: NorFlash> SettingsAccess for Map8318<F> {
+    type Settings = Settings;
+    fn settings(&self) -> &Settings {
+        self.store.get()
+    }
+    async fn commit(&mut self, settings: Settings) -> Result<(), StoreError> {
+        self.store.commit(settings).await
     }
 }

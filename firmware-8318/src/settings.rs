@@ -1,6 +1,8 @@
 //! Persisted settings of the 8318 (spec §2.1, §1.4).
 
+use remodaq_shared::module::CommonSettings;
 use remodaq_shared::net::NetConfig;
+use remodaq_shared::password::PasswordHash;
 use remodaq_shared::settings::{RecordReader, RecordWriter, Schema};
 
 use crate::input::InputType;
@@ -13,6 +15,8 @@ pub const CJC_OFFSET_LIMIT: i16 = 5000;
 pub struct Settings {
     /// Network settings.
     pub net: NetConfig,
+    /// Configuration password (network settings, restart).
+    pub password: PasswordHash,
     /// Input type code (40201), one of spec §2.2 ([`InputType::from_code`]).
     pub input_type: u8,
     /// CJC offset (40216) in 0.01 °C, within ±[`CJC_OFFSET_LIMIT`].
@@ -32,11 +36,18 @@ impl Schema for Settings {
 
     fn defaults() -> Self {
         // Decision: factory input type 0Fh (type K), all channels enabled, no CJC offset.
-        Self { net: NetConfig::FACTORY, input_type: 0x0F, cjc_offset: 0, enable_mask: 0xFF }
+        Self {
+            net: NetConfig::FACTORY,
+            password: PasswordHash::factory(),
+            input_type: 0x0F,
+            cjc_offset: 0,
+            enable_mask: 0xFF,
+        }
     }
 
     fn encode(&self, w: &mut RecordWriter<'_>) {
         self.net.encode(w);
+        self.password.encode(w);
         w.put(tag::INPUT_TYPE, &[self.input_type]);
         w.put(tag::CJC_OFFSET, &self.cjc_offset.to_le_bytes());
         w.put(tag::ENABLE_MASK, &[self.enable_mask]);
@@ -46,6 +57,7 @@ impl Schema for Settings {
         let d = Self::defaults();
         Self {
             net: NetConfig::decode(r),
+            password: PasswordHash::decode(r),
             input_type: r
                 .array::<1>(tag::INPUT_TYPE)
                 .map(|[t]| t)
@@ -90,5 +102,20 @@ mod tests {
         for o in [-5000i16, -1, 0, 1, 5000] {
             assert_eq!(cjc_offset_from_register(cjc_offset_to_register(o)), Some(o));
         }
+    }
+}
+
+impl CommonSettings for Settings {
+    fn net(&self) -> NetConfig {
+        self.net
+    }
+    fn set_net(&mut self, net: NetConfig) {
+        self.net = net;
+    }
+    fn password(&self) -> PasswordHash {
+        self.password
+    }
+    fn set_password(&mut self, hash: PasswordHash) {
+        self.password = hash;
     }
 }

@@ -7,7 +7,8 @@
 use embassy_sync::blocking_mutex::raw::RawMutex;
 use embedded_storage_async::nor_flash::NorFlash;
 use remodaq_shared::modbus::{Access, Exception, RegisterMap, Table, WriteValues};
-use remodaq_shared::settings::SettingsStore;
+use remodaq_shared::module::SettingsAccess;
+use remodaq_shared::settings::{SettingsStore, StoreError};
 use remodaq_shared::{identity, warn};
 
 use crate::di::{self, DiMode};
@@ -254,5 +255,15 @@ impl<F: NorFlash, R: RawMutex> RegisterMap for Map8350<'_, F, R> {
             }
         });
         Ok(())
+    }
+}
+
+impl<F: NorFlash, R: RawMutex> SettingsAccess for Map8350<'_, F, R> {
+    type Settings = Settings;
+    fn settings(&self) -> &Settings {
+        self.store.get()
+    }
+    async fn commit(&mut self, settings: Settings) -> Result<(), StoreError> {
+        self.store.commit(settings).await
     }
 }

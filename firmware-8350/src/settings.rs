@@ -1,7 +1,9 @@
 //! Persisted settings of the 8350 (spec §3.5, §1.4): DI modes, DO modes, pulse widths and
 //! counts, network settings. Counters, run bits, flags and output states are not persisted.
 
+use remodaq_shared::module::CommonSettings;
 use remodaq_shared::net::NetConfig;
+use remodaq_shared::password::PasswordHash;
 use remodaq_shared::settings::{RecordReader, RecordWriter, Schema};
 
 use crate::di::{self, DiMode};
@@ -12,6 +14,8 @@ use crate::pulse::{self, DoMode, PulseConfig};
 pub struct Settings {
     /// Network settings.
     pub net: NetConfig,
+    /// Configuration password (network settings, restart).
+    pub password: PasswordHash,
     /// DI n mode (40257 + n).
     pub di_modes: [DiMode; di::CHANNELS],
     /// DO n mode (40273 + n).
@@ -51,6 +55,7 @@ impl Schema for Settings {
     fn defaults() -> Self {
         Self {
             net: NetConfig::FACTORY,
+            password: PasswordHash::factory(),
             di_modes: [DiMode::Normal; di::CHANNELS],
             do_modes: [DoMode::Normal; pulse::CHANNELS],
             pulses: [PulseConfig::default(); pulse::CHANNELS],
@@ -59,6 +64,7 @@ impl Schema for Settings {
 
     fn encode(&self, w: &mut RecordWriter<'_>) {
         self.net.encode(w);
+        self.password.encode(w);
         w.put(tag::DI_MODES, &self.di_modes.map(|m| m as u8));
         w.put(tag::DO_MODES, &self.do_modes.map(|m| m as u8));
         put_u32s(w, tag::LOW, self.pulses.iter().map(|p| p.low));
@@ -69,6 +75,7 @@ impl Schema for Settings {
     fn decode(_version: u8, r: &RecordReader<'_>) -> Self {
         let mut s = Self::defaults();
         s.net = NetConfig::decode(r);
+        s.password = PasswordHash::decode(r);
         if let Some(modes) = r.array::<{ di::CHANNELS }>(tag::DI_MODES) {
             for (m, v) in s.di_modes.iter_mut().zip(modes) {
                 *m = DiMode::from_register(u16::from(v)).unwrap_or(DiMode::Normal);
@@ -87,5 +94,20 @@ impl Schema for Settings {
             p.count = count.map_or(d.count, |v| v[n]);
         }
         s
+    }
+}
+
+impl CommonSettings for Settings {
+    fn net(&self) -> NetConfig {
+        self.net
+    }
+    fn set_net(&mut self, net: NetConfig) {
+        self.net = net;
+    }
+    fn password(&self) -> PasswordHash {
+        self.password
+    }
+    fn set_password(&mut self, hash: PasswordHash) {
+        self.password = hash;
     }
 }

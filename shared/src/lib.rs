@@ -8,9 +8,12 @@ extern crate std;
 
 pub mod fmt;
 
+pub mod discovery;
 pub mod health;
 pub mod identity;
 pub mod modbus;
+pub mod module;
 pub mod net;
+pub mod password;
 pub mod ram_flash;
 pub mod settings;
