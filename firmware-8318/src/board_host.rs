@@ -10,9 +10,11 @@ use remodaq_8318::acquisition::{self, AnalogFrontEnd, Measurement};
 use remodaq_8318::input::SHUNT_OHMS;
 use remodaq_8318::map::Map8318;
 use remodaq_8318::settings::Settings;
+use remodaq_board_host::discovery::HostDatagrams;
 use remodaq_board_host::flash::FileFlash;
 use remodaq_board_host::modbus::{connection_task, Listener, ModbusSlots};
 use remodaq_board_host::scenario::{parse_analog, Analog, Terminal, Watched};
+use remodaq_shared::discovery::Identity;
 use remodaq_shared::modbus::server::{Slots, MAX_CONNECTIONS, SOCKETS};
 
 type Map = Mutex<CriticalSectionRawMutex, Map8318<FileFlash>>;
@@ -21,7 +23,7 @@ static SLOTS: ModbusSlots = Slots::new(MAX_CONNECTIONS);
 
 /// Starts the simulated module's tasks.
 pub async fn run(spawner: Spawner) {
-    let started = remodaq_board_host::start::<Settings>("8318", |s| s.net.port).await;
+    let started = remodaq_board_host::start::<Settings>(remodaq_8318::MODULE_NAME).await;
     let scenario = started
         .options
         .scenario
@@ -34,10 +36,19 @@ pub async fn run(spawner: Spawner) {
             Err(e) => log::error!("cannot start Modbus task {slot}: {e:?}"),
         }
     }
+    match discovery_task(started.discovery, map, started.identity) {
+        Ok(token) => spawner.spawn(token),
+        Err(e) => log::error!("cannot start the discovery task: {e:?}"),
+    }
     match app_task(ScenarioFrontEnd { scenario, current: Analog::default() }, map) {
         Ok(token) => spawner.spawn(token),
         Err(e) => log::error!("cannot start the acquisition task: {e:?}"),
     }
+}
+
+#[embassy_executor::task]
+async fn discovery_task(socket: HostDatagrams, map: &'static Map, identity: Identity) -> ! {
+    remodaq_board_host::discovery::run(socket, map, identity).await
 }
 
 #[embassy_executor::task(pool_size = SOCKETS)]

@@ -161,7 +161,11 @@ async fn scenario_values_over_modbus() {
         "cjc_celsius = 25.0\n[ch0]\nmillivolts = 41.276\n[ch1]\nvolts = 1.2\n[ch2]\nmilliamps = 12.0\n[ch3]\nopen = true\n",
     )
     .unwrap();
-    let module = SimModule::start_with(BIN, &flash_file("scenario.flash"), &["--scenario", scenario.to_str().unwrap()]);
+    let module = SimModule::start_with(
+        BIN,
+        &flash_file("scenario.flash"),
+        &["--listen", "127.0.0.1:0", "--scenario", scenario.to_str().unwrap()],
+    );
     let mut ctx = connect(module.addr).await;
 
     // Type K (factory): 41.276 mV at the terminals, cold junction at 25 °C.
@@ -198,8 +202,11 @@ async fn scenario_values_over_modbus() {
 
     // Type code, enable mask and CJC offset survive a restart.
     module.kill();
-    let module =
-        SimModule::start_with(BIN, &flash_file_keep("scenario.flash"), &["--scenario", scenario.to_str().unwrap()]);
+    let module = SimModule::start_with(
+        BIN,
+        &flash_file_keep("scenario.flash"),
+        &["--listen", "127.0.0.1:0", "--scenario", scenario.to_str().unwrap()],
+    );
     let mut ctx = connect(module.addr).await;
     assert_eq!(read(&mut ctx, 0xC8, 1).await, Ok(vec![0x06]));
     assert_eq!(read(&mut ctx, 0xD7, 1).await, Ok(vec![0xFF38]));
@@ -214,7 +221,7 @@ fn bad_scenario_is_a_clear_error() {
     let scenario = dir.join("bad.toml");
     std::fs::write(&scenario, "[ch0]\nmillivolts = 1.0\nvolts = 2.0\n").unwrap();
     let out = std::process::Command::new(BIN)
-        .args(["--listen", "127.0.0.1:0", "--flash"])
+        .args(["--listen", "127.0.0.1:0", "--discovery", "127.0.0.1:0", "--flash"])
         .arg(flash_file("bad.flash"))
         .arg("--scenario")
         .arg(&scenario)

@@ -14,9 +14,11 @@ use remodaq_8350::io::{self, Io, IoCell};
 use remodaq_8350::map::Map8350;
 use remodaq_8350::pulse::TICK_HZ;
 use remodaq_8350::settings::Settings;
+use remodaq_board_host::discovery::HostDatagrams;
 use remodaq_board_host::flash::FileFlash;
 use remodaq_board_host::modbus::{connection_task, Listener, ModbusSlots};
 use remodaq_board_host::scenario::{parse_digital, Digital, Watched};
+use remodaq_shared::discovery::Identity;
 use remodaq_shared::modbus::server::{Slots, MAX_CONNECTIONS, SOCKETS};
 
 type Map = Mutex<CriticalSectionRawMutex, Map8350<'static, FileFlash, CriticalSectionRawMutex>>;
@@ -26,7 +28,7 @@ static SLOTS: ModbusSlots = Slots::new(MAX_CONNECTIONS);
 
 /// Starts the simulated module's tasks.
 pub async fn run(spawner: Spawner) {
-    let started = remodaq_board_host::start::<Settings>("8350", |s| s.net.port).await;
+    let started = remodaq_board_host::start::<Settings>(remodaq_8350::MODULE_NAME).await;
     let scenario = started
         .options
         .scenario
@@ -41,10 +43,19 @@ pub async fn run(spawner: Spawner) {
             Err(e) => log::error!("cannot start Modbus task {slot}: {e:?}"),
         }
     }
+    match discovery_task(started.discovery, map, started.identity) {
+        Ok(token) => spawner.spawn(token),
+        Err(e) => log::error!("cannot start the discovery task: {e:?}"),
+    }
     match io_task(scenario, cell) {
         Ok(token) => spawner.spawn(token),
         Err(e) => log::error!("cannot start the I/O task: {e:?}"),
     }
+}
+
+#[embassy_executor::task]
+async fn discovery_task(socket: HostDatagrams, map: &'static Map, identity: Identity) -> ! {
+    remodaq_board_host::discovery::run(socket, map, identity).await
 }
 
 #[embassy_executor::task(pool_size = SOCKETS)]

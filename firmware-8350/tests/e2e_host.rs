@@ -56,7 +56,7 @@ async fn square_wave_counter_frequency_latch_pulses_and_restart() {
     std::fs::write(&scenario, "[di0]\nsquare_hz = 1000.0\n[di2]\nlevel = false\n").unwrap();
     let flash = temp("module.flash");
     let _ = std::fs::remove_file(&flash);
-    let args = ["--scenario", scenario.to_str().unwrap()];
+    let args = ["--listen", "127.0.0.1:0", "--scenario", scenario.to_str().unwrap()];
     let module = SimModule::start_with(BIN, &flash, &args);
     let mut ctx = connect(&module).await;
 

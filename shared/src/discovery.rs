@@ -372,3 +372,55 @@ pub fn decode_result(datagram: &[u8]) -> Option<(u8, u16, [u8; 6], Status)> {
     r.end()?;
     Some((opcode & !op::REPLY, id, mac, Status::from_code(status)?))
 }
+
+/// A UDP socket as the service needs it (embassy-net on the target, std on the host).
+#[allow(async_fn_in_trait)]
+pub trait Datagrams {
+    /// A socket error.
+    type Error: crate::fmt::Loggable;
+    /// Receives one datagram: its length, source address and port. A datagram longer than the
+    /// buffer may be truncated; the buffer is one byte longer than [`MAX_DATAGRAM`], so the
+    /// decoder still sees that it is oversized.
+    async fn recv(&mut self, buf: &mut [u8]) -> Result<(usize, [u8; 4], u16), Self::Error>;
+    /// Sends one datagram.
+    async fn send(&mut self, buf: &[u8], ip: [u8; 4], port: u16) -> Result<(), Self::Error>;
+}
+
+/// Serves the protocol forever. Replies go to the requester, or to the broadcast address (same
+/// port) when the requester is outside the module's subnet, so a PC can configure a module
+/// whose settings do not fit its network. `effect` runs after each reply is sent.
+pub async fn serve<R, A, D>(
+    socket: &mut D,
+    map: &embassy_sync::mutex::Mutex<R, A>,
+    identity: Identity,
+    mut effect: impl AsyncFnMut(Effect),
+) -> !
+where
+    R: embassy_sync::blocking_mutex::raw::RawMutex,
+    A: SettingsAccess,
+    D: Datagrams,
+{
+    let mut service = Service::new(identity);
+    let mut rx = [0u8; MAX_DATAGRAM + 1];
+    let mut tx = [0u8; MAX_DATAGRAM];
+    loop {
+        let (n, ip, port) = match socket.recv(&mut rx).await {
+            Ok(received) => received,
+            Err(e) => {
+                crate::warn!("discovery: receive failed: {:?}", e);
+                continue;
+            }
+        };
+        let now_ms = embassy_time::Instant::now().as_millis();
+        let reply = {
+            let mut map = map.lock().await;
+            service.handle(&rx[..n], now_ms, &mut *map, &mut tx).await
+        };
+        let Some((len, what)) = reply else { continue };
+        let to = if identity.running.same_subnet(ip) { ip } else { [255; 4] };
+        if let Err(e) = socket.send(&tx[..len], to, port).await {
+            crate::warn!("discovery: send failed: {:?}", e);
+        }
+        effect(what).await;
+    }
+}

@@ -45,6 +45,12 @@ impl NetConfig {
             && self.port != 0
     }
 
+    /// Whether `ip` is on this configuration's subnet.
+    pub fn same_subnet(&self, ip: [u8; 4]) -> bool {
+        let mask = u32::from_be_bytes(self.mask);
+        u32::from_be_bytes(self.ip) & mask == u32::from_be_bytes(ip) & mask
+    }
+
     /// Writes the fields into a settings record.
     pub fn encode(&self, w: &mut RecordWriter<'_>) {
         w.put(tag::IP, &self.ip);

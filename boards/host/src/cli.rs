@@ -26,6 +26,15 @@ pub struct Options {
     /// when it changes. Without it: 8318 inputs at 0 mV with 25 °C terminals; 8350 inputs low.
     #[arg(long, value_name = "FILE")]
     pub scenario: Option<PathBuf>,
+
+    /// Where the discovery / configuration service (UDP) listens.
+    #[arg(long, value_name = "ADDR:PORT", default_value = "0.0.0.0:8300")]
+    pub discovery: SocketAddr,
+
+    /// Reset every setting (network, password, I/O) to factory defaults at start-up, as
+    /// holding the USER button at power-up does on the module.
+    #[arg(long)]
+    pub factory_reset: bool,
 }
 
 impl Options {

@@ -3,6 +3,7 @@
 //! this crate (and the STM32 / QEMU boards beside it) knows about hardware or the OS.
 
 pub mod cli;
+pub mod discovery;
 pub mod flash;
 pub mod modbus;
 pub mod scenario;
@@ -16,6 +17,9 @@ pub fn init_logging() {
 use std::path::PathBuf;
 
 use clap::Parser;
+use remodaq_shared::identity::FIRMWARE_VERSION;
+use remodaq_shared::module::CommonSettings;
+use remodaq_shared::net::{mac_from_uid, NetConfig};
 use remodaq_shared::settings::{Schema, SettingsStore};
 
 /// A started simulated module: its options, settings and listener.
@@ -26,23 +30,54 @@ pub struct Started<S: Schema> {
     pub store: SettingsStore<flash::FileFlash, S>,
     /// The Modbus/TCP listener.
     pub listener: &'static modbus::Listener,
+    /// The discovery socket.
+    pub discovery: discovery::HostDatagrams,
+    /// What discovery tells about the module.
+    pub identity: remodaq_shared::discovery::Identity,
 }
 
-/// Common start-up: logging, command line, flash image, settings, listener. Exits the process
-/// with a clear message (and status 2) when the flash image or the address cannot be used.
-pub async fn start<S: Schema>(model: &str, port_of: impl Fn(&S) -> u16) -> Started<S> {
+/// Common start-up: logging, command line, flash image, settings, listener and discovery
+/// socket. Exits the process with a clear message (and status 2) when the flash image or an
+/// address cannot be used. `model` is the module name register value (8318h, 8350h).
+pub async fn start<S: CommonSettings>(model: u16) -> Started<S> {
+    let name = format!("{model:04X}");
     init_logging();
     let options = cli::Options::parse();
-    let path: PathBuf = options.flash_path(model);
+    let path: PathBuf = options.flash_path(&name);
     let flash = flash::FileFlash::open(&path).unwrap_or_else(|e| fail(&format!("flash image {}: {e}", path.display())));
-    let store =
+    let mut store =
         SettingsStore::open(flash, const { SettingsStore::<flash::FileFlash, S>::config(0..flash::SIZE as u32) }).await;
-    let addr = options.listen_addr(port_of(store.get()));
+    if options.factory_reset {
+        log::warn!("factory reset: every setting back to its factory default");
+        if store.commit(S::defaults()).await.is_err() {
+            fail("factory reset: the settings could not be written");
+        }
+    }
+    let net = store.get().net();
+    let addr = options.listen_addr(net.port);
     let listener = modbus::bind(addr).unwrap_or_else(|e| fail(&format!("cannot listen on {addr}: {e}")));
-    let local = listener.get_ref().local_addr().map_or(addr, |a| a);
-    log::info!("{model} simulated module: settings in {}", path.display());
+    let local = listener.get_ref().local_addr().unwrap_or(addr);
+    log::info!("RemoDAQ-{name} simulated module: settings in {}", path.display());
     log::info!("modbus: listening on {local}");
-    Started { options, store, listener: Box::leak(Box::new(listener)) }
+    let discovery = discovery::HostDatagrams::bind(options.discovery)
+        .unwrap_or_else(|e| fail(&format!("cannot listen on {}: {e}", options.discovery)));
+    // The simulated module's MAC: stable for its flash image, like the MCU's unique id.
+    let canonical = std::fs::canonicalize(&path).unwrap_or(path.clone());
+    let digest = <sha2::Sha256 as sha2::Digest>::digest(canonical.to_string_lossy().as_bytes());
+    let mut uid = [0u8; 12];
+    uid.copy_from_slice(&digest[..12]);
+    let running = match local.ip() {
+        std::net::IpAddr::V4(ip) if !ip.is_unspecified() => NetConfig { ip: ip.octets(), port: local.port(), ..net },
+        _ => NetConfig { port: local.port(), ..net },
+    };
+    let identity = remodaq_shared::discovery::Identity {
+        model,
+        name: if model == 0x8318 { "RemoDAQ-8318" } else { "RemoDAQ-8350" },
+        version: FIRMWARE_VERSION,
+        mac: mac_from_uid(&uid),
+        running,
+    };
+    Started { options, store, listener: Box::leak(Box::new(listener)), discovery, identity }
 }
 
 /// Exits the process with a clear message and status 2 (start-up errors).
