@@ -14,6 +14,7 @@ use remodaq_8318::settings::Settings;
 use remodaq_board_stm32::analog::{AdcSpi, NtcInput};
 use remodaq_board_stm32::modbus::{connection_task, ModbusSlots};
 use remodaq_board_stm32::{spawn, SettingsFlash, HEARTBEAT, SETTINGS_SIZE};
+use remodaq_shared::discovery::Identity;
 use remodaq_shared::modbus::server::{Slots, MAX_CONNECTIONS, SOCKETS};
 use remodaq_shared::settings::SettingsStore;
 use remodaq_shared::{error, health};
@@ -27,19 +28,27 @@ static SLOTS: ModbusSlots = Slots::new(MAX_CONNECTIONS);
 /// Starts the module's tasks.
 pub async fn run(spawner: Spawner) {
     let (board, settings_flash, io) = remodaq_board_stm32::init();
-    let store = SettingsStore::<SettingsFlash, Settings>::open(
+    let mut store = SettingsStore::<SettingsFlash, Settings>::open(
         settings_flash,
         const { SettingsStore::<SettingsFlash, Settings>::config(0..SETTINGS_SIZE) },
     )
     .await;
+    board.factory_reset(&mut store).await;
     let net = store.get().net;
+    let identity = board.identity(remodaq_8318::MODULE_NAME, remodaq_8318::MODEL, net);
     let map: &'static Map = MAP.init(Mutex::new(Map8318::new(store)));
     let stack = board.start(&spawner, &net);
     for slot in 0..SOCKETS {
         spawn(&spawner, modbus_task(stack, net.port, map, slot), "modbus");
     }
+    spawn(&spawner, discovery_task(stack, map, identity), "discovery");
     let (spi, ntc) = io.analog.start();
     spawn(&spawner, app_task(FrontEnd { adc: Ad7124::new(spi), ntc, ready: false }, map), "app");
+}
+
+#[embassy_executor::task]
+async fn discovery_task(stack: Stack<'static>, map: &'static Map, identity: Identity) -> ! {
+    remodaq_board_stm32::discovery::run(stack, map, identity).await
 }
 
 #[embassy_executor::task(pool_size = SOCKETS)]

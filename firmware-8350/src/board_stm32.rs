@@ -18,6 +18,7 @@ use remodaq_8350::settings::Settings;
 use remodaq_board_stm32::digital::{self, InputCapture, OutputPattern, PATTERN_LEN};
 use remodaq_board_stm32::modbus::{connection_task, ModbusSlots};
 use remodaq_board_stm32::{spawn, SettingsFlash, HEARTBEAT, SETTINGS_SIZE};
+use remodaq_shared::discovery::Identity;
 use remodaq_shared::modbus::server::{Slots, MAX_CONNECTIONS, SOCKETS};
 use remodaq_shared::settings::SettingsStore;
 use remodaq_shared::{error, health};
@@ -36,12 +37,14 @@ const _: () = assert!(digital::SAMPLE_RATE_HZ == SAMPLE_RATE_HZ && digital::TICK
 /// Starts the module's tasks.
 pub async fn run(spawner: Spawner) {
     let (board, settings_flash, io) = remodaq_board_stm32::init();
-    let store = SettingsStore::<SettingsFlash, Settings>::open(
+    let mut store = SettingsStore::<SettingsFlash, Settings>::open(
         settings_flash,
         const { SettingsStore::<SettingsFlash, Settings>::config(0..SETTINGS_SIZE) },
     )
     .await;
+    board.factory_reset(&mut store).await;
     let net = store.get().net;
+    let identity = board.identity(remodaq_8350::MODULE_NAME, remodaq_8350::MODEL, net);
     let cell: &'static Cell = IO.init(IoCell::new(RefCell::new(Io::new(SAMPLE_RATE_HZ, store.get()))));
     let map: &'static Map = MAP.init(Mutex::new(Map8350::new(store, cell)));
     let (capture, pattern) = io.digital.start(|ticks| io::with(cell, |s| s.pulse.fill(ticks)));
@@ -49,8 +52,14 @@ pub async fn run(spawner: Spawner) {
     for slot in 0..SOCKETS {
         spawn(&spawner, modbus_task(stack, net.port, map, slot), "modbus");
     }
+    spawn(&spawner, discovery_task(stack, map, identity), "discovery");
     spawn(&spawner, input_task(capture, cell), "inputs");
     spawn(&spawner, output_task(pattern, cell), "outputs");
+}
+
+#[embassy_executor::task]
+async fn discovery_task(stack: Stack<'static>, map: &'static Map, identity: Identity) -> ! {
+    remodaq_board_stm32::discovery::run(stack, map, identity).await
 }
 
 #[embassy_executor::task(pool_size = SOCKETS)]

@@ -6,13 +6,14 @@
 
 pub mod analog;
 pub mod digital;
+pub mod discovery;
 pub mod modbus;
 
 use embassy_executor::Spawner;
 use embassy_net::{Ipv4Address, Ipv4Cidr, Stack, StackResources, StaticConfigV4};
 use embassy_stm32::eth::{Ethernet, GenericPhy, PacketQueue, Sma};
 use embassy_stm32::flash::{Async, Bank2Region1, Flash};
-use embassy_stm32::gpio::{Level, Output, Speed};
+use embassy_stm32::gpio::{Input, Level, Output, Pull, Speed};
 use embassy_stm32::peripherals::{ETH, ETH_SMA, IWDG};
 use embassy_stm32::rng::Rng;
 use embassy_stm32::time::Hertz;
@@ -50,6 +51,9 @@ pub static HEARTBEAT: Heartbeat = Heartbeat::new(health::NET | health::APP);
 pub struct Board {
     /// MAC address (from the unique id).
     pub mac: [u8; 6],
+    /// The USER button (B1, PC13) was held at power-up: reset every setting to its factory
+    /// default (the documented way back when the password is lost).
+    pub factory_reset: bool,
     parts: Parts,
 }
 
@@ -119,6 +123,7 @@ pub fn init() -> (Board, SettingsFlash, Io) {
     let settings_flash = Flash::new(p.FLASH, Irqs).into_regions().bank2_region1;
     // LD1 (green, PB0): the "identify" LED.
     let led = Output::new(p.PB0, Level::Low, Speed::Low);
+    let factory_reset = Input::new(p.PC13, Pull::Down).is_high();
 
     let io = Io {
         analog: analog::AnalogPeripherals {
@@ -154,10 +159,35 @@ pub fn init() -> (Board, SettingsFlash, Io) {
             outputs: [p.PF12.into(), p.PF13.into(), p.PF14.into(), p.PF15.into(), p.PF3.into(), p.PF5.into()],
         },
     };
-    (Board { mac, parts: Parts { eth, seed: u64::from_le_bytes(seed), iwdg: p.IWDG, led } }, settings_flash, io)
+    let parts = Parts { eth, seed: u64::from_le_bytes(seed), iwdg: p.IWDG, led };
+    (Board { mac, factory_reset, parts }, settings_flash, io)
 }
 
 impl Board {
+    /// What discovery tells about a module of name register `model` running with `net`.
+    pub fn identity(&self, model: u16, name: &'static str, net: NetConfig) -> remodaq_shared::discovery::Identity {
+        remodaq_shared::discovery::Identity {
+            model,
+            name,
+            version: remodaq_shared::identity::FIRMWARE_VERSION,
+            mac: self.mac,
+            running: net,
+        }
+    }
+
+    /// Resets the settings to factory defaults if the USER button was held at power-up.
+    pub async fn factory_reset<S: remodaq_shared::settings::Schema>(
+        &self,
+        store: &mut remodaq_shared::settings::SettingsStore<SettingsFlash, S>,
+    ) {
+        if self.factory_reset {
+            remodaq_shared::warn!("USER button held at power-up: factory reset of every setting");
+            if store.commit(S::defaults()).await.is_err() {
+                error!("factory reset: the settings could not be written");
+            }
+        }
+    }
+
     /// Starts the network with the stored settings (QEMU-free static IPv4) and the watchdog.
     pub fn start(self, spawner: &Spawner, net: &NetConfig) -> Stack<'static> {
         let Parts { eth, seed, iwdg, led } = self.parts;
@@ -171,7 +201,8 @@ impl Board {
         static RESOURCES: StaticCell<StackResources<STACK_SOCKETS>> = StaticCell::new();
         let (stack, runner) = embassy_net::new(eth, config, RESOURCES.init(StackResources::new()), seed);
         spawn(spawner, net_task(runner), "net");
-        spawn(spawner, watchdog_task(IndependentWatchdog::new(iwdg, WATCHDOG_TIMEOUT_US), led), "watchdog");
+        spawn(spawner, watchdog_task(IndependentWatchdog::new(iwdg, WATCHDOG_TIMEOUT_US)), "watchdog");
+        spawn(spawner, identify_task(led), "identify");
         info!("network: {}.{}.{}.{}/{} port {}", net.ip[0], net.ip[1], net.ip[2], net.ip[3], prefix, net.port);
         stack
     }
@@ -202,8 +233,22 @@ async fn net_task(mut runner: embassy_net::Runner<'static, Device>) -> ! {
     }
 }
 
+/// Blinks LD1 (5 Hz) for 10 s each time discovery asks to identify the module.
 #[embassy_executor::task]
-async fn watchdog_task(mut wdg: IndependentWatchdog<'static, IWDG>, _led: Output<'static>) -> ! {
+async fn identify_task(mut led: Output<'static>) -> ! {
+    loop {
+        discovery::IDENTIFY.wait().await;
+        for _ in 0..50 {
+            led.set_high();
+            Timer::after_millis(100).await;
+            led.set_low();
+            Timer::after_millis(100).await;
+        }
+    }
+}
+
+#[embassy_executor::task]
+async fn watchdog_task(mut wdg: IndependentWatchdog<'static, IWDG>) -> ! {
     wdg.unleash();
     loop {
         Timer::after(FEED_EVERY).await;
