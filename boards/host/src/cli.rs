@@ -1,6 +1,6 @@
 //! The simulated module's command line (spec host-build.md).
 
-use std::net::SocketAddr;
+use std::net::{IpAddr, SocketAddr};
 use std::path::PathBuf;
 
 use clap::Parser;
@@ -12,10 +12,10 @@ use clap::Parser;
     about = "A RemoDAQ-8300 module simulated on this PC: the module's application with simulated inputs, Modbus/TCP on std sockets and settings in a flash image file."
 )]
 pub struct Options {
-    /// Where the Modbus/TCP server listens, as ADDR:PORT. Default: 127.0.0.1 and the port from
-    /// the module's settings (factory default 8000).
-    #[arg(long, value_name = "ADDR:PORT")]
-    pub listen: Option<SocketAddr>,
+    /// Where the Modbus/TCP server listens, as ADDR:PORT, or ADDR alone for the port from the
+    /// module's settings. Default: 127.0.0.1 and the port from the settings (factory 8000).
+    #[arg(long, value_name = "ADDR[:PORT]", value_parser = parse_listen)]
+    pub listen: Option<Listen>,
 
     /// The settings flash image. Settings survive a restart with the same file; a missing file
     /// is a blank flash (factory defaults). Default: `remodaq-<model>.flash` in the OS temp dir.
@@ -37,14 +37,35 @@ pub struct Options {
     pub factory_reset: bool,
 }
 
+/// A `--listen` value.
+#[derive(Clone, Copy, Debug)]
+pub enum Listen {
+    /// Address and port.
+    Addr(SocketAddr),
+    /// Address; the port comes from the settings.
+    Ip(IpAddr),
+}
+
+fn parse_listen(s: &str) -> Result<Listen, String> {
+    s.parse::<SocketAddr>()
+        .map(Listen::Addr)
+        .or_else(|_| s.parse::<IpAddr>().map(Listen::Ip))
+        .map_err(|_| format!("`{s}` is not ADDR or ADDR:PORT"))
+}
+
 impl Options {
     /// The flash image path, defaulting to a file named after the model in the temp dir.
     pub fn flash_path(&self, model: &str) -> PathBuf {
         self.flash.clone().unwrap_or_else(|| std::env::temp_dir().join(format!("remodaq-{model}.flash")))
     }
 
-    /// The listen address: `--listen`, else 127.0.0.1 on the settings' port.
+    /// The listen address: `--listen`, with the settings' port where it gives none; else
+    /// 127.0.0.1 on the settings' port.
     pub fn listen_addr(&self, settings_port: u16) -> SocketAddr {
-        self.listen.unwrap_or_else(|| SocketAddr::from(([127, 0, 0, 1], settings_port)))
+        match self.listen {
+            Some(Listen::Addr(addr)) => addr,
+            Some(Listen::Ip(ip)) => SocketAddr::new(ip, settings_port),
+            None => SocketAddr::from(([127, 0, 0, 1], settings_port)),
+        }
     }
 }

@@ -1,0 +1,519 @@
+//! Reading, watching and configuring a module's I/O over Modbus/TCP (tokio-modbus).
+
+use std::net::{SocketAddr, ToSocketAddrs};
+use std::time::Duration;
+
+use clap::{Subcommand, ValueEnum};
+use remodaq_8318::input::{unscale, InputType, Kind};
+use serde::Serialize;
+use tokio::time::timeout as within;
+use tokio_modbus::client::{tcp, Context, Reader, Writer};
+use tokio_modbus::ExceptionCode;
+
+use crate::Error;
+
+/// An I/O setting (`remodaq config MODULE ...`).
+#[derive(Subcommand)]
+pub enum Setting {
+    /// 8318: input type of all channels (40201): a code (0F), or a thermocouple letter (K).
+    Type { code: String },
+    /// 8318: enabled channels (40221) as a bit mask, e.g. 0xFF or 0b101.
+    Enable { mask: String },
+    /// 8318: cold-junction offset (40216), °C, -50 to 50.
+    CjcOffset {
+        #[arg(allow_negative_numbers = true)]
+        celsius: f64,
+    },
+    /// 8350: mode of input N (40257 + N).
+    DiMode { channel: u16, mode: DiMode },
+    /// 8350: mode of output N (40273 + N).
+    DoMode { channel: u16, mode: DoMode },
+    /// 8350: pulse train of output N (40025.., 40037.., 40049..): widths in ms (0.1 ms steps).
+    Pulse {
+        channel: u16,
+        #[arg(long)]
+        low_ms: f64,
+        #[arg(long)]
+        high_ms: f64,
+        /// Pulses per train; 0 = continuous.
+        #[arg(long, default_value_t = 0)]
+        count: u32,
+    },
+    /// 8350: add pulses to output N's running train (40061 + 2N).
+    Extra { channel: u16, pulses: u32 },
+    /// 8350: start, stop or clear input N's counter (bits 00033 + 4N, 00034 + 4N).
+    Counter { channel: u16, action: CounterAction },
+    /// 8350: clear input N's latch flag (bit 00036 + 4N).
+    LatchClear { channel: u16 },
+    /// 8350: set output N (bit 00017 + N); in pulse mode `on` starts the train, `off` stops it.
+    Do { channel: u16, state: OnOff },
+    /// Either module: write one holding register, by its 4X number (40201) or PDU address
+    /// (0xC8), for what the commands above do not cover.
+    Register { address: String, value: String },
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum DiMode {
+    Normal,
+    Counter,
+    LatchRising,
+    LatchFalling,
+    Frequency,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum DoMode {
+    Normal,
+    Pulse,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum CounterAction {
+    Start,
+    Stop,
+    Clear,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum OnOff {
+    On,
+    Off,
+}
+
+const DI_MODES: [&str; 5] = ["normal", "counter", "latch-rising", "latch-falling", "frequency"];
+
+fn exception(e: ExceptionCode) -> Error {
+    let meaning = match e {
+        ExceptionCode::IllegalFunction => "01 illegal function: the module does not support this request",
+        ExceptionCode::IllegalDataAddress => "02 illegal data address: not mapped for this access on this module",
+        ExceptionCode::IllegalDataValue => "03 illegal data value: the module does not accept this value",
+        ExceptionCode::ServerDeviceFailure => "04 server device failure: the setting could not be stored",
+        _ => "unexpected exception",
+    };
+    Error::Exception(format!("the module answered exception {meaning}"))
+}
+
+/// A module's Modbus/TCP connection.
+struct Module {
+    ctx: Context,
+    addr: SocketAddr,
+    timeout: Duration,
+    model: u16,
+}
+
+fn resolve(module: &str) -> Result<SocketAddr, Error> {
+    let with_port = if module.contains(':') { module.to_string() } else { format!("{module}:8000") };
+    with_port
+        .to_socket_addrs()
+        .map_err(|e| Error::Other(format!("`{module}`: {e}")))?
+        .next()
+        .ok_or_else(|| Error::Other(format!("`{module}`: no address")))
+}
+
+impl Module {
+    async fn connect(module: &str, timeout: Duration) -> Result<Self, Error> {
+        let addr = resolve(module)?;
+        let ctx = within(timeout, tcp::connect(addr))
+            .await
+            .map_err(|_| Error::Timeout(format!("no connection to {addr} within {:.1} s", timeout.as_secs_f64())))?
+            .map_err(|e| Error::Other(format!("cannot connect to {addr}: {e}")))?;
+        let mut m = Self { ctx, addr, timeout, model: 0 };
+        m.model = m.regs(0xD2, 1).await?[0];
+        if m.model != 0x8318 && m.model != 0x8350 {
+            return Err(Error::Other(format!("{addr} is not a RemoDAQ-8318 or -8350 (40211 reads {:04X})", m.model)));
+        }
+        Ok(m)
+    }
+
+    fn late(&self) -> Error {
+        Error::Timeout(format!("{} did not answer within {:.1} s", self.addr, self.timeout.as_secs_f64()))
+    }
+
+    async fn regs(&mut self, addr: u16, n: u16) -> Result<Vec<u16>, Error> {
+        let r = within(self.timeout, self.ctx.read_holding_registers(addr, n)).await.map_err(|_| self.late())?;
+        r.map_err(|e| Error::Other(format!("{}: {e}", self.addr)))?.map_err(exception)
+    }
+
+    async fn bits(&mut self, addr: u16, n: u16) -> Result<Vec<bool>, Error> {
+        let r = within(self.timeout, self.ctx.read_coils(addr, n)).await.map_err(|_| self.late())?;
+        r.map_err(|e| Error::Other(format!("{}: {e}", self.addr)))?.map_err(exception)
+    }
+
+    async fn write_regs(&mut self, addr: u16, values: &[u16]) -> Result<(), Error> {
+        let r = within(self.timeout, self.ctx.write_multiple_registers(addr, values)).await.map_err(|_| self.late())?;
+        r.map_err(|e| Error::Other(format!("{}: {e}", self.addr)))?.map_err(exception)
+    }
+
+    async fn write_bit(&mut self, addr: u16, on: bool) -> Result<(), Error> {
+        let r = within(self.timeout, self.ctx.write_single_coil(addr, on)).await.map_err(|_| self.late())?;
+        r.map_err(|e| Error::Other(format!("{}: {e}", self.addr)))?.map_err(exception)
+    }
+
+    fn expect(&self, model: u16) -> Result<(), Error> {
+        if self.model == model {
+            Ok(())
+        } else {
+            Err(Error::Other(format!(
+                "this setting is for a RemoDAQ-{model:04X}; {} is a RemoDAQ-{:04X}",
+                self.addr, self.model
+            )))
+        }
+    }
+}
+
+/// One reading of an 8318.
+#[derive(Serialize)]
+struct Analog {
+    model: &'static str,
+    input_type: String,
+    type_code: String,
+    unit: &'static str,
+    cold_junction_c: f64,
+    cjc_offset_c: f64,
+    channels: Vec<AnalogChannel>,
+}
+
+#[derive(Serialize)]
+struct AnalogChannel {
+    channel: usize,
+    enabled: bool,
+    raw: u16,
+    value: Option<f64>,
+    status: &'static str,
+}
+
+fn type_name(t: &InputType) -> (String, &'static str, f64) {
+    match t.kind {
+        Kind::Thermocouple(tc) => (format!("thermocouple {}", tc.letter()), "°C", 1.0),
+        Kind::Current => ("current ±20 mA".into(), "mA", 1.0),
+        Kind::Voltage if t.hi >= 1000.0 => (format!("voltage ±{} V", t.hi / 1000.0), "V", 1000.0),
+        Kind::Voltage => (format!("voltage ±{} mV", t.hi), "mV", 1.0),
+    }
+}
+
+async fn read_analog(m: &mut Module) -> Result<Analog, Error> {
+    let values = m.regs(0x00, 9).await?;
+    let code = m.regs(0xC8, 1).await?[0];
+    let offset = m.regs(0xD7, 1).await?[0] as i16;
+    let enabled = m.regs(0xDC, 1).await?[0];
+    let input =
+        InputType::from_code(code as u8).ok_or_else(|| Error::Other(format!("unknown input type {code:02X}")))?;
+    let (name, unit, divisor) = type_name(&input);
+    let tc = matches!(input.kind, Kind::Thermocouple(_));
+    let channels = (0..8)
+        .map(|ch| {
+            let raw = values[ch];
+            let on = enabled & (1 << ch) != 0;
+            let status = match (on, raw) {
+                (false, _) => "disabled",
+                (true, 0x0000) => "under range",
+                (true, 0xFFFF) if tc => "open or over range",
+                (true, 0xFFFF) => "over range",
+                _ => "ok",
+            };
+            let value =
+                (status == "ok").then(|| (unscale(raw, input.lo, input.hi) / divisor * 1000.0).round() / 1000.0);
+            AnalogChannel { channel: ch, enabled: on, raw, value, status }
+        })
+        .collect();
+    Ok(Analog {
+        model: "RemoDAQ-8318",
+        input_type: name,
+        type_code: format!("{code:02X}"),
+        unit,
+        cold_junction_c: f64::from(values[8] as i16) / 100.0,
+        cjc_offset_c: f64::from(offset) / 100.0,
+        channels,
+    })
+}
+
+/// One reading of an 8350.
+#[derive(Serialize)]
+struct Digital {
+    model: &'static str,
+    inputs: Vec<Input>,
+    outputs: Vec<Output>,
+}
+
+#[derive(Serialize)]
+struct Input {
+    channel: usize,
+    state: bool,
+    mode: &'static str,
+    /// Counter value, or frequency (Hz) in frequency mode.
+    value: u32,
+    counter_running: bool,
+    overflow: bool,
+    latch: bool,
+}
+
+#[derive(Serialize)]
+struct Output {
+    channel: usize,
+    state: bool,
+    mode: &'static str,
+    low_ms: f64,
+    high_ms: f64,
+    count: u32,
+}
+
+fn pairs(words: &[u16]) -> Vec<u32> {
+    words.chunks(2).map(|p| u32::from(p[0]) | u32::from(p[1]) << 16).collect()
+}
+
+async fn read_digital(m: &mut Module) -> Result<Digital, Error> {
+    let states = m.regs(0x12C, 1).await?[0];
+    let counters = pairs(&m.regs(0x00, 24).await?);
+    let pulses = pairs(&m.regs(0x18, 36).await?);
+    let di_modes = m.regs(0x100, 12).await?;
+    let do_modes = m.regs(0x110, 6).await?;
+    let dos = m.bits(0x10, 6).await?;
+    // Reading the overflow and latch flags clears them (the module's documented behaviour).
+    let flags = m.bits(0x20, 48).await?;
+    let inputs = (0..12)
+        .map(|n| Input {
+            channel: n,
+            state: states & (1 << n) != 0,
+            mode: DI_MODES.get(usize::from(di_modes[n])).copied().unwrap_or("unknown"),
+            value: counters[n],
+            counter_running: flags[4 * n],
+            overflow: flags[4 * n + 2],
+            latch: flags[4 * n + 3],
+        })
+        .collect();
+    let outputs = (0..6)
+        .map(|n| Output {
+            channel: n,
+            state: dos[n],
+            mode: if do_modes[n] == 1 { "pulse" } else { "normal" },
+            low_ms: f64::from(pulses[n]) / 10.0,
+            high_ms: f64::from(pulses[6 + n]) / 10.0,
+            count: pulses[12 + n],
+        })
+        .collect();
+    Ok(Digital { model: "RemoDAQ-8350", inputs, outputs })
+}
+
+async fn read_once(m: &mut Module, json: bool) -> Result<(), Error> {
+    if m.model == 0x8318 {
+        let a = read_analog(m).await?;
+        if json {
+            println!("{}", serde_json::to_string(&a).unwrap_or_default());
+            return Ok(());
+        }
+        println!(
+            "{} at {}: {} (type {}), cold junction {:.2} °C (offset {:+.2})",
+            a.model, m.addr, a.input_type, a.type_code, a.cold_junction_c, a.cjc_offset_c
+        );
+        for c in &a.channels {
+            match c.value {
+                Some(v) => println!("  ch{}  {:>10.3} {:<3}  ({:04X})", c.channel, v, a.unit, c.raw),
+                None => println!("  ch{}  {:>14}  ({:04X})", c.channel, c.status, c.raw),
+            }
+        }
+    } else {
+        let d = read_digital(m).await?;
+        if json {
+            println!("{}", serde_json::to_string(&d).unwrap_or_default());
+            return Ok(());
+        }
+        println!("{} at {}", d.model, m.addr);
+        println!(
+            "  {:<5} {:<5} {:<13} {:>12} {:<8} {:<8} {:<5}",
+            "input", "state", "mode", "value", "counter", "overflow", "latch"
+        );
+        for i in &d.inputs {
+            let value = match i.mode {
+                "counter" => i.value.to_string(),
+                "frequency" => format!("{} Hz", i.value),
+                _ => "-".into(),
+            };
+            println!(
+                "  DI{:<3} {:<5} {:<13} {:>12} {:<8} {:<8} {:<5}",
+                i.channel,
+                u8::from(i.state),
+                i.mode,
+                value,
+                if i.counter_running { "running" } else { "stopped" },
+                u8::from(i.overflow),
+                u8::from(i.latch)
+            );
+        }
+        println!("  {:<5} {:<5} {:<7} {:>9} {:>9} {:>7}", "output", "state", "mode", "low ms", "high ms", "count");
+        for o in &d.outputs {
+            println!(
+                "  DO{:<4} {:<5} {:<7} {:>9.1} {:>9.1} {:>7}",
+                o.channel,
+                u8::from(o.state),
+                o.mode,
+                o.low_ms,
+                o.high_ms,
+                o.count
+            );
+        }
+    }
+    Ok(())
+}
+
+/// `remodaq read`.
+pub async fn read(module: &str, timeout: Duration, json: bool) -> Result<(), Error> {
+    let mut m = Module::connect(module, timeout).await?;
+    read_once(&mut m, json).await
+}
+
+/// `remodaq watch`: a reading every `interval` (JSON: one object per line).
+pub async fn watch(
+    module: &str,
+    timeout: Duration,
+    interval: Duration,
+    count: Option<u64>,
+    json: bool,
+) -> Result<(), Error> {
+    let mut m = Module::connect(module, timeout).await?;
+    let mut ticker = tokio::time::interval(interval);
+    let mut done = 0u64;
+    while count.is_none_or(|c| done < c) {
+        ticker.tick().await;
+        read_once(&mut m, json).await?;
+        done += 1;
+    }
+    Ok(())
+}
+
+fn parse_number(s: &str) -> Result<u32, Error> {
+    let s = s.trim();
+    let parsed = if let Some(h) = s.strip_prefix("0x").or_else(|| s.strip_prefix("0X")) {
+        u32::from_str_radix(h, 16)
+    } else if let Some(b) = s.strip_prefix("0b") {
+        u32::from_str_radix(b, 2)
+    } else {
+        s.parse()
+    };
+    parsed.map_err(|_| Error::Other(format!("`{s}` is not a number")))
+}
+
+fn type_code(s: &str) -> Result<u16, Error> {
+    let letter = s.trim().to_ascii_uppercase();
+    let by_letter = ["J", "K", "T", "E", "R", "S", "B", "N", "C", "L", "M"].iter().position(|l| *l == letter);
+    if let Some(i) = by_letter {
+        return Ok(0x0E + i as u16);
+    }
+    let code = u16::from_str_radix(letter.trim_start_matches("0X"), 16)
+        .map_err(|_| Error::Other(format!("`{s}` is not a type code")))?;
+    InputType::from_code(code as u8)
+        .filter(|_| code <= 0xFF)
+        .map(|_| code)
+        .ok_or_else(|| Error::Other(format!("{code:02X} is not an input type code (00-06, 0E-18)")))
+}
+
+fn channel(n: u16, count: u16) -> Result<u16, Error> {
+    if n < count {
+        Ok(n)
+    } else {
+        Err(Error::Other(format!("channel {n} does not exist (0..{})", count - 1)))
+    }
+}
+
+fn ticks(ms: f64) -> Result<u32, Error> {
+    let t = (ms * 10.0).round();
+    if (1.0..=f64::from(u32::MAX)).contains(&t) {
+        Ok(t as u32)
+    } else {
+        Err(Error::Other(format!("{ms} ms is not a width (0.1 ms or more)")))
+    }
+}
+
+fn words(v: u32) -> [u16; 2] {
+    [v as u16, (v >> 16) as u16]
+}
+
+/// `remodaq config`.
+pub async fn config(module: &str, setting: Setting, timeout: Duration, json: bool) -> Result<(), Error> {
+    let mut m = Module::connect(module, timeout).await?;
+    let done = match setting {
+        Setting::Type { code } => {
+            m.expect(0x8318)?;
+            let code = type_code(&code)?;
+            m.write_regs(0xC8, &[code]).await?;
+            format!("input type {code:02X}")
+        }
+        Setting::Enable { mask } => {
+            m.expect(0x8318)?;
+            let mask = parse_number(&mask)?;
+            if mask > 0xFF {
+                return Err(Error::Other("the enable mask has 8 bits (0x00 to 0xFF)".into()));
+            }
+            m.write_regs(0xDC, &[mask as u16]).await?;
+            format!("enabled channels {mask:#04x}")
+        }
+        Setting::CjcOffset { celsius } => {
+            m.expect(0x8318)?;
+            let hundredths = (celsius * 100.0).round();
+            if !(-5000.0..=5000.0).contains(&hundredths) {
+                return Err(Error::Other("the CJC offset is -50.00 to 50.00 °C".into()));
+            }
+            m.write_regs(0xD7, &[hundredths as i16 as u16]).await?;
+            format!("CJC offset {:+.2} °C", hundredths / 100.0)
+        }
+        Setting::DiMode { channel: n, mode } => {
+            m.expect(0x8350)?;
+            m.write_regs(0x100 + channel(n, 12)?, &[mode as u16]).await?;
+            format!("DI{n} mode {}", DI_MODES[mode as usize])
+        }
+        Setting::DoMode { channel: n, mode } => {
+            m.expect(0x8350)?;
+            m.write_regs(0x110 + channel(n, 6)?, &[mode as u16]).await?;
+            format!("DO{n} mode {}", if matches!(mode, DoMode::Pulse) { "pulse" } else { "normal" })
+        }
+        Setting::Pulse { channel: n, low_ms, high_ms, count } => {
+            m.expect(0x8350)?;
+            let n = channel(n, 6)?;
+            let (low, high) = (ticks(low_ms)?, ticks(high_ms)?);
+            m.write_regs(0x18 + 2 * n, &words(low)).await?;
+            m.write_regs(0x24 + 2 * n, &words(high)).await?;
+            m.write_regs(0x30 + 2 * n, &words(count)).await?;
+            format!("DO{n} pulses: low {low_ms} ms, high {high_ms} ms, count {count}")
+        }
+        Setting::Extra { channel: n, pulses } => {
+            m.expect(0x8350)?;
+            m.write_regs(0x3C + 2 * channel(n, 6)?, &words(pulses)).await?;
+            format!("DO{n}: {pulses} extra pulses")
+        }
+        Setting::Counter { channel: n, action } => {
+            m.expect(0x8350)?;
+            let base = 0x20 + 4 * channel(n, 12)?;
+            match action {
+                CounterAction::Start => m.write_bit(base, true).await?,
+                CounterAction::Stop => m.write_bit(base, false).await?,
+                CounterAction::Clear => m.write_bit(base + 1, true).await?,
+            }
+            format!("DI{n} counter {}", ["started", "stopped", "cleared"][action as usize])
+        }
+        Setting::LatchClear { channel: n } => {
+            m.expect(0x8350)?;
+            m.write_bit(0x23 + 4 * channel(n, 12)?, false).await?;
+            format!("DI{n} latch cleared")
+        }
+        Setting::Register { address, value } => {
+            let a = parse_number(&address)?;
+            let pdu = if (40001..=105536).contains(&a) { a - 40001 } else { a };
+            let pdu = u16::try_from(pdu).map_err(|_| Error::Other(format!("`{address}` is not a register")))?;
+            let v = u16::try_from(parse_number(&value)?)
+                .map_err(|_| Error::Other(format!("`{value}` does not fit 16 bits")))?;
+            m.write_regs(pdu, &[v]).await?;
+            format!("register {} ({pdu:#06x}) = {v:#06x}", u32::from(pdu) + 40001)
+        }
+        Setting::Do { channel: n, state } => {
+            m.expect(0x8350)?;
+            let on = matches!(state, OnOff::On);
+            m.write_bit(0x10 + channel(n, 6)?, on).await?;
+            format!("DO{n} {}", if on { "on" } else { "off" })
+        }
+    };
+    if json {
+        println!("{}", serde_json::json!({ "module": m.addr.to_string(), "status": "ok", "message": done }));
+    } else {
+        println!("{}: {done}", m.addr);
+    }
+    Ok(())
+}

@@ -1,0 +1,215 @@
+//! `remodaq`: find RemoDAQ-8300 modules on the LAN, change their network settings, restart
+//! and identify them, and read, watch and configure their I/O over Modbus/TCP.
+
+mod io;
+mod lan;
+
+use std::net::{Ipv4Addr, SocketAddr};
+use std::process::ExitCode;
+use std::time::Duration;
+
+use clap::{Parser, Subcommand};
+
+/// Find, configure, read and watch RemoDAQ-8318 and RemoDAQ-8350 modules.
+#[derive(Parser)]
+#[command(version, about, long_about = None)]
+struct Cli {
+    /// Machine-readable output (JSON) instead of tables.
+    #[arg(long, global = true)]
+    json: bool,
+    /// Seconds to wait for answers.
+    #[arg(long, global = true, default_value_t = 2.0)]
+    timeout: f64,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// List the modules that answer on the LAN.
+    Search {
+        /// Where to send the search: the broadcast address by default, or one module.
+        #[arg(long, default_value = "255.255.255.255:8300")]
+        to: SocketAddr,
+    },
+    /// Network settings.
+    Net {
+        #[command(subcommand)]
+        command: NetCommand,
+    },
+    /// Restart a module (new network settings take effect).
+    Restart {
+        #[command(flatten)]
+        target: Target,
+        #[command(flatten)]
+        password: Auth,
+    },
+    /// Blink a module's LED for 10 s.
+    Identify {
+        #[command(flatten)]
+        target: Target,
+    },
+    /// Change a module's configuration password.
+    Password {
+        #[command(flatten)]
+        target: Target,
+        #[command(flatten)]
+        password: Auth,
+        /// The new password (4 to 32 bytes).
+        #[arg(long)]
+        new: String,
+    },
+    /// Read a module's inputs and outputs once.
+    Read {
+        /// The module's Modbus/TCP address, e.g. 192.168.0.1 or 192.168.0.1:8000.
+        module: String,
+    },
+    /// Read a module's inputs and outputs repeatedly.
+    Watch {
+        /// The module's Modbus/TCP address.
+        module: String,
+        /// Seconds between reads.
+        #[arg(long, default_value_t = 1.0)]
+        interval: f64,
+        /// Stop after this many reads (default: until interrupted).
+        #[arg(long)]
+        count: Option<u64>,
+    },
+    /// Configure a module's I/O (each maps to documented registers).
+    Config {
+        /// The module's Modbus/TCP address.
+        module: String,
+        #[command(subcommand)]
+        setting: io::Setting,
+    },
+}
+
+#[derive(Subcommand)]
+enum NetCommand {
+    /// Store new network settings (in force after `remodaq restart`). Settings not given keep
+    /// their stored value.
+    Set {
+        #[command(flatten)]
+        target: Target,
+        #[command(flatten)]
+        password: Auth,
+        /// IP address.
+        #[arg(long)]
+        ip: Option<Ipv4Addr>,
+        /// Subnet mask.
+        #[arg(long)]
+        mask: Option<Ipv4Addr>,
+        /// Default gateway (0.0.0.0: none).
+        #[arg(long)]
+        gateway: Option<Ipv4Addr>,
+        /// Modbus/TCP port.
+        #[arg(long)]
+        port: Option<u16>,
+    },
+}
+
+/// Which module, by MAC address, and where to send the command.
+#[derive(clap::Args)]
+struct Target {
+    /// The module's MAC address (as `remodaq search` shows it).
+    #[arg(long)]
+    mac: lan::Mac,
+    /// Where to send: the broadcast address by default (reaches modules on any subnet of the
+    /// LAN), or the module's own address.
+    #[arg(long, default_value = "255.255.255.255:8300")]
+    to: SocketAddr,
+}
+
+/// The module's configuration password.
+#[derive(clap::Args)]
+struct Auth {
+    /// Configuration password (factory default: remodaq).
+    #[arg(long, env = "REMODAQ_PASSWORD", hide_env_values = true)]
+    password: String,
+}
+
+/// What went wrong, with the exit code it gives.
+#[derive(Debug)]
+pub enum Error {
+    /// No answer in time (exit 3).
+    Timeout(String),
+    /// The module answered a Modbus exception (exit 4).
+    Exception(String),
+    /// Wrong password or rate limited (exit 5).
+    Refused(String),
+    /// Anything else: connection, bad argument, unexpected answer (exit 1).
+    Other(String),
+}
+
+impl Error {
+    fn code(&self) -> u8 {
+        match self {
+            Error::Other(_) => 1,
+            Error::Timeout(_) => 3,
+            Error::Exception(_) => 4,
+            Error::Refused(_) => 5,
+        }
+    }
+}
+
+impl std::fmt::Display for Error {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Error::Timeout(m) => write!(f, "timeout: {m}"),
+            Error::Exception(m) | Error::Refused(m) | Error::Other(m) => f.write_str(m),
+        }
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let runtime = match tokio::runtime::Builder::new_current_thread().enable_all().build() {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return ExitCode::from(1);
+        }
+    };
+    match runtime.block_on(run(cli)) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::from(e.code())
+        }
+    }
+}
+
+async fn run(cli: Cli) -> Result<(), Error> {
+    let timeout = Duration::from_secs_f64(cli.timeout.max(0.01));
+    let json = cli.json;
+    match cli.command {
+        Command::Search { to } => lan::search(to, timeout, json).await,
+        Command::Net { command: NetCommand::Set { target, password, ip, mask, gateway, port } } => {
+            let change = lan::NetChange { ip, mask, gateway, port };
+            lan::set_network(target.to, target.mac, &password.password, change, timeout, json).await
+        }
+        Command::Restart { target, password } => {
+            lan::command(target.to, target.mac, lan::Command::Restart(&password.password), timeout, json).await
+        }
+        Command::Identify { target } => {
+            lan::command(target.to, target.mac, lan::Command::Identify, timeout, json).await
+        }
+        Command::Password { target, password, new } => {
+            let cmd = lan::Command::SetPassword(&password.password, &new);
+            lan::command(target.to, target.mac, cmd, timeout, json).await
+        }
+        Command::Read { module } => io::read(&module, timeout, json).await,
+        Command::Watch { module, interval, count } => {
+            io::watch(&module, timeout, Duration::from_secs_f64(interval.max(0.05)), count, json).await
+        }
+        Command::Config { module, setting } => io::config(&module, setting, timeout, json).await,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn command_line_is_consistent() {
+        <super::Cli as clap::CommandFactory>::command().debug_assert();
+    }
+}

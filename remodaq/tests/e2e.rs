@@ -1,0 +1,232 @@
+//! End to end: the `remodaq` tool against the host builds of both modules, on loopback.
+//! (Search aims at each module's unicast discovery address instead of the broadcast address.)
+
+use std::net::{SocketAddr, TcpListener};
+use std::path::PathBuf;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use remodaq_board_host::testing::SimModule;
+use serde_json::Value;
+
+const TOOL: &str = env!("CARGO_BIN_EXE_remodaq");
+
+/// A firmware's host build, next to this tool's binary (`cargo test --workspace` builds it).
+fn firmware(model: &str) -> String {
+    let dir = PathBuf::from(TOOL).parent().expect("bin dir").to_path_buf();
+    let path = dir.join(format!("firmware-{model}"));
+    assert!(path.exists(), "{} is missing: run the workspace's tests (cargo test --workspace)", path.display());
+    path.to_string_lossy().into_owned()
+}
+
+fn temp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("remodaq-e2e-tool-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join(name);
+    let _ = std::fs::remove_file(&path);
+    path
+}
+
+/// Runs the tool (bounded to 30 s): exit code, stdout, stderr.
+fn remodaq(args: &[&str]) -> (i32, String, String) {
+    let mut child = Command::new(TOOL)
+        .args(args)
+        .env_remove("REMODAQ_PASSWORD")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("run remodaq");
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while child.try_wait().expect("wait").is_none() {
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            panic!("remodaq {args:?} did not finish within 30 s");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let out = child.wait_with_output().expect("output");
+    let (stdout, stderr) =
+        (String::from_utf8_lossy(&out.stdout).into_owned(), String::from_utf8_lossy(&out.stderr).into_owned());
+    eprintln!("$ remodaq {}\n{stdout}{stderr}", args.join(" "));
+    (out.status.code().unwrap_or(-1), stdout, stderr)
+}
+
+fn json(args: &[&str]) -> Value {
+    let mut all = vec!["--json"];
+    all.extend_from_slice(args);
+    let (code, out, err) = remodaq(&all);
+    assert_eq!(code, 0, "{err}");
+    serde_json::from_str(&out).unwrap_or_else(|e| panic!("not JSON ({e}): {out}"))
+}
+
+fn search(module: &SimModule) -> Value {
+    let found = json(&["--timeout", "1", "search", "--to", &module.discovery.to_string()]);
+    assert_eq!(found.as_array().map(Vec::len), Some(1), "{found}");
+    found[0].clone()
+}
+
+/// Reads (JSON) until `ok` accepts the reading, at most 5 s.
+fn read_until(addr: &str, ok: impl Fn(&Value) -> bool) -> Value {
+    let deadline = Instant::now() + Duration::from_secs(5);
+    loop {
+        let r = json(&["read", addr]);
+        if ok(&r) {
+            return r;
+        }
+        assert!(Instant::now() < deadline, "reading never matched: {r}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+}
+
+#[test]
+fn search_finds_both_modules() {
+    let m8318 = SimModule::start(&firmware("8318"), &temp("search-8318.flash"));
+    let m8350 = SimModule::start(&firmware("8350"), &temp("search-8350.flash"));
+    let a = search(&m8318);
+    let b = search(&m8350);
+    assert_eq!((a["model"].as_str(), b["model"].as_str()), (Some("8318"), Some("8350")));
+    assert_eq!(a["running"]["port"].as_u64(), Some(u64::from(m8318.addr.port())));
+    assert_eq!(a["firmware"].as_str(), Some("A100"));
+    assert_ne!(a["mac"], b["mac"]);
+    let (code, table, _) = remodaq(&["--timeout", "1", "search", "--to", &m8350.discovery.to_string()]);
+    assert_eq!(code, 0);
+    assert!(table.contains("RemoDAQ-8350") && table.contains(b["mac"].as_str().unwrap()), "{table}");
+}
+
+#[test]
+fn network_settings_password_and_restart() {
+    let flash = temp("net.flash");
+    let p1 = free_port();
+    // Seed the stored port with a module on an ephemeral port.
+    let seed = SimModule::start(&firmware("8318"), &flash);
+    let mac = search(&seed)["mac"].as_str().unwrap().to_string();
+    let to = seed.discovery.to_string();
+    let (code, _, err) =
+        remodaq(&["net", "set", "--mac", &mac, "--to", &to, "--password", "wrong", "--port", &p1.to_string()]);
+    assert_eq!(code, 5, "wrong password");
+    assert!(err.contains("wrong password"), "{err}");
+    assert_eq!(search(&seed)["stored"]["port"].as_u64(), Some(8000), "nothing changed");
+    let (code, out, _) =
+        remodaq(&["net", "set", "--mac", &mac, "--to", &to, "--password", "remodaq", "--port", &p1.to_string()]);
+    assert_eq!(code, 0);
+    assert!(out.contains("stored"), "{out}");
+    assert_eq!(search(&seed)["stored"]["port"].as_u64(), Some(u64::from(p1)));
+    seed.kill();
+
+    // Listening on the settings' port: the stored port is in force after a start.
+    let mut module = SimModule::start_with(&firmware("8318"), &flash, &["--listen", "127.0.0.1"]);
+    assert_eq!(module.addr.port(), p1);
+    let to = module.discovery.to_string();
+    // A new port and a restart: the restart applies it.
+    let p2 = free_port();
+    let (code, _, _) =
+        remodaq(&["net", "set", "--mac", &mac, "--to", &to, "--password", "remodaq", "--port", &p2.to_string()]);
+    assert_eq!(code, 0);
+    let (code, out, _) = remodaq(&["restart", "--mac", &mac, "--to", &to, "--password", "remodaq"]);
+    assert_eq!(code, 0, "{out}");
+    module.wait_listening();
+    assert_eq!(module.addr.port(), p2, "the restarted module listens on the new port");
+    let running = search(&module);
+    assert_eq!(running["running"]["port"].as_u64(), Some(u64::from(p2)));
+    let read = json(&["read", &module.addr.to_string()]);
+    assert_eq!(read["model"].as_str(), Some("RemoDAQ-8318"));
+
+    // Identify; a password change; a MAC that is not there.
+    let to = module.discovery.to_string();
+    assert_eq!(remodaq(&["identify", "--mac", &mac, "--to", &to]).0, 0);
+    assert_eq!(
+        remodaq(&["password", "--mac", &mac, "--to", &to, "--password", "remodaq", "--new", "line 4 secret"]).0,
+        0
+    );
+    assert_eq!(remodaq(&["restart", "--mac", &mac, "--to", &to, "--password", "remodaq"]).0, 5);
+    let (code, _, err) = remodaq(&["--timeout", "0.5", "identify", "--mac", "02:00:00:00:00:01", "--to", &to]);
+    assert_eq!(code, 3, "no module with that MAC");
+    assert!(err.contains("timeout"), "{err}");
+}
+
+#[test]
+fn read_and_config_round_trip_8318() {
+    let module = SimModule::start(&firmware("8318"), &temp("io-8318.flash"));
+    let addr = module.addr.to_string();
+    assert_eq!(remodaq(&["config", &addr, "type", "J"]).0, 0);
+    assert_eq!(remodaq(&["config", &addr, "enable", "0x0F"]).0, 0);
+    assert_eq!(remodaq(&["config", &addr, "cjc-offset", "-2.5"]).0, 0);
+    // Values follow at the next 100 ms acquisition cycle.
+    let r = read_until(&addr, |r| r["cold_junction_c"].as_f64() == Some(22.5));
+    assert_eq!(
+        (r["type_code"].as_str(), r["input_type"].as_str(), r["unit"].as_str()),
+        (Some("0E"), Some("thermocouple J"), Some("°C"))
+    );
+    assert_eq!(r["cjc_offset_c"].as_f64(), Some(-2.5));
+    let channels = r["channels"].as_array().unwrap();
+    assert_eq!(channels[7]["status"].as_str(), Some("disabled"));
+    // 0 mV at the terminals reads the cold junction: 25 - 2.5 °C (within one step).
+    let t = channels[0]["value"].as_f64().unwrap_or(f64::NAN);
+    assert!((t - 22.5).abs() < 0.05, "{t}");
+    assert_eq!(remodaq(&["config", &addr, "type", "05"]).0, 0);
+    let r = read_until(&addr, |r| r["channels"][0]["value"].as_f64() == Some(0.0));
+    assert_eq!((r["unit"].as_str(), r["channels"][0]["value"].as_f64()), (Some("V"), Some(0.0)));
+    // Errors: a setting of the other model; an exception from the module, with its meaning.
+    let (code, _, err) = remodaq(&["config", &addr, "di-mode", "0", "counter"]);
+    assert_eq!(code, 1);
+    assert!(err.contains("RemoDAQ-8350"), "{err}");
+    let (code, _, err) = remodaq(&["config", &addr, "register", "40213", "0xA200"]);
+    assert_eq!(code, 4);
+    assert!(err.contains("02 illegal data address"), "{err}");
+    let (code, _, err) = remodaq(&["--timeout", "1", "read", "127.0.0.1:1"]);
+    assert_eq!(code, 1, "nothing listens on port 1");
+    assert!(err.contains("cannot connect"), "{err}");
+}
+
+#[test]
+fn read_watch_and_config_round_trip_8350() {
+    let scenario = temp("scenario.toml");
+    std::fs::write(&scenario, "[di0]\nsquare_hz = 50.0\n[di3]\nlevel = true\n").unwrap();
+    let module = SimModule::start_with(
+        &firmware("8350"),
+        &temp("io-8350.flash"),
+        &["--listen", "127.0.0.1:0", "--scenario", scenario.to_str().unwrap()],
+    );
+    let addr: SocketAddr = module.addr;
+    let addr = addr.to_string();
+    assert_eq!(remodaq(&["config", &addr, "di-mode", "0", "counter"]).0, 0);
+    assert_eq!(remodaq(&["config", &addr, "di-mode", "1", "latch-rising"]).0, 0);
+    assert_eq!(remodaq(&["config", &addr, "do-mode", "2", "pulse"]).0, 0);
+    assert_eq!(
+        remodaq(&["config", &addr, "pulse", "2", "--low-ms", "1.5", "--high-ms", "0.5", "--count", "1000000"]).0,
+        0
+    );
+    assert_eq!(remodaq(&["config", &addr, "do", "2", "on"]).0, 0);
+    assert_eq!(remodaq(&["config", &addr, "do", "4", "on"]).0, 0);
+    std::thread::sleep(Duration::from_millis(300));
+    let r = json(&["read", &addr]);
+    let (inputs, outputs) = (r["inputs"].as_array().unwrap(), r["outputs"].as_array().unwrap());
+    assert_eq!(inputs[0]["mode"].as_str(), Some("counter"));
+    assert!(inputs[0]["value"].as_u64().unwrap() > 0, "DI0 counts its 50 Hz square wave");
+    assert_eq!((inputs[1]["mode"].as_str(), inputs[3]["state"].as_bool()), (Some("latch-rising"), Some(true)));
+    assert_eq!(outputs[2]["mode"].as_str(), Some("pulse"));
+    assert_eq!(
+        (outputs[2]["low_ms"].as_f64(), outputs[2]["high_ms"].as_f64(), outputs[2]["count"].as_u64()),
+        (Some(1.5), Some(0.5), Some(1_000_000))
+    );
+    assert_eq!((outputs[2]["state"].as_bool(), outputs[4]["state"].as_bool()), (Some(true), Some(true)));
+    assert_eq!(remodaq(&["config", &addr, "counter", "0", "stop"]).0, 0);
+    assert_eq!(remodaq(&["config", &addr, "counter", "0", "clear"]).0, 0);
+    assert_eq!(remodaq(&["config", &addr, "do", "2", "off"]).0, 0);
+    let r = json(&["read", &addr]);
+    assert_eq!((r["inputs"][0]["value"].as_u64(), r["inputs"][0]["counter_running"].as_bool()), (Some(0), Some(false)));
+    assert_eq!(r["outputs"][2]["state"].as_bool(), Some(false));
+    // watch: one JSON object per line.
+    let (code, out, _) = remodaq(&["--json", "watch", &addr, "--interval", "0.1", "--count", "3"]);
+    assert_eq!(code, 0);
+    let lines: Vec<Value> = out.lines().map(|l| serde_json::from_str(l).expect("JSON line")).collect();
+    assert_eq!(lines.len(), 3);
+    assert!(lines.iter().all(|l| l["model"].as_str() == Some("RemoDAQ-8350")));
+    let (code, out, _) = remodaq(&["read", &addr]);
+    assert_eq!(code, 0);
+    assert!(out.contains("DI3") && out.contains("latch-rising"), "{out}");
+}
