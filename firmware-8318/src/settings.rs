@@ -85,6 +85,21 @@ pub fn cjc_offset_to_register(offset: i16) -> u16 {
     offset as u16
 }
 
+impl CommonSettings for Settings {
+    fn net(&self) -> NetConfig {
+        self.net
+    }
+    fn set_net(&mut self, net: NetConfig) {
+        self.net = net;
+    }
+    fn password(&self) -> PasswordHash {
+        self.password
+    }
+    fn set_password(&mut self, hash: PasswordHash) {
+        self.password = hash;
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -102,20 +117,5 @@ mod tests {
         for o in [-5000i16, -1, 0, 1, 5000] {
             assert_eq!(cjc_offset_from_register(cjc_offset_to_register(o)), Some(o));
         }
-    }
-}
-
-impl CommonSettings for Settings {
-    fn net(&self) -> NetConfig {
-        self.net
-    }
-    fn set_net(&mut self, net: NetConfig) {
-        self.net = net;
-    }
-    fn password(&self) -> PasswordHash {
-        self.password
-    }
-    fn set_password(&mut self, hash: PasswordHash) {
-        self.password = hash;
     }
 }
