@@ -9,6 +9,8 @@ extern crate std;
 pub mod fmt;
 
 pub mod discovery;
+#[cfg(feature = "embassy-net")]
+pub mod embassy_net;
 pub mod health;
 pub mod identity;
 pub mod modbus;

@@ -7,7 +7,6 @@
 pub mod analog;
 pub mod digital;
 pub mod discovery;
-pub mod modbus;
 
 use embassy_executor::Spawner;
 use embassy_net::{Ipv4Address, Ipv4Cidr, Stack, StackResources, StaticConfigV4};

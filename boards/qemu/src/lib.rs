@@ -1,0 +1,190 @@
+//! The QEMU board: ARM's MPS2 AN386 image as QEMU emulates it (`-M mps2-an386`): Cortex-M4F at
+//! 25 MHz, SMSC LAN9118 Ethernet at 0x4020_0000 on IRQ 13, SysTick on the core clock. Only
+//! this crate differs from the STM32 board; the application code is the same.
+//!
+//! - Executor: Embassy's raw executor in a loop that sleeps with WFI (its stock WFE loop never
+//!   sleeps under QEMU and burns a host core).
+//! - Time: a SysTick driver at 1 kHz with embassy-time-queue-utils' queue.
+//! - Network: the LAN9118 driver, interrupt-driven receive; QEMU's user network gives the
+//!   guest 10.0.2.15/24 with gateway 10.0.2.2, used instead of the stored IP settings (the
+//!   Modbus port still comes from the settings).
+//! - Settings: the RAM-backed region after the code, as a NOR flash through the same settings
+//!   store.
+//! - Logs are dropped (no RTT here); a panic prints over semihosting and ends QEMU.
+#![no_std]
+#![cfg(target_os = "none")]
+
+pub mod executor;
+pub mod flash;
+mod time;
+
+use core::sync::atomic::{AtomicBool, Ordering};
+
+use cortex_m::interrupt::InterruptNumber;
+use cortex_m::peripheral::NVIC;
+use embassy_executor::Spawner;
+use embassy_net::{Ipv4Address, Ipv4Cidr, Stack, StackResources, StaticConfigV4};
+use remodaq_lan9118::{Lan9118, Registers};
+use remodaq_shared::discovery::{Effect, Identity};
+use remodaq_shared::module::SettingsAccess;
+use remodaq_shared::net::mac_from_uid;
+use remodaq_shared::{error, info};
+use static_cell::StaticCell;
+
+/// The LAN9118's registers.
+#[derive(Clone, Copy)]
+pub struct Mmio;
+
+const LAN9118_BASE: usize = 0x4020_0000;
+const LAN9118_IRQ: u16 = 13;
+
+impl Registers for Mmio {
+    fn read(&self, offset: usize) -> u32 {
+        // SAFETY: the LAN9118's register block is at LAN9118_BASE on this machine; offsets come
+        // from the driver's register map (all inside the block), 32-bit aligned.
+        unsafe { core::ptr::read_volatile((LAN9118_BASE + offset) as *const u32) }
+    }
+    fn write(&self, offset: usize, value: u32) {
+        // SAFETY: as for `read`.
+        unsafe { core::ptr::write_volatile((LAN9118_BASE + offset) as *mut u32, value) }
+    }
+}
+
+#[derive(Clone, Copy)]
+struct Irq(u16);
+
+// SAFETY: the number is a valid external interrupt of this machine.
+unsafe impl InterruptNumber for Irq {
+    fn number(self) -> u16 {
+        self.0
+    }
+}
+
+extern "C" fn lan9118_interrupt() {
+    remodaq_lan9118::on_interrupt(Mmio);
+}
+
+extern "C" fn unused_interrupt() {}
+
+/// The device interrupt vectors (cortex-m-rt `device` feature): the LAN9118 on IRQ 13.
+#[unsafe(link_section = ".vector_table.interrupts")]
+#[unsafe(no_mangle)]
+static __INTERRUPTS: [extern "C" fn(); 32] = {
+    let mut v: [extern "C" fn(); 32] = [unused_interrupt; 32];
+    v[LAN9118_IRQ as usize] = lan9118_interrupt;
+    v
+};
+
+/// The Ethernet device of this board.
+pub type Device = Lan9118<Mmio>;
+
+/// Sockets: the Modbus connection tasks, discovery, and slack.
+const STACK_SOCKETS: usize = remodaq_shared::modbus::server::SOCKETS + 3;
+
+/// The board, until its network is started.
+pub struct Board {
+    mac: [u8; 6],
+}
+
+/// Starts the time driver and returns the board and the settings flash.
+pub fn init() -> (Board, flash::SettingsFlash) {
+    let Some(mut core) = cortex_m::Peripherals::take() else { panic!("init twice") };
+    time::start(&mut core.SYST);
+    let flash = flash::SettingsFlash::take();
+    (Board { mac: mac_from_uid(b"qemu-mps2-an") }, flash)
+}
+
+impl Board {
+    /// What discovery tells about a module of name register `model` (the QEMU network).
+    pub fn identity(&self, model: u16, name: &'static str, port: u16) -> Identity {
+        Identity {
+            model,
+            name,
+            version: remodaq_shared::identity::FIRMWARE_VERSION,
+            mac: self.mac,
+            running: remodaq_shared::net::NetConfig { ip: GUEST_IP, mask: [255, 255, 255, 0], gateway: GATEWAY, port },
+        }
+    }
+
+    /// Brings up the LAN9118 and the network stack.
+    pub fn start(self, spawner: &Spawner) -> Stack<'static> {
+        let device = match Lan9118::new(Mmio, self.mac) {
+            Ok(device) => device,
+            Err(e) => panic!("LAN9118: {:?}", defmt::Debug2Format(&e)),
+        };
+        // SAFETY: the handler is in the vector table and touches only the driver's waker.
+        unsafe { NVIC::unmask(Irq(LAN9118_IRQ)) };
+        let config = embassy_net::Config::ipv4_static(StaticConfigV4 {
+            address: Ipv4Cidr::new(Ipv4Address::from(GUEST_IP), 24),
+            gateway: Some(Ipv4Address::from(GATEWAY)),
+            dns_servers: heapless::Vec::new(),
+        });
+        static RESOURCES: StaticCell<StackResources<STACK_SOCKETS>> = StaticCell::new();
+        let (stack, runner) = embassy_net::new(device, config, RESOURCES.init(StackResources::new()), 0x5EED_8300);
+        spawn(spawner, net_task(runner), "net");
+        info!("network: 10.0.2.15/24 (QEMU user network)");
+        stack
+    }
+}
+
+const GUEST_IP: [u8; 4] = [10, 0, 2, 15];
+const GATEWAY: [u8; 4] = [10, 0, 2, 2];
+
+/// Spawns a task, logging (instead of panicking) if its pool is exhausted.
+pub fn spawn<S>(
+    spawner: &Spawner,
+    token: Result<embassy_executor::SpawnToken<S>, embassy_executor::SpawnError>,
+    name: &str,
+) {
+    match token {
+        Ok(token) => spawner.spawn(token),
+        Err(_) => error!("cannot start task {}", name),
+    }
+}
+
+#[embassy_executor::task]
+async fn net_task(mut runner: embassy_net::Runner<'static, Device>) -> ! {
+    runner.run().await
+}
+
+/// Serves discovery; identify is a log line, restart a system reset.
+pub async fn discovery<A: SettingsAccess>(
+    stack: Stack<'static>,
+    map: &embassy_sync::mutex::Mutex<embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex, A>,
+    identity: Identity,
+) -> ! {
+    remodaq_shared::embassy_net::discovery(stack, map, identity, async |effect| match effect {
+        Effect::None => {}
+        Effect::Identify => info!("identify"),
+        Effect::Restart => {
+            embassy_time::Timer::after_millis(300).await;
+            cortex_m::peripheral::SCB::sys_reset();
+        }
+    })
+    .await
+}
+
+/// Logs go nowhere on this board (defmt needs a logger to link).
+#[defmt::global_logger]
+struct NoLogger;
+
+// SAFETY: the logger keeps no state; every function does nothing.
+unsafe impl defmt::Logger for NoLogger {
+    fn acquire() {}
+    unsafe fn flush() {}
+    unsafe fn release() {}
+    unsafe fn write(_bytes: &[u8]) {}
+}
+
+static PANICKED: AtomicBool = AtomicBool::new(false);
+
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    if !PANICKED.swap(true, Ordering::Relaxed) {
+        cortex_m_semihosting::hprintln!("panic: {}", info);
+    }
+    cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_FAILURE);
+    loop {
+        cortex_m::asm::wfi();
+    }
+}

@@ -1,0 +1,95 @@
+//! The 8350 on the QEMU board: the application of the STM32 board; the inputs are a simulated
+//! capture (a 1 kHz square wave on DI0, DI3 steady high) sampled at the boards' rate in
+//! simulated time, and the outputs' ticks are computed on the tick clock.
+
+use core::cell::RefCell;
+
+use embassy_executor::Spawner;
+use embassy_net::Stack;
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::mutex::Mutex;
+use embassy_time::{Duration, Instant, Ticker};
+use remodaq_8350::di::SAMPLE_RATE_HZ;
+use remodaq_8350::io::{self, Io, IoCell};
+use remodaq_8350::map::Map8350;
+use remodaq_8350::pulse::TICK_HZ;
+use remodaq_8350::settings::Settings;
+use remodaq_board_qemu::flash::{SettingsFlash, SIZE};
+use remodaq_board_qemu::spawn;
+use remodaq_shared::discovery::Identity;
+use remodaq_shared::embassy_net::{modbus_connection, ModbusSlots};
+use remodaq_shared::modbus::server::{Slots, MAX_CONNECTIONS, SOCKETS};
+use remodaq_shared::settings::SettingsStore;
+use static_cell::StaticCell;
+
+type Map = Mutex<CriticalSectionRawMutex, Map8350<'static, SettingsFlash, CriticalSectionRawMutex>>;
+type Cell = IoCell<CriticalSectionRawMutex>;
+
+static MAP: StaticCell<Map> = StaticCell::new();
+static IO: StaticCell<Cell> = StaticCell::new();
+static SLOTS: ModbusSlots = Slots::new(MAX_CONNECTIONS);
+
+/// Square wave on DI0, Hz.
+const DI0_HZ: u64 = 1000;
+
+/// Starts the module's tasks.
+pub async fn run(spawner: Spawner) {
+    let (board, flash) = remodaq_board_qemu::init();
+    let store = SettingsStore::<SettingsFlash, Settings>::open(
+        flash,
+        const { SettingsStore::<SettingsFlash, Settings>::config(0..SIZE as u32) },
+    )
+    .await;
+    let port = store.get().net.port;
+    let identity = board.identity(remodaq_8350::MODULE_NAME, remodaq_8350::MODEL, port);
+    let cell: &'static Cell = IO.init(IoCell::new(RefCell::new(Io::new(SAMPLE_RATE_HZ, store.get()))));
+    let map: &'static Map = MAP.init(Mutex::new(Map8350::new(store, cell)));
+    let stack = board.start(&spawner);
+    for slot in 0..SOCKETS {
+        spawn(&spawner, modbus_task(stack, port, map, slot), "modbus");
+    }
+    spawn(&spawner, discovery_task(stack, map, identity), "discovery");
+    spawn(&spawner, io_task(cell), "io");
+}
+
+#[embassy_executor::task(pool_size = SOCKETS)]
+async fn modbus_task(stack: Stack<'static>, port: u16, map: &'static Map, slot: usize) -> ! {
+    modbus_connection(stack, port, map, &SLOTS, slot).await
+}
+
+#[embassy_executor::task]
+async fn discovery_task(stack: Stack<'static>, map: &'static Map, identity: Identity) -> ! {
+    remodaq_board_qemu::discovery(stack, map, identity).await
+}
+
+/// Every 10 ms: the samples and ticks that fell due, through the same engines as on the STM32.
+#[embassy_executor::task]
+async fn io_task(cell: &'static Cell) -> ! {
+    let start = Instant::now();
+    let (mut samples_done, mut ticks_done) = (0u64, 0u64);
+    let mut samples = [0u16; 500];
+    let mut ticks = [0u8; 100];
+    let mut ticker = Ticker::every(Duration::from_millis(10));
+    loop {
+        ticker.next().await;
+        let elapsed_us = start.elapsed().as_micros();
+        let samples_due = elapsed_us * u64::from(SAMPLE_RATE_HZ) / 1_000_000;
+        while samples_done < samples_due {
+            let n = (samples_due - samples_done).min(samples.len() as u64) as usize;
+            for (i, s) in samples[..n].iter_mut().enumerate() {
+                let index = samples_done + i as u64;
+                // Phase of the square wave in 1/rate steps: high in the second half period.
+                let high = (index * DI0_HZ * 2 / u64::from(SAMPLE_RATE_HZ)) % 2 == 1;
+                *s = u16::from(high) | 0b1000;
+            }
+            io::with(cell, |state| state.di.process(&samples[..n]));
+            samples_done += n as u64;
+        }
+        let ticks_due = elapsed_us * u64::from(TICK_HZ) / 1_000_000;
+        while ticks_done < ticks_due {
+            let n = (ticks_due - ticks_done).min(ticks.len() as u64) as usize;
+            io::with(cell, |state| state.pulse.fill(&mut ticks[..n]));
+            ticks_done += n as u64;
+        }
+    }
+}
