@@ -38,7 +38,7 @@ impl SettingsFlash {
     fn check(offset: u32, len: usize, align: usize) -> Result<usize, FlashError> {
         let start = offset as usize;
         match start.checked_add(len) {
-            Some(end) if end <= SIZE && start % align == 0 && len % align == 0 => Ok(start),
+            Some(end) if end <= SIZE && start.is_multiple_of(align) && len.is_multiple_of(align) => Ok(start),
             _ => Err(FlashError),
         }
     }
