@@ -1,6 +1,5 @@
 //! Persisted settings of the 8318 (spec §2.1, §1.4).
 
-use remodaq_shared::module::CommonSettings;
 use remodaq_shared::net::NetConfig;
 use remodaq_shared::password::PasswordHash;
 use remodaq_shared::settings::{RecordReader, RecordWriter, Schema};
@@ -85,20 +84,7 @@ pub fn cjc_offset_to_register(offset: i16) -> u16 {
     offset as u16
 }
 
-impl CommonSettings for Settings {
-    fn net(&self) -> NetConfig {
-        self.net
-    }
-    fn set_net(&mut self, net: NetConfig) {
-        self.net = net;
-    }
-    fn password(&self) -> PasswordHash {
-        self.password
-    }
-    fn set_password(&mut self, hash: PasswordHash) {
-        self.password = hash;
-    }
-}
+remodaq_shared::impl_common_settings!(Settings);
 
 #[cfg(test)]
 mod tests {

@@ -10,9 +10,8 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::mutex::Mutex;
 use embassy_time::{Duration, Instant, Ticker};
 use remodaq_8350::di::SAMPLE_RATE_HZ;
-use remodaq_8350::io::{self, Io, IoCell};
+use remodaq_8350::io::{Io, IoCell, Simulation};
 use remodaq_8350::map::Map8350;
-use remodaq_8350::pulse::TICK_HZ;
 use remodaq_8350::settings::Settings;
 use remodaq_board_host::discovery::HostDatagrams;
 use remodaq_board_host::flash::FileFlash;
@@ -68,9 +67,7 @@ async fn modbus_task(listener: &'static Listener, map: &'static Map, slot: usize
 async fn io_task(mut scenario: Option<Watched<Digital>>, cell: &'static Cell) -> ! {
     let start = Instant::now();
     let mut current = Digital::default();
-    let (mut samples_done, mut ticks_done) = (0u64, 0u64);
-    let mut samples = [0u16; 1024];
-    let mut ticks = [0u8; 256];
+    let mut simulation = Simulation::default();
     let mut last_levels = 0u8;
     let mut ticker = Ticker::every(Duration::from_millis(5));
     loop {
@@ -78,27 +75,19 @@ async fn io_task(mut scenario: Option<Watched<Digital>>, cell: &'static Cell) ->
         if let Some(watched) = scenario.as_mut() {
             current = watched.refresh().clone();
         }
-        let elapsed = start.elapsed().as_micros();
-        let samples_due = elapsed * u64::from(SAMPLE_RATE_HZ) / 1_000_000;
-        while samples_done < samples_due {
-            let n = (samples_due - samples_done).min(samples.len() as u64) as usize;
-            for (i, s) in samples[..n].iter_mut().enumerate() {
-                *s = current.sample_at((samples_done + i as u64) as f64 / f64::from(SAMPLE_RATE_HZ));
-            }
-            io::with(cell, |state| state.di.process(&samples[..n]));
-            samples_done += n as u64;
-        }
-        let ticks_due = elapsed * u64::from(TICK_HZ) / 1_000_000;
-        while ticks_done < ticks_due {
-            let n = (ticks_due - ticks_done).min(ticks.len() as u64) as usize;
-            io::with(cell, |state| state.pulse.fill(&mut ticks[..n]));
-            for &levels in &ticks[..n] {
-                if levels != last_levels {
-                    log::debug!("DO levels {levels:06b}");
-                    last_levels = levels;
+        let rate = f64::from(SAMPLE_RATE_HZ);
+        simulation.advance(
+            cell,
+            start.elapsed().as_micros(),
+            |index| current.sample_at(index as f64 / rate),
+            |ticks| {
+                for &levels in ticks {
+                    if levels != last_levels {
+                        log::debug!("DO levels {levels:06b}");
+                        last_levels = levels;
+                    }
                 }
-            }
-            ticks_done += n as u64;
-        }
+            },
+        );
     }
 }

@@ -10,9 +10,8 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::mutex::Mutex;
 use embassy_time::{Duration, Instant, Ticker};
 use remodaq_8350::di::SAMPLE_RATE_HZ;
-use remodaq_8350::io::{self, Io, IoCell};
+use remodaq_8350::io::{Io, IoCell, Simulation};
 use remodaq_8350::map::Map8350;
-use remodaq_8350::pulse::TICK_HZ;
 use remodaq_8350::settings::Settings;
 use remodaq_board_qemu::flash::{SettingsFlash, SIZE};
 use remodaq_board_qemu::spawn;
@@ -66,30 +65,12 @@ async fn discovery_task(stack: Stack<'static>, map: &'static Map, identity: Iden
 #[embassy_executor::task]
 async fn io_task(cell: &'static Cell) -> ! {
     let start = Instant::now();
-    let (mut samples_done, mut ticks_done) = (0u64, 0u64);
-    let mut samples = [0u16; 500];
-    let mut ticks = [0u8; 100];
+    let mut simulation = Simulation::default();
     let mut ticker = Ticker::every(Duration::from_millis(10));
     loop {
         ticker.next().await;
-        let elapsed_us = start.elapsed().as_micros();
-        let samples_due = elapsed_us * u64::from(SAMPLE_RATE_HZ) / 1_000_000;
-        while samples_done < samples_due {
-            let n = (samples_due - samples_done).min(samples.len() as u64) as usize;
-            for (i, s) in samples[..n].iter_mut().enumerate() {
-                let index = samples_done + i as u64;
-                // Phase of the square wave in 1/rate steps: high in the second half period.
-                let high = (index * DI0_HZ * 2 / u64::from(SAMPLE_RATE_HZ)) % 2 == 1;
-                *s = u16::from(high) | 0b1000;
-            }
-            io::with(cell, |state| state.di.process(&samples[..n]));
-            samples_done += n as u64;
-        }
-        let ticks_due = elapsed_us * u64::from(TICK_HZ) / 1_000_000;
-        while ticks_done < ticks_due {
-            let n = (ticks_due - ticks_done).min(ticks.len() as u64) as usize;
-            io::with(cell, |state| state.pulse.fill(&mut ticks[..n]));
-            ticks_done += n as u64;
-        }
+        // DI0: high in the second half of each period; DI3 steady high.
+        let di0 = |index: u64| (index * DI0_HZ * 2 / u64::from(SAMPLE_RATE_HZ)) % 2 == 1;
+        simulation.advance(cell, start.elapsed().as_micros(), |index| u16::from(di0(index)) | 0b1000, |_| {});
     }
 }

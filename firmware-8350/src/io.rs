@@ -48,3 +48,43 @@ pub type IoCell<R> = Mutex<R, RefCell<Io>>;
 pub fn with<R: RawMutex, T>(cell: &IoCell<R>, f: impl FnOnce(&mut Io) -> T) -> T {
     cell.lock(|io| f(&mut io.borrow_mut()))
 }
+
+/// Feeds the engines in simulated time (the host and QEMU boards): the input samples and
+/// output ticks that fell due since the start, in batches, through the same engine calls as
+/// the STM32's hardware paths.
+#[derive(Default)]
+pub struct Simulation {
+    samples_done: u64,
+    ticks_done: u64,
+}
+
+impl Simulation {
+    /// Catches up to `elapsed_us` since the start: `sample_at(index)` gives input sample
+    /// `index` (bit n = DIn); `ticks` sees each batch of output ticks computed.
+    pub fn advance<R: RawMutex>(
+        &mut self,
+        cell: &IoCell<R>,
+        elapsed_us: u64,
+        mut sample_at: impl FnMut(u64) -> u16,
+        mut ticks: impl FnMut(&[u8]),
+    ) {
+        let mut samples = [0u16; 256];
+        let samples_due = elapsed_us * u64::from(crate::di::SAMPLE_RATE_HZ) / 1_000_000;
+        while self.samples_done < samples_due {
+            let n = (samples_due - self.samples_done).min(samples.len() as u64) as usize;
+            for (i, s) in samples[..n].iter_mut().enumerate() {
+                *s = sample_at(self.samples_done + i as u64);
+            }
+            with(cell, |state| state.di.process(&samples[..n]));
+            self.samples_done += n as u64;
+        }
+        let mut levels = [0u8; 100];
+        let ticks_due = elapsed_us * u64::from(pulse::TICK_HZ) / 1_000_000;
+        while self.ticks_done < ticks_due {
+            let n = (ticks_due - self.ticks_done).min(levels.len() as u64) as usize;
+            with(cell, |state| state.pulse.fill(&mut levels[..n]));
+            ticks(&levels[..n]);
+            self.ticks_done += n as u64;
+        }
+    }
+}

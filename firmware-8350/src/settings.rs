@@ -1,7 +1,6 @@
 //! Persisted settings of the 8350 (spec §3.5, §1.4): DI modes, DO modes, pulse widths and
 //! counts, network settings. Counters, run bits, flags and output states are not persisted.
 
-use remodaq_shared::module::CommonSettings;
 use remodaq_shared::net::NetConfig;
 use remodaq_shared::password::PasswordHash;
 use remodaq_shared::settings::{RecordReader, RecordWriter, Schema};
@@ -97,17 +96,4 @@ impl Schema for Settings {
     }
 }
 
-impl CommonSettings for Settings {
-    fn net(&self) -> NetConfig {
-        self.net
-    }
-    fn set_net(&mut self, net: NetConfig) {
-        self.net = net;
-    }
-    fn password(&self) -> PasswordHash {
-        self.password
-    }
-    fn set_password(&mut self, hash: PasswordHash) {
-        self.password = hash;
-    }
-}
+remodaq_shared::impl_common_settings!(Settings);

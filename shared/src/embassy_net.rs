@@ -14,6 +14,18 @@ use crate::modbus::RegisterMap;
 use crate::module::SettingsAccess;
 use crate::{debug, error, warn};
 
+/// Spawns a task, logging (instead of panicking) if its pool is exhausted.
+pub fn spawn<S>(
+    spawner: &embassy_executor::Spawner,
+    token: Result<embassy_executor::SpawnToken<S>, embassy_executor::SpawnError>,
+    name: &str,
+) {
+    match token {
+        Ok(token) => spawner.spawn(token),
+        Err(_) => error!("cannot start task {}", name),
+    }
+}
+
 /// The connection slots of a module.
 pub type ModbusSlots = Slots<CriticalSectionRawMutex, SOCKETS>;
 /// Socket buffer size, each way: two full frames.

@@ -28,3 +28,25 @@ pub trait SettingsAccess {
     /// Commits new settings (durable when `Ok`), then puts them in force.
     async fn commit(&mut self, settings: Self::Settings) -> Result<(), StoreError>;
 }
+
+/// Implements [`CommonSettings`] for a settings struct with the fields `net: NetConfig` and
+/// `password: PasswordHash`.
+#[macro_export]
+macro_rules! impl_common_settings {
+    ($settings:ty) => {
+        impl $crate::module::CommonSettings for $settings {
+            fn net(&self) -> $crate::net::NetConfig {
+                self.net
+            }
+            fn set_net(&mut self, net: $crate::net::NetConfig) {
+                self.net = net;
+            }
+            fn password(&self) -> $crate::password::PasswordHash {
+                self.password
+            }
+            fn set_password(&mut self, hash: $crate::password::PasswordHash) {
+                self.password = hash;
+            }
+        }
+    };
+}

@@ -4,7 +4,7 @@ use futures_executor::block_on;
 use remodaq_shared::discovery::{
     decode_info, decode_request, decode_result, op, Effect, Identity, Service, Status, Writer, MAX_DATAGRAM,
 };
-use remodaq_shared::module::{CommonSettings, SettingsAccess};
+use remodaq_shared::module::SettingsAccess;
 use remodaq_shared::net::NetConfig;
 use remodaq_shared::password::PasswordHash;
 use remodaq_shared::ram_flash::RamFlash;
@@ -32,20 +32,7 @@ impl Schema for S {
     }
 }
 
-impl CommonSettings for S {
-    fn net(&self) -> NetConfig {
-        self.net
-    }
-    fn set_net(&mut self, net: NetConfig) {
-        self.net = net;
-    }
-    fn password(&self) -> PasswordHash {
-        self.password
-    }
-    fn set_password(&mut self, hash: PasswordHash) {
-        self.password = hash;
-    }
-}
+remodaq_shared::impl_common_settings!(S);
 
 struct Module {
     store: SettingsStore<Flash, S>,

@@ -26,9 +26,9 @@ use embassy_executor::Spawner;
 use embassy_net::{Ipv4Address, Ipv4Cidr, Stack, StackResources, StaticConfigV4};
 use remodaq_lan9118::{Lan9118, Registers};
 use remodaq_shared::discovery::{Effect, Identity};
+use remodaq_shared::info;
 use remodaq_shared::module::SettingsAccess;
 use remodaq_shared::net::mac_from_uid;
-use remodaq_shared::{error, info};
 use static_cell::StaticCell;
 
 /// The LAN9118's registers.
@@ -130,17 +130,7 @@ impl Board {
 const GUEST_IP: [u8; 4] = [10, 0, 2, 15];
 const GATEWAY: [u8; 4] = [10, 0, 2, 2];
 
-/// Spawns a task, logging (instead of panicking) if its pool is exhausted.
-pub fn spawn<S>(
-    spawner: &Spawner,
-    token: Result<embassy_executor::SpawnToken<S>, embassy_executor::SpawnError>,
-    name: &str,
-) {
-    match token {
-        Ok(token) => spawner.spawn(token),
-        Err(_) => error!("cannot start task {}", name),
-    }
-}
+pub use remodaq_shared::embassy_net::spawn;
 
 #[embassy_executor::task]
 async fn net_task(mut runner: embassy_net::Runner<'static, Device>) -> ! {

@@ -207,17 +207,7 @@ impl Board {
     }
 }
 
-/// Spawns a task, logging (instead of panicking) if its pool is exhausted.
-pub fn spawn<S>(
-    spawner: &Spawner,
-    token: Result<embassy_executor::SpawnToken<S>, embassy_executor::SpawnError>,
-    name: &str,
-) {
-    match token {
-        Ok(token) => spawner.spawn(token),
-        Err(_) => error!("cannot start task {}", name),
-    }
-}
+pub use remodaq_shared::embassy_net::spawn;
 
 #[embassy_executor::task]
 async fn net_task(mut runner: embassy_net::Runner<'static, Device>) -> ! {
