@@ -74,8 +74,10 @@ async fn socket() -> Result<UdpSocket, Error> {
     Ok(socket)
 }
 
+/// A request id that differs between runs, so replies to an earlier run are ignored.
 fn request_id() -> u16 {
-    (std::process::id() as u16) ^ (Instant::now().elapsed().subsec_nanos() as u16)
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.subsec_nanos());
+    (std::process::id() as u16) ^ (nanos >> 8) as u16
 }
 
 /// Sends a search to `to` and collects INFO answers for `timeout`.
