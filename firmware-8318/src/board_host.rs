@@ -10,16 +10,12 @@ use remodaq_8318::acquisition::{self, AnalogFrontEnd, Measurement};
 use remodaq_8318::input::SHUNT_OHMS;
 use remodaq_8318::map::Map8318;
 use remodaq_8318::settings::Settings;
-use remodaq_board_host::discovery::HostDatagrams;
 use remodaq_board_host::flash::FileFlash;
-use remodaq_board_host::modbus::{connection_task, Listener, ModbusSlots};
 use remodaq_board_host::scenario::{parse_analog, Analog, Terminal, Watched};
-use remodaq_shared::discovery::Identity;
-use remodaq_shared::modbus::server::{Slots, MAX_CONNECTIONS, SOCKETS};
 
 type Map = Mutex<CriticalSectionRawMutex, Map8318<FileFlash>>;
 
-static SLOTS: ModbusSlots = Slots::new(MAX_CONNECTIONS);
+remodaq_board_host::host_network_tasks!(Map);
 
 /// Starts the simulated module's tasks.
 pub async fn run(spawner: Spawner) {
@@ -30,30 +26,11 @@ pub async fn run(spawner: Spawner) {
         .as_deref()
         .map(|path| Watched::load(path, parse_analog).unwrap_or_else(|e| remodaq_board_host::fail(&e)));
     let map: &'static Map = Box::leak(Box::new(Mutex::new(Map8318::new(started.store))));
-    for slot in 0..SOCKETS {
-        match modbus_task(started.listener, map, slot) {
-            Ok(token) => spawner.spawn(token),
-            Err(e) => log::error!("cannot start Modbus task {slot}: {e:?}"),
-        }
-    }
-    match discovery_task(started.discovery, map, started.identity) {
-        Ok(token) => spawner.spawn(token),
-        Err(e) => log::error!("cannot start the discovery task: {e:?}"),
-    }
+    spawn_network(&spawner, started.listener, started.discovery, started.identity, map);
     match app_task(ScenarioFrontEnd { scenario, current: Analog::default() }, map) {
         Ok(token) => spawner.spawn(token),
         Err(e) => log::error!("cannot start the acquisition task: {e:?}"),
     }
-}
-
-#[embassy_executor::task]
-async fn discovery_task(socket: HostDatagrams, map: &'static Map, identity: Identity) -> ! {
-    remodaq_board_host::discovery::run(socket, map, identity).await
-}
-
-#[embassy_executor::task(pool_size = SOCKETS)]
-async fn modbus_task(listener: &'static Listener, map: &'static Map, slot: usize) -> ! {
-    connection_task(listener, map, &SLOTS, slot).await
 }
 
 #[embassy_executor::task]

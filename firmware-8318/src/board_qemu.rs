@@ -3,7 +3,6 @@
 use core::convert::Infallible;
 
 use embassy_executor::Spawner;
-use embassy_net::Stack;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::mutex::Mutex;
 use embassy_time::Instant;
@@ -13,16 +12,14 @@ use remodaq_8318::map::Map8318;
 use remodaq_8318::settings::Settings;
 use remodaq_board_qemu::flash::{SettingsFlash, SIZE};
 use remodaq_board_qemu::spawn;
-use remodaq_shared::discovery::Identity;
-use remodaq_shared::embassy_net::{modbus_connection, ModbusSlots};
-use remodaq_shared::modbus::server::{Slots, MAX_CONNECTIONS, SOCKETS};
 use remodaq_shared::settings::SettingsStore;
 use static_cell::StaticCell;
 
 type Map = Mutex<CriticalSectionRawMutex, Map8318<SettingsFlash>>;
 
+remodaq_shared::embassy_net_tasks!(Map, remodaq_board_qemu::discovery);
+
 static MAP: StaticCell<Map> = StaticCell::new();
-static SLOTS: ModbusSlots = Slots::new(MAX_CONNECTIONS);
 
 /// Starts the module's tasks.
 pub async fn run(spawner: Spawner) {
@@ -36,21 +33,8 @@ pub async fn run(spawner: Spawner) {
     let identity = board.identity(remodaq_8318::MODULE_NAME, remodaq_8318::MODEL, port);
     let map: &'static Map = MAP.init(Mutex::new(Map8318::new(store)));
     let stack = board.start(&spawner);
-    for slot in 0..SOCKETS {
-        spawn(&spawner, modbus_task(stack, port, map, slot), "modbus");
-    }
-    spawn(&spawner, discovery_task(stack, map, identity), "discovery");
+    spawn_network(&spawner, stack, port, map, identity);
     spawn(&spawner, app_task(map), "app");
-}
-
-#[embassy_executor::task(pool_size = SOCKETS)]
-async fn modbus_task(stack: Stack<'static>, port: u16, map: &'static Map, slot: usize) -> ! {
-    modbus_connection(stack, port, map, &SLOTS, slot).await
-}
-
-#[embassy_executor::task]
-async fn discovery_task(stack: Stack<'static>, map: &'static Map, identity: Identity) -> ! {
-    remodaq_board_qemu::discovery(stack, map, identity).await
 }
 
 #[embassy_executor::task]

@@ -4,7 +4,6 @@ use defmt_rtt as _;
 use panic_probe as _;
 
 use embassy_executor::Spawner;
-use embassy_net::Stack;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::mutex::Mutex;
 use remodaq_8318::acquisition::{self, AnalogFrontEnd, Measurement};
@@ -13,17 +12,15 @@ use remodaq_8318::map::Map8318;
 use remodaq_8318::settings::Settings;
 use remodaq_board_stm32::analog::{AdcSpi, NtcInput};
 use remodaq_board_stm32::{spawn, SettingsFlash, HEARTBEAT, SETTINGS_SIZE};
-use remodaq_shared::discovery::Identity;
-use remodaq_shared::embassy_net::{modbus_connection as connection_task, ModbusSlots};
-use remodaq_shared::modbus::server::{Slots, MAX_CONNECTIONS, SOCKETS};
 use remodaq_shared::settings::SettingsStore;
 use remodaq_shared::{error, health};
 use static_cell::StaticCell;
 
 type Map = Mutex<CriticalSectionRawMutex, Map8318<SettingsFlash>>;
 
+remodaq_shared::embassy_net_tasks!(Map, remodaq_board_stm32::discovery::run);
+
 static MAP: StaticCell<Map> = StaticCell::new();
-static SLOTS: ModbusSlots = Slots::new(MAX_CONNECTIONS);
 
 /// Starts the module's tasks.
 pub async fn run(spawner: Spawner) {
@@ -38,22 +35,9 @@ pub async fn run(spawner: Spawner) {
     let identity = board.identity(remodaq_8318::MODULE_NAME, remodaq_8318::MODEL, net);
     let map: &'static Map = MAP.init(Mutex::new(Map8318::new(store)));
     let stack = board.start(&spawner, &net);
-    for slot in 0..SOCKETS {
-        spawn(&spawner, modbus_task(stack, net.port, map, slot), "modbus");
-    }
-    spawn(&spawner, discovery_task(stack, map, identity), "discovery");
+    spawn_network(&spawner, stack, net.port, map, identity);
     let (spi, ntc) = io.analog.start();
     spawn(&spawner, app_task(FrontEnd { adc: Ad7124::new(spi), ntc, ready: false }, map), "app");
-}
-
-#[embassy_executor::task]
-async fn discovery_task(stack: Stack<'static>, map: &'static Map, identity: Identity) -> ! {
-    remodaq_board_stm32::discovery::run(stack, map, identity).await
-}
-
-#[embassy_executor::task(pool_size = SOCKETS)]
-async fn modbus_task(stack: Stack<'static>, port: u16, map: &'static Map, slot: usize) -> ! {
-    connection_task(stack, port, map, &SLOTS, slot).await
 }
 
 /// The acquisition cycle (10 Hz); each completed cycle is the application's heartbeat.

@@ -13,17 +13,13 @@ use remodaq_8350::di::SAMPLE_RATE_HZ;
 use remodaq_8350::io::{Io, IoCell, Simulation};
 use remodaq_8350::map::Map8350;
 use remodaq_8350::settings::Settings;
-use remodaq_board_host::discovery::HostDatagrams;
 use remodaq_board_host::flash::FileFlash;
-use remodaq_board_host::modbus::{connection_task, Listener, ModbusSlots};
 use remodaq_board_host::scenario::{parse_digital, Digital, Watched};
-use remodaq_shared::discovery::Identity;
-use remodaq_shared::modbus::server::{Slots, MAX_CONNECTIONS, SOCKETS};
 
 type Map = Mutex<CriticalSectionRawMutex, Map8350<'static, FileFlash, CriticalSectionRawMutex>>;
-type Cell = IoCell<CriticalSectionRawMutex>;
 
-static SLOTS: ModbusSlots = Slots::new(MAX_CONNECTIONS);
+remodaq_board_host::host_network_tasks!(Map);
+type Cell = IoCell<CriticalSectionRawMutex>;
 
 /// Starts the simulated module's tasks.
 pub async fn run(spawner: Spawner) {
@@ -36,30 +32,11 @@ pub async fn run(spawner: Spawner) {
     let cell: &'static Cell =
         Box::leak(Box::new(IoCell::new(RefCell::new(Io::new(SAMPLE_RATE_HZ, started.store.get())))));
     let map: &'static Map = Box::leak(Box::new(Mutex::new(Map8350::new(started.store, cell))));
-    for slot in 0..SOCKETS {
-        match modbus_task(started.listener, map, slot) {
-            Ok(token) => spawner.spawn(token),
-            Err(e) => log::error!("cannot start Modbus task {slot}: {e:?}"),
-        }
-    }
-    match discovery_task(started.discovery, map, started.identity) {
-        Ok(token) => spawner.spawn(token),
-        Err(e) => log::error!("cannot start the discovery task: {e:?}"),
-    }
+    spawn_network(&spawner, started.listener, started.discovery, started.identity, map);
     match io_task(scenario, cell) {
         Ok(token) => spawner.spawn(token),
         Err(e) => log::error!("cannot start the I/O task: {e:?}"),
     }
-}
-
-#[embassy_executor::task]
-async fn discovery_task(socket: HostDatagrams, map: &'static Map, identity: Identity) -> ! {
-    remodaq_board_host::discovery::run(socket, map, identity).await
-}
-
-#[embassy_executor::task(pool_size = SOCKETS)]
-async fn modbus_task(listener: &'static Listener, map: &'static Map, slot: usize) -> ! {
-    connection_task(listener, map, &SLOTS, slot).await
 }
 
 /// Every 5 ms: the input samples and output ticks that fell due since the last run.

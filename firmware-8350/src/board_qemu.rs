@@ -5,7 +5,6 @@
 use core::cell::RefCell;
 
 use embassy_executor::Spawner;
-use embassy_net::Stack;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::mutex::Mutex;
 use embassy_time::{Duration, Instant, Ticker};
@@ -15,18 +14,16 @@ use remodaq_8350::map::Map8350;
 use remodaq_8350::settings::Settings;
 use remodaq_board_qemu::flash::{SettingsFlash, SIZE};
 use remodaq_board_qemu::spawn;
-use remodaq_shared::discovery::Identity;
-use remodaq_shared::embassy_net::{modbus_connection, ModbusSlots};
-use remodaq_shared::modbus::server::{Slots, MAX_CONNECTIONS, SOCKETS};
 use remodaq_shared::settings::SettingsStore;
 use static_cell::StaticCell;
 
 type Map = Mutex<CriticalSectionRawMutex, Map8350<'static, SettingsFlash, CriticalSectionRawMutex>>;
+
+remodaq_shared::embassy_net_tasks!(Map, remodaq_board_qemu::discovery);
 type Cell = IoCell<CriticalSectionRawMutex>;
 
 static MAP: StaticCell<Map> = StaticCell::new();
 static IO: StaticCell<Cell> = StaticCell::new();
-static SLOTS: ModbusSlots = Slots::new(MAX_CONNECTIONS);
 
 /// Square wave on DI0, Hz.
 const DI0_HZ: u64 = 1000;
@@ -44,21 +41,8 @@ pub async fn run(spawner: Spawner) {
     let cell: &'static Cell = IO.init(IoCell::new(RefCell::new(Io::new(SAMPLE_RATE_HZ, store.get()))));
     let map: &'static Map = MAP.init(Mutex::new(Map8350::new(store, cell)));
     let stack = board.start(&spawner);
-    for slot in 0..SOCKETS {
-        spawn(&spawner, modbus_task(stack, port, map, slot), "modbus");
-    }
-    spawn(&spawner, discovery_task(stack, map, identity), "discovery");
+    spawn_network(&spawner, stack, port, map, identity);
     spawn(&spawner, io_task(cell), "io");
-}
-
-#[embassy_executor::task(pool_size = SOCKETS)]
-async fn modbus_task(stack: Stack<'static>, port: u16, map: &'static Map, slot: usize) -> ! {
-    modbus_connection(stack, port, map, &SLOTS, slot).await
-}
-
-#[embassy_executor::task]
-async fn discovery_task(stack: Stack<'static>, map: &'static Map, identity: Identity) -> ! {
-    remodaq_board_qemu::discovery(stack, map, identity).await
 }
 
 /// Every 10 ms: the samples and ticks that fell due, through the same engines as on the STM32.

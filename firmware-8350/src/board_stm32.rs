@@ -6,7 +6,6 @@ use panic_probe as _;
 use core::cell::RefCell;
 
 use embassy_executor::Spawner;
-use embassy_net::Stack;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::mutex::Mutex;
 use embassy_time::{Duration, Ticker};
@@ -17,19 +16,17 @@ use remodaq_8350::pulse::TICK_HZ;
 use remodaq_8350::settings::Settings;
 use remodaq_board_stm32::digital::{self, InputCapture, OutputPattern, PATTERN_LEN};
 use remodaq_board_stm32::{spawn, SettingsFlash, HEARTBEAT, SETTINGS_SIZE};
-use remodaq_shared::discovery::Identity;
-use remodaq_shared::embassy_net::{modbus_connection as connection_task, ModbusSlots};
-use remodaq_shared::modbus::server::{Slots, MAX_CONNECTIONS, SOCKETS};
 use remodaq_shared::settings::SettingsStore;
 use remodaq_shared::{error, health};
 use static_cell::StaticCell;
 
 type Map = Mutex<CriticalSectionRawMutex, Map8350<'static, SettingsFlash, CriticalSectionRawMutex>>;
+
+remodaq_shared::embassy_net_tasks!(Map, remodaq_board_stm32::discovery::run);
 type Cell = IoCell<CriticalSectionRawMutex>;
 
 static MAP: StaticCell<Map> = StaticCell::new();
 static IO: StaticCell<Cell> = StaticCell::new();
-static SLOTS: ModbusSlots = Slots::new(MAX_CONNECTIONS);
 
 // The engines and the board's hardware paths must agree on their rates.
 const _: () = assert!(digital::SAMPLE_RATE_HZ == SAMPLE_RATE_HZ && digital::TICK_HZ == TICK_HZ);
@@ -49,22 +46,9 @@ pub async fn run(spawner: Spawner) {
     let map: &'static Map = MAP.init(Mutex::new(Map8350::new(store, cell)));
     let (capture, pattern) = io.digital.start(|ticks| io::with(cell, |s| s.pulse.fill(ticks)));
     let stack = board.start(&spawner, &net);
-    for slot in 0..SOCKETS {
-        spawn(&spawner, modbus_task(stack, net.port, map, slot), "modbus");
-    }
-    spawn(&spawner, discovery_task(stack, map, identity), "discovery");
+    spawn_network(&spawner, stack, net.port, map, identity);
     spawn(&spawner, input_task(capture, cell), "inputs");
     spawn(&spawner, output_task(pattern, cell), "outputs");
-}
-
-#[embassy_executor::task]
-async fn discovery_task(stack: Stack<'static>, map: &'static Map, identity: Identity) -> ! {
-    remodaq_board_stm32::discovery::run(stack, map, identity).await
-}
-
-#[embassy_executor::task(pool_size = SOCKETS)]
-async fn modbus_task(stack: Stack<'static>, port: u16, map: &'static Map, slot: usize) -> ! {
-    connection_task(stack, port, map, &SLOTS, slot).await
 }
 
 /// Drains the capture ring into the DI engine every 2 ms; each pass is the application's

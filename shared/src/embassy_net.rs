@@ -94,3 +94,44 @@ pub async fn discovery<R: RawMutex, A: SettingsAccess>(
     let mut datagrams = NetDatagrams(socket);
     serve(&mut datagrams, map, identity, effect).await
 }
+
+/// Declares a firmware's network tasks on an embassy-net board, for the register map type
+/// `$map` (behind a `Mutex<CriticalSectionRawMutex, _>`) and the board's discovery function
+/// `$discovery(stack, map, identity)`: `modbus_task` (one per connection slot),
+/// `discovery_task`, and `spawn_network(spawner, stack, port, map, identity)` that starts them.
+/// (Embassy tasks cannot be generic, so each firmware declares concrete ones.)
+#[macro_export]
+macro_rules! embassy_net_tasks {
+    ($map:ty, $discovery:path) => {
+        static SLOTS: $crate::embassy_net::ModbusSlots =
+            $crate::modbus::server::Slots::new($crate::modbus::server::MAX_CONNECTIONS);
+
+        #[embassy_executor::task(pool_size = $crate::modbus::server::SOCKETS)]
+        async fn modbus_task(stack: embassy_net::Stack<'static>, port: u16, map: &'static $map, slot: usize) -> ! {
+            $crate::embassy_net::modbus_connection(stack, port, map, &SLOTS, slot).await
+        }
+
+        #[embassy_executor::task]
+        async fn discovery_task(
+            stack: embassy_net::Stack<'static>,
+            map: &'static $map,
+            identity: $crate::discovery::Identity,
+        ) -> ! {
+            $discovery(stack, map, identity).await
+        }
+
+        /// Starts the Modbus/TCP connection tasks and the discovery service.
+        fn spawn_network(
+            spawner: &embassy_executor::Spawner,
+            stack: embassy_net::Stack<'static>,
+            port: u16,
+            map: &'static $map,
+            identity: $crate::discovery::Identity,
+        ) {
+            for slot in 0..$crate::modbus::server::SOCKETS {
+                $crate::embassy_net::spawn(spawner, modbus_task(stack, port, map, slot), "modbus");
+            }
+            $crate::embassy_net::spawn(spawner, discovery_task(stack, map, identity), "discovery");
+        }
+    };
+}

@@ -85,3 +85,49 @@ pub fn fail(message: &str) -> ! {
     eprintln!("error: {message}");
     std::process::exit(2)
 }
+
+/// Declares a simulated module's network tasks for the register map type `$map` (behind a
+/// `Mutex<CriticalSectionRawMutex, _>`): `modbus_task` (one per connection slot),
+/// `discovery_task`, and `spawn_network(spawner, started, map)` that starts them.
+/// (Embassy tasks cannot be generic, so each firmware declares concrete ones.)
+#[macro_export]
+macro_rules! host_network_tasks {
+    ($map:ty) => {
+        static SLOTS: $crate::modbus::ModbusSlots =
+            remodaq_shared::modbus::server::Slots::new(remodaq_shared::modbus::server::MAX_CONNECTIONS);
+
+        #[embassy_executor::task(pool_size = remodaq_shared::modbus::server::SOCKETS)]
+        async fn modbus_task(listener: &'static $crate::modbus::Listener, map: &'static $map, slot: usize) -> ! {
+            $crate::modbus::connection_task(listener, map, &SLOTS, slot).await
+        }
+
+        #[embassy_executor::task]
+        async fn discovery_task(
+            socket: $crate::discovery::HostDatagrams,
+            map: &'static $map,
+            identity: remodaq_shared::discovery::Identity,
+        ) -> ! {
+            $crate::discovery::run(socket, map, identity).await
+        }
+
+        /// Starts the Modbus/TCP connection tasks and the discovery service.
+        fn spawn_network(
+            spawner: &embassy_executor::Spawner,
+            listener: &'static $crate::modbus::Listener,
+            discovery: $crate::discovery::HostDatagrams,
+            identity: remodaq_shared::discovery::Identity,
+            map: &'static $map,
+        ) {
+            for slot in 0..remodaq_shared::modbus::server::SOCKETS {
+                match modbus_task(listener, map, slot) {
+                    Ok(token) => spawner.spawn(token),
+                    Err(e) => log::error!("cannot start Modbus task {slot}: {e:?}"),
+                }
+            }
+            match discovery_task(discovery, map, identity) {
+                Ok(token) => spawner.spawn(token),
+                Err(e) => log::error!("cannot start the discovery task: {e:?}"),
+            }
+        }
+    };
+}
