@@ -5,6 +5,7 @@ use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::mutex::Mutex;
 use embassy_time::{Duration, Ticker};
 use embedded_storage_async::nor_flash::NorFlash;
+use remodaq_shared::module::SettingsAccess;
 use remodaq_shared::warn;
 
 use crate::input::{InputType, Kind};

@@ -36,11 +36,6 @@ impl<F: NorFlash> Map8318<F> {
     pub fn publish(&mut self, snapshot: Snapshot) {
         self.snapshot = snapshot;
     }
-
-    /// The settings in force.
-    pub fn settings(&self) -> &Settings {
-        self.store.get()
-    }
 }
 
 impl<F: NorFlash> RegisterMap for Map8318<F> {

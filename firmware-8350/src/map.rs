@@ -80,11 +80,6 @@ impl<'a, F: NorFlash, R: RawMutex> Map8350<'a, F, R> {
         Self { store, io }
     }
 
-    /// The settings in force.
-    pub fn settings(&self) -> &Settings {
-        self.store.get()
-    }
-
     /// Gives the settings store back (a simulated restart).
     pub fn into_store(self) -> SettingsStore<F, Settings> {
         self.store

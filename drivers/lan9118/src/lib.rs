@@ -121,7 +121,6 @@ pub struct Lan9118<R: Registers> {
     regs: R,
     mac: [u8; 6],
     rx: [u32; WORDS],
-    rx_len: Option<usize>,
     tx: [u32; WORDS],
     /// Frames received and dropped (receive errors, too long).
     pub rx_dropped: u32,
@@ -147,7 +146,7 @@ impl<R: Registers> Lan9118<R> {
         regs.write(reg::HW_CFG, HW_CFG_SRST);
         wait_until(|| regs.read(reg::HW_CFG) & HW_CFG_SRST == 0)?;
         wait_until(|| regs.read(reg::PMT_CTRL) & PMT_READY != 0)?;
-        let chip = Self { regs, mac, rx: [0; WORDS], rx_len: None, tx: [0; WORDS], rx_dropped: 0 };
+        let chip = Self { regs, mac, rx: [0; WORDS], tx: [0; WORDS], rx_dropped: 0 };
         chip.mac_write(reg::mac::ADDRL, u32::from_le_bytes([mac[0], mac[1], mac[2], mac[3]]))?;
         chip.mac_write(reg::mac::ADDRH, u32::from(mac[4]) | u32::from(mac[5]) << 8)?;
         chip.mac_write(reg::mac::MAC_CR, MAC_CR_TXEN | MAC_CR_RXEN | MAC_CR_FDPX)?;
@@ -252,11 +251,9 @@ impl<R: Registers> Driver for Lan9118<R> {
         Self: 'a;
 
     fn receive(&mut self, cx: &mut Context) -> Option<(Self::RxToken<'_>, Self::TxToken<'_>)> {
-        if self.rx_len.is_none() {
-            RX_WAKER.register(cx.waker());
-            self.rx_len = self.poll_rx();
-        }
-        let len = self.rx_len.take()?;
+        // Register first: a frame arriving after the poll then wakes the stack.
+        RX_WAKER.register(cx.waker());
+        let len = self.poll_rx()?;
         let regs = self.regs;
         Some((RxToken { frame: &mut bytes(&mut self.rx)[..len] }, TxToken { regs, buf: &mut self.tx }))
     }
