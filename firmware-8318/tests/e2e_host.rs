@@ -150,9 +150,6 @@ async fn write(ctx: &mut Context, addr: u16, value: u16) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn scenario_values_over_modbus() {
-    use remodaq_8318::input::InputType;
-    use remodaq_8318::thermocouple::{Inverse, TcType};
-
     let dir = flash_file("scenario").with_extension("d");
     std::fs::create_dir_all(&dir).unwrap();
     let scenario = dir.join("scenario.toml");
@@ -168,26 +165,30 @@ async fn scenario_values_over_modbus() {
     );
     let mut ctx = connect(module.addr).await;
 
-    // Type K (factory): 41.276 mV at the terminals, cold junction at 25 °C.
-    let Inverse::Celsius(t) = TcType::K.temperature_c(41.276 + TcType::K.emf_mv(25.0).unwrap()) else { panic!() };
-    assert!((t - 1024.5).abs() < 1.5, "hot junction near 1024 °C per the NIST table: {t}");
-    let k = InputType::from_code(0x0F).unwrap();
+    // Type K (factory, spec range -250 .. 1400 °C): 41.276 mV at the terminals, cold junction
+    // at 25 °C. By the NIST ITS-90 type K table, E(25 °C) = 1.000 mV, so the hot junction sees
+    // 42.276 mV, between E(1025 °C) = 42.247 and E(1026 °C) = 42.286 mV: 1025.74 °C. The
+    // table's 0.0005 mV rounding is 0.013 °C per value at 39 µV/°C: allow 2 counts (0.05 °C).
+    let t = 1025.0 + (42.276 - 42.247) / (42.286 - 42.247);
+    let expected = (t + 250.0) / 1650.0 * 65535.0;
     let v = read_until(&mut ctx, 0, 9, |v| v[8] == 2500).await;
-    assert_eq!(v[0], k.raw(t), "thermocouple channel");
+    assert!((f64::from(v[0]) - expected).abs() <= 2.0, "thermocouple channel {:04X}, want {expected:.1}", v[0]);
     assert_eq!(v[3], 0xFFFF, "open thermocouple");
-    assert_eq!(v[4], k.raw(25.0), "0 mV reads the cold junction temperature");
+    // 0 mV reads the cold junction itself: (25 + 250) / 1650 * 65535 = 10922.5.
+    assert!((f64::from(v[4]) - 10922.5).abs() <= 1.0, "0 mV reads the cold junction temperature: {}", v[4]);
 
     // ±2.5 V: channel 1 at 1.2 V.
     write(&mut ctx, 0xC8, 0x05).await;
     let v = read_until(&mut ctx, 0, 9, |v| v[4] == 0x8000).await;
-    assert_eq!(v[1], InputType::from_code(0x05).unwrap().raw(1200.0), "voltage channel");
-    assert_eq!(v[1], 0xBD70);
+    // (1200 + 2500) / 5000 * 65535 = 48495.9.
+    assert_eq!(v[1], 48496, "voltage channel");
 
     // ±20 mA: channel 2 at 12 mA.
     write(&mut ctx, 0xC8, 0x06).await;
     let v = read_until(&mut ctx, 0, 9, |v| v[2] == 52428).await;
-    assert_eq!(v[2], InputType::from_code(0x06).unwrap().raw(12.0), "current channel");
-    assert_eq!(v[1], InputType::from_code(0x06).unwrap().raw(9.6), "1.2 V on the 125 ohm shunt reads 9.6 mA");
+    // (12 + 20) / 40 * 65535 = 52428.0; 1.2 V on the 125 ohm shunt is 9.6 mA: 48495.9.
+    assert_eq!(v[2], 52428, "current channel");
+    assert_eq!(v[1], 48496, "1.2 V on the 125 ohm shunt reads 9.6 mA");
 
     // Disabling channels reads 0000h; a CJC offset of -2.00 °C shows in 40009.
     write(&mut ctx, 0xDC, 0x00F0).await;

@@ -56,3 +56,20 @@ impl<T: core::fmt::Debug + defmt::Format + ?Sized> Loggable for T {}
 pub trait Loggable: core::fmt::Debug {}
 #[cfg(not(feature = "defmt"))]
 impl<T: core::fmt::Debug + ?Sized> Loggable for T {}
+
+/// Logs any `Debug` value with `{:?}` on every backend (on the target through
+/// `defmt::Debug2Format`, which costs flash: use it for rare errors only).
+pub struct Debug<'a, T: core::fmt::Debug + ?Sized>(pub &'a T);
+
+impl<T: core::fmt::Debug + ?Sized> core::fmt::Debug for Debug<'_, T> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        self.0.fmt(f)
+    }
+}
+
+#[cfg(feature = "defmt")]
+impl<T: core::fmt::Debug + ?Sized> defmt::Format for Debug<'_, T> {
+    fn format(&self, f: defmt::Formatter<'_>) {
+        defmt::write!(f, "{}", defmt::Debug2Format(self.0))
+    }
+}

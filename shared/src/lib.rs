@@ -8,6 +8,7 @@ extern crate std;
 
 pub mod fmt;
 
+pub mod board;
 pub mod discovery;
 #[cfg(feature = "embassy-net")]
 pub mod embassy_net;
@@ -19,3 +20,5 @@ pub mod net;
 pub mod password;
 pub mod ram_flash;
 pub mod settings;
+
+pub use remodaq_protocol as protocol;

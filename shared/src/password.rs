@@ -8,7 +8,7 @@ use crate::settings::{RecordReader, RecordWriter};
 /// Factory default configuration password.
 pub const FACTORY_PASSWORD: &str = "remodaq";
 /// Longest password accepted.
-pub const MAX_LEN: usize = 32;
+pub const MAX_LEN: usize = remodaq_protocol::discovery::MAX_PASSWORD_LEN;
 /// Shortest new password accepted.
 pub const MIN_LEN: usize = 4;
 

@@ -5,7 +5,7 @@ use remodaq_shared::discovery::{
     decode_info, decode_request, decode_result, op, Effect, Identity, Service, Status, Writer, MAX_DATAGRAM,
 };
 use remodaq_shared::module::SettingsAccess;
-use remodaq_shared::net::NetConfig;
+use remodaq_shared::net::{NetConfig, NetRecord};
 use remodaq_shared::password::PasswordHash;
 use remodaq_shared::ram_flash::RamFlash;
 use remodaq_shared::settings::{RecordReader, RecordWriter, Schema, SettingsStore, StoreError};

@@ -54,9 +54,16 @@ fn parse_listen(s: &str) -> Result<Listen, String> {
 }
 
 impl Options {
-    /// The flash image path, defaulting to a file named after the model in the temp dir.
-    pub fn flash_path(&self, model: &str) -> PathBuf {
-        self.flash.clone().unwrap_or_else(|| std::env::temp_dir().join(format!("remodaq-{model}.flash")))
+    /// The flash image path, defaulting to a file named after the program's model
+    /// (`firmware-8318` -> `remodaq-8318.flash`) in the OS temp dir.
+    pub fn flash_path(&self) -> PathBuf {
+        self.flash.clone().unwrap_or_else(|| {
+            let program = std::env::current_exe()
+                .ok()
+                .and_then(|p| p.file_stem().map(|s| s.to_string_lossy().trim_start_matches("firmware-").to_owned()))
+                .unwrap_or_else(|| "module".into());
+            std::env::temp_dir().join(format!("remodaq-{program}.flash"))
+        })
     }
 
     /// The listen address: `--listen`, with the settings' port where it gives none; else

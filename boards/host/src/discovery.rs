@@ -5,8 +5,7 @@
 use std::net::{SocketAddr, SocketAddrV4, UdpSocket};
 
 use async_io::Async;
-use embassy_sync::blocking_mutex::raw::RawMutex;
-use embassy_sync::mutex::Mutex;
+use remodaq_shared::board::Shared;
 use remodaq_shared::discovery::{serve, Datagrams, Effect, Identity};
 use remodaq_shared::module::SettingsAccess;
 
@@ -23,7 +22,7 @@ impl HostDatagrams {
     }
 }
 
-impl Datagrams for HostDatagrams {
+impl Datagrams for &HostDatagrams {
     type Error = std::io::ErrorKind;
 
     async fn recv(&mut self, buf: &mut [u8]) -> Result<(usize, [u8; 4], u16), Self::Error> {
@@ -39,11 +38,8 @@ impl Datagrams for HostDatagrams {
 }
 
 /// Serves the protocol forever.
-pub async fn run<R: RawMutex, A: SettingsAccess>(
-    mut socket: HostDatagrams,
-    map: &Mutex<R, A>,
-    identity: Identity,
-) -> ! {
+pub async fn run<A: SettingsAccess>(socket: &HostDatagrams, map: &Shared<A>, identity: Identity) -> ! {
+    let mut socket = socket;
     serve(&mut socket, map, identity, async |effect| match effect {
         Effect::None => {}
         Effect::Identify => log::info!("identify: the module's LED would blink for 10 s"),

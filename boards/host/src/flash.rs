@@ -4,8 +4,7 @@
 //! process being killed, exactly as on the module.
 
 use std::fs::{File, OpenOptions};
-use std::io::Read;
-use std::os::unix::fs::FileExt;
+use std::io::{Read, Seek, SeekFrom, Write};
 use std::path::Path;
 
 use embedded_storage_async::nor_flash::{ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash};
@@ -47,17 +46,24 @@ impl FileFlash {
         let mut image = Vec::new();
         file.read_to_end(&mut image)?;
         let flash = Box::new(RamFlash::from_image(&image));
+        let mut flash = Self { flash, file };
         if image.len() != SIZE {
-            file.set_len(SIZE as u64)?;
-            file.write_all_at(flash.image(), 0)?;
-            file.sync_data()?;
+            flash.file.set_len(SIZE as u64)?;
+            flash.write_through(0, SIZE)?;
         }
-        Ok(Self { flash, file })
+        Ok(flash)
     }
 
-    fn persist(&self, from: usize, to: usize) -> Result<(), FileFlashError> {
-        self.file.write_all_at(&self.flash.image()[from..to], from as u64).map_err(|_| FileFlashError::File)?;
-        self.file.sync_data().map_err(|_| FileFlashError::File)
+    /// Writes bytes `from..to` of the image to the file and to the disk (portable: a seek and a
+    /// write, as on every OS).
+    fn write_through(&mut self, from: usize, to: usize) -> std::io::Result<()> {
+        self.file.seek(SeekFrom::Start(from as u64))?;
+        self.file.write_all(&self.flash.image()[from..to])?;
+        self.file.sync_data()
+    }
+
+    fn persist(&mut self, from: usize, to: usize) -> Result<(), FileFlashError> {
+        self.write_through(from, to).map_err(|_| FileFlashError::File)
     }
 }
 

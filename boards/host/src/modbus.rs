@@ -4,17 +4,13 @@
 use std::net::{TcpListener, TcpStream};
 
 use async_io::Async;
-use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-use embassy_sync::mutex::Mutex;
 use embedded_io_adapters::futures_03::FromFutures;
-use remodaq_shared::modbus::server::{serve, Slots, SOCKETS};
+use remodaq_shared::board::{ModbusSlots, Shared};
+use remodaq_shared::modbus::server::serve;
 use remodaq_shared::modbus::RegisterMap;
 
 /// The Modbus/TCP listener.
 pub type Listener = Async<TcpListener>;
-
-/// The connection slots of a module.
-pub type ModbusSlots = Slots<CriticalSectionRawMutex, SOCKETS>;
 
 /// Binds the Modbus/TCP listener.
 pub fn bind(addr: std::net::SocketAddr) -> std::io::Result<Listener> {
@@ -24,7 +20,7 @@ pub fn bind(addr: std::net::SocketAddr) -> std::io::Result<Listener> {
 /// Connection task `slot`: accept, serve until the connection ends, repeat.
 pub async fn connection_task<M: RegisterMap>(
     listener: &Listener,
-    map: &Mutex<CriticalSectionRawMutex, M>,
+    map: &Shared<M>,
     slots: &ModbusSlots,
     slot: usize,
 ) -> ! {

@@ -3,16 +3,7 @@
 
 use super::Exception;
 
-/// The two Modbus data tables of the RemoDAQ modules. Codes 01/02/05/15 use `Bits` (0X),
-/// codes 03/04/06/16 use `Registers` (4X).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Table {
-    /// 0X table: one bit per address.
-    Bits,
-    /// 4X table: one 16-bit word per address.
-    Registers,
-}
+pub use remodaq_protocol::{Access, Table};
 
 /// The values of a validated write request, still in their wire form (no copy).
 #[derive(Clone, Copy, Debug)]
@@ -99,29 +90,4 @@ pub trait RegisterMap {
     /// Apply a validated write: all or nothing. Persisted values must be committed to flash
     /// before this returns `Ok` (durable on acknowledgement).
     async fn apply(&mut self, start: u16, values: &WriteValues<'_>) -> Result<(), Exception>;
-}
-
-/// What an address allows.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Access {
-    /// Not mapped.
-    None,
-    /// Read only.
-    Read,
-    /// Write only (reads answer exception 02).
-    Write,
-    /// Read and write.
-    ReadWrite,
-}
-
-impl Access {
-    /// Reads are allowed.
-    pub fn readable(self) -> bool {
-        matches!(self, Access::Read | Access::ReadWrite)
-    }
-    /// Writes are allowed.
-    pub fn writable(self) -> bool {
-        matches!(self, Access::Write | Access::ReadWrite)
-    }
 }

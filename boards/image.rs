@@ -1,0 +1,66 @@
+// The firmware image of one module on one board: included by `firmware-8318/src/main.rs` and
+// `firmware-8350/src/main.rs` after each names its `Module`. The board is chosen at build time:
+// the host board on a PC; on `thumbv7em-none-eabihf` the STM32 board (default feature
+// `board-stm32`) or the QEMU board (`--no-default-features --features board-qemu`). Everything
+// else is the one start-up path of `remodaq_shared::board`. Embassy tasks cannot be generic, so
+// the three below are declared here, each a line calling the running module.
+
+#[cfg(all(target_os = "none", feature = "board-stm32", feature = "board-qemu"))]
+compile_error!("choose one board: `board-stm32` (default) or `--no-default-features --features board-qemu`");
+
+#[cfg(not(target_os = "none"))]
+use remodaq_board_host::HostBoard as Board;
+#[cfg(all(target_os = "none", feature = "board-qemu"))]
+use remodaq_board_qemu::QemuBoard as Board;
+#[cfg(all(target_os = "none", not(feature = "board-qemu")))]
+use remodaq_board_stm32::Stm32Board as Board;
+
+use embassy_executor::Spawner;
+use remodaq_shared::board::{App, IoFor, Statics};
+
+/// The module on this board, running.
+type Running = App<Board, Module>;
+/// The board's I/O for the module.
+type Io = <Board as IoFor<Module>>::Io;
+
+static STATICS: Statics<Board, Module> = Statics::new();
+
+#[embassy_executor::task(pool_size = remodaq_shared::modbus::server::SOCKETS)]
+async fn modbus(app: &'static Running, slot: usize) -> ! {
+    app.serve_modbus(slot).await
+}
+
+#[embassy_executor::task]
+async fn discovery(app: &'static Running) -> ! {
+    app.serve_discovery().await
+}
+
+#[embassy_executor::task]
+async fn application(app: &'static Running, io: Io) -> ! {
+    app.run(io).await
+}
+
+async fn start(spawner: Spawner) {
+    let (app, io) = remodaq_shared::board::start(spawner, &STATICS).await;
+    app.spawn(spawner, io, modbus, discovery, application);
+}
+
+#[cfg(not(all(target_os = "none", feature = "board-qemu")))]
+#[embassy_executor::main]
+async fn main(spawner: Spawner) {
+    start(spawner).await;
+}
+
+/// The QEMU board runs its own executor (it sleeps with WFI: Embassy's WFE loop never sleeps
+/// under QEMU).
+#[cfg(all(target_os = "none", feature = "board-qemu"))]
+#[cortex_m_rt::entry]
+fn main() -> ! {
+    remodaq_board_qemu::executor::run(|spawner| remodaq_shared::board::spawn(spawner, main_task(spawner), "main"))
+}
+
+#[cfg(all(target_os = "none", feature = "board-qemu"))]
+#[embassy_executor::task]
+async fn main_task(spawner: Spawner) {
+    start(spawner).await;
+}

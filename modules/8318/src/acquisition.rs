@@ -1,0 +1,138 @@
+//! The acquisition cycle (spec §2.5): every 100 ms, convert every enabled channel and the cold
+//! junction, linearise, and publish all values at once.
+
+use embassy_sync::blocking_mutex::raw::RawMutex;
+use embassy_sync::mutex::Mutex;
+use embassy_time::{Duration, Ticker};
+use embedded_storage_async::nor_flash::NorFlash;
+use remodaq_shared::module::SettingsAccess;
+use remodaq_shared::warn;
+
+use crate::input::{InputType, Kind};
+use crate::map::Map8318;
+use crate::settings::Settings;
+use crate::thermocouple::{Inverse, Reference};
+
+/// Number of analog inputs.
+pub const CHANNELS: usize = remodaq_protocol::m8318::CHANNELS;
+/// Acquisition period.
+pub const PERIOD: Duration = Duration::from_millis(100);
+/// Register 40009 when the cold-junction sensor cannot be read (decision): 7FFFh.
+pub const CJC_INVALID: i16 = i16::MAX;
+
+/// What the front end saw at a channel's terminals.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Measurement {
+    /// Voltage between Vin+ and Vin-, mV.
+    Millivolts(f64),
+    /// Nothing connected (burnout detection tripped).
+    Open,
+}
+
+/// The analog front end of a board: converts a channel over a span, reads the cold-junction
+/// sensor, detects an open input.
+#[allow(async_fn_in_trait)]
+pub trait AnalogFrontEnd {
+    /// A conversion failed.
+    type Error: remodaq_shared::fmt::Loggable;
+
+    /// Converts `channel` (0..8) with a gain that covers ±`span_mv` at the terminals. With
+    /// `detect_open` (thermocouples), an open input is reported as [`Measurement::Open`].
+    async fn measure(&mut self, channel: u8, span_mv: f64, detect_open: bool) -> Result<Measurement, Self::Error>;
+
+    /// The temperature of the terminals (cold junction), °C.
+    async fn cold_junction_c(&mut self) -> Result<f64, Self::Error>;
+}
+
+/// One cycle's published values.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Snapshot {
+    /// Registers 40001-40008.
+    pub values: [u16; CHANNELS],
+    /// Register 40009: corrected CJC temperature, 0.01 °C.
+    pub cjc: i16,
+}
+
+impl Default for Snapshot {
+    fn default() -> Self {
+        Self { values: [0; CHANNELS], cjc: 0 }
+    }
+}
+
+/// The register value of one channel. `cj_emf_mv` is E(t_cj + offset) of the type, `None`
+/// when the cold junction is unknown.
+pub fn channel_value(input: &InputType, m: Measurement, cj_emf_mv: Option<f64>) -> u16 {
+    let Measurement::Millivolts(mv) = m else { return 0xFFFF };
+    match input.kind {
+        Kind::Voltage => input.raw(mv),
+        Kind::Current => input.raw(mv / crate::input::SHUNT_OHMS),
+        Kind::Thermocouple(tc) => {
+            let Some(cj) = cj_emf_mv else { return 0xFFFF };
+            match tc.temperature_c(mv + cj) {
+                Inverse::Below => 0x0000,
+                Inverse::Above => 0xFFFF,
+                Inverse::Celsius(t) => input.raw(t),
+            }
+        }
+    }
+}
+
+/// Register 40009 of a corrected cold-junction temperature.
+pub fn cjc_register(celsius: f64) -> i16 {
+    let r = libm::round(celsius * 100.0);
+    if r.is_nan() {
+        CJC_INVALID
+    } else {
+        r.clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16
+    }
+}
+
+/// Runs one acquisition cycle.
+pub async fn acquire<A: AnalogFrontEnd>(fe: &mut A, settings: &Settings) -> Snapshot {
+    let mut snapshot = Snapshot::default();
+    let Some(input) = InputType::from_code(settings.input_type) else { return snapshot };
+    let offset = f64::from(settings.cjc_offset) / 100.0;
+    let cold_junction = match fe.cold_junction_c().await {
+        Ok(t) => Some(t + offset),
+        Err(e) => {
+            warn!("8318: cold junction not read: {:?}", e);
+            None
+        }
+    };
+    snapshot.cjc = cold_junction.map_or(CJC_INVALID, cjc_register);
+    let cj_emf = match input.thermocouple() {
+        Some(tc) => cold_junction.map(|t| tc.emf_clamped_mv(t)),
+        None => Some(0.0),
+    };
+    let detect_open = input.thermocouple().is_some();
+    for ch in 0..CHANNELS {
+        if settings.enable_mask & (1 << ch) == 0 {
+            continue;
+        }
+        snapshot.values[ch] = match fe.measure(ch as u8, crate::input::span_mv(&input), detect_open).await {
+            Ok(m) => channel_value(&input, m, cj_emf),
+            Err(e) => {
+                warn!("8318: channel {} not converted: {:?}", ch, e);
+                0xFFFF
+            }
+        };
+    }
+    snapshot
+}
+
+/// The application task's body: one cycle every [`PERIOD`], published to the map at once;
+/// `alive` is called after each cycle (the watchdog heartbeat).
+pub async fn run<R: RawMutex, F: NorFlash, A: AnalogFrontEnd>(
+    fe: &mut A,
+    map: &Mutex<R, Map8318<F>>,
+    mut alive: impl FnMut(),
+) -> ! {
+    let mut ticker = Ticker::every(PERIOD);
+    loop {
+        ticker.next().await;
+        let settings = *map.lock().await.settings();
+        let snapshot = acquire(fe, &settings).await;
+        map.lock().await.publish(snapshot);
+        alive();
+    }
+}

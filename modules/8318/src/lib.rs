@@ -1,0 +1,47 @@
+//! RemoDAQ-8318 module logic (`no_std`, no hardware): settings schema and Modbus register map
+//! (spec §2), input types and scaling, thermocouple maths, the acquisition cycle, and the
+//! AD7124-8 front end with its recovery policy. A board supplies the flash and the analog
+//! front end ([`acquisition::AnalogFrontEnd`]); [`M8318`] is the module in the board contract.
+#![no_std]
+#![warn(missing_docs)]
+
+pub mod acquisition;
+pub mod ad7124;
+pub mod input;
+pub mod map;
+pub mod settings;
+pub mod thermocouple;
+
+use embedded_storage_async::nor_flash::NorFlash;
+use remodaq_shared::board::{Module, Runs, Shared};
+use remodaq_shared::settings::SettingsStore;
+
+pub use remodaq_protocol::m8318::{MODEL, MODULE_NAME};
+
+/// The RemoDAQ-8318.
+pub struct M8318;
+
+impl Module for M8318 {
+    const MODULE_NAME: u16 = MODULE_NAME;
+    const MODEL: &'static str = MODEL;
+    type Settings = settings::Settings;
+    type State = ();
+    type Map<F: NorFlash + 'static> = map::Map8318<F>;
+
+    fn state(_: &settings::Settings) {}
+
+    fn map<F: NorFlash + 'static>(store: SettingsStore<F, settings::Settings>, _: &'static ()) -> map::Map8318<F> {
+        map::Map8318::new(store)
+    }
+}
+
+impl<A: acquisition::AnalogFrontEnd> Runs<A> for M8318 {
+    async fn run<F: NorFlash + 'static>(
+        mut front_end: A,
+        _: &'static (),
+        map: &'static Shared<map::Map8318<F>>,
+        alive: impl FnMut(),
+    ) -> ! {
+        acquisition::run(&mut front_end, map, alive).await
+    }
+}

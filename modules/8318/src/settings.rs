@@ -1,0 +1,74 @@
+//! Persisted settings of the 8318 (spec §2.1, §1.4).
+
+use remodaq_shared::net::{NetConfig, NetRecord};
+use remodaq_shared::password::PasswordHash;
+use remodaq_shared::settings::{RecordReader, RecordWriter, Schema};
+
+use crate::input::InputType;
+
+pub use remodaq_protocol::m8318::{cjc_offset_from_register, cjc_offset_to_register, CJC_OFFSET_LIMIT};
+
+/// Everything the 8318 keeps in flash.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Settings {
+    /// Network settings.
+    pub net: NetConfig,
+    /// Configuration password (network settings, restart).
+    pub password: PasswordHash,
+    /// Input type code (40201), one of spec §2.2 ([`InputType::from_code`]).
+    pub input_type: u8,
+    /// CJC offset (40216) in 0.01 °C, within ±[`CJC_OFFSET_LIMIT`].
+    pub cjc_offset: i16,
+    /// Channel enable mask (40221), bit n = channel n.
+    pub enable_mask: u8,
+}
+
+mod tag {
+    pub const INPUT_TYPE: u8 = 32;
+    pub const CJC_OFFSET: u8 = 33;
+    pub const ENABLE_MASK: u8 = 34;
+}
+
+impl Schema for Settings {
+    const VERSION: u8 = 1;
+
+    fn defaults() -> Self {
+        // Decision: factory input type 0Fh (type K), all channels enabled, no CJC offset.
+        Self {
+            net: NetConfig::FACTORY,
+            password: PasswordHash::factory(),
+            input_type: 0x0F,
+            cjc_offset: 0,
+            enable_mask: 0xFF,
+        }
+    }
+
+    fn encode(&self, w: &mut RecordWriter<'_>) {
+        self.net.encode(w);
+        self.password.encode(w);
+        w.put(tag::INPUT_TYPE, &[self.input_type]);
+        w.put(tag::CJC_OFFSET, &self.cjc_offset.to_le_bytes());
+        w.put(tag::ENABLE_MASK, &[self.enable_mask]);
+    }
+
+    fn decode(_version: u8, r: &RecordReader<'_>) -> Self {
+        let d = Self::defaults();
+        Self {
+            net: NetConfig::decode(r),
+            password: PasswordHash::decode(r),
+            input_type: r
+                .array::<1>(tag::INPUT_TYPE)
+                .map(|[t]| t)
+                .filter(|t| InputType::from_code(*t).is_some())
+                .unwrap_or(d.input_type),
+            cjc_offset: r
+                .array(tag::CJC_OFFSET)
+                .map(i16::from_le_bytes)
+                .filter(|o| o.abs() <= CJC_OFFSET_LIMIT)
+                .unwrap_or(d.cjc_offset),
+            enable_mask: r.array::<1>(tag::ENABLE_MASK).map(|[m]| m).unwrap_or(d.enable_mask),
+        }
+    }
+}
+
+remodaq_shared::impl_common_settings!(Settings);

@@ -1,0 +1,184 @@
+//! The 8350's live I/O state, shared by the Modbus map and the board's capture and output
+//! paths: a blocking mutex held for microseconds only (never across a flash commit), so the
+//! engines catch up with the hardware even while a settings write is being committed.
+
+use core::cell::RefCell;
+
+use embassy_futures::select::{select, Either};
+use embassy_sync::blocking_mutex::raw::RawMutex;
+use embassy_sync::blocking_mutex::Mutex;
+use embassy_time::{Duration, Instant, Ticker, Timer};
+
+use crate::di::DiEngine;
+use crate::pulse::{self, PulseEngine};
+use crate::settings::Settings;
+
+/// The engines and the extra-pulses registers.
+pub struct Io {
+    /// The input engine.
+    pub di: DiEngine,
+    /// The output engine.
+    pub pulse: PulseEngine,
+    /// DO n extra pulses register (40061 + 2n): the last value written.
+    pub extra: [u32; pulse::CHANNELS],
+}
+
+impl Io {
+    /// Engines for inputs sampled `sample_rate` times a second, configured from `settings`.
+    pub fn new(sample_rate: u32, settings: &Settings) -> Self {
+        let mut io = Self { di: DiEngine::new(sample_rate), pulse: PulseEngine::new(), extra: [0; pulse::CHANNELS] };
+        io.configure(settings);
+        io
+    }
+
+    /// Applies the persisted settings (modes and pulse settings); only changes take effect.
+    pub fn configure(&mut self, settings: &Settings) {
+        for (n, mode) in settings.di_modes.iter().enumerate() {
+            self.di.set_mode(n, *mode);
+        }
+        for n in 0..pulse::CHANNELS {
+            self.pulse.set_mode(n, settings.do_modes[n]);
+            self.pulse.set_config(n, settings.pulses[n]);
+        }
+    }
+}
+
+/// [`Io`] behind its mutex.
+pub type IoCell<R> = Mutex<R, RefCell<Io>>;
+
+/// Runs `f` on the I/O state.
+pub fn with<R: RawMutex, T>(cell: &IoCell<R>, f: impl FnOnce(&mut Io) -> T) -> T {
+    cell.lock(|io| f(&mut io.borrow_mut()))
+}
+
+/// How often the captured input samples are handed to the engine (the STM32 capture ring holds
+/// 82 ms, so this leaves a wide margin). Each pass is the application's heartbeat.
+pub const DRAIN_INTERVAL: Duration = Duration::from_millis(2);
+/// Input samples handed to the engine per lock of the I/O state.
+pub const DRAIN_BATCH: usize = 512;
+/// Output ticks computed per refill: half of the boards' output pattern ring.
+pub const OUTPUT_CHUNK: usize = 128;
+
+/// The captured input samples were not drained in time: some were lost.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SamplesLost;
+
+/// The output pattern ran dry before it was refilled: the outputs replayed old ticks.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct PatternUnderrun;
+
+/// The board's input path: samples of all inputs (bit n = DIn) taken at
+/// [`crate::di::SAMPLE_RATE_HZ`] by hardware (or in simulated time) into a ring.
+pub trait InputCapture {
+    /// Takes the samples captured since the last call, oldest first, as many as fit `out`.
+    fn read(&mut self, out: &mut [u16]) -> Result<usize, SamplesLost>;
+}
+
+/// The board's output path: output levels (bit n = DOn), one per pulse-engine tick at
+/// [`crate::pulse::TICK_HZ`], played from a ring of `2 * OUTPUT_CHUNK` ticks.
+#[allow(async_fn_in_trait)]
+pub trait OutputPattern {
+    /// Queues `ticks` (at most [`OUTPUT_CHUNK`]), waiting until the ring has room for them.
+    async fn write(&mut self, ticks: &[u8]) -> Result<(), PatternUnderrun>;
+}
+
+/// The 8350's application: drains the input capture into the DI engine every
+/// [`DRAIN_INTERVAL`] (each pass calls `alive`), and keeps the output pattern filled from the
+/// pulse engine, one [`OUTPUT_CHUNK`] at a time.
+pub async fn run<R: RawMutex>(
+    mut inputs: impl InputCapture,
+    mut outputs: impl OutputPattern,
+    cell: &IoCell<R>,
+    mut alive: impl FnMut(),
+) -> ! {
+    let drain = async {
+        let mut samples = [0u16; DRAIN_BATCH];
+        let mut ticker = Ticker::every(DRAIN_INTERVAL);
+        loop {
+            ticker.next().await;
+            loop {
+                match inputs.read(&mut samples) {
+                    Ok(0) => break,
+                    Ok(n) => with(cell, |s| s.di.process(&samples[..n])),
+                    Err(e) => {
+                        remodaq_shared::error!("inputs: {:?}: samples were lost", e);
+                        break;
+                    }
+                }
+            }
+            alive();
+        }
+    };
+    let fill = async {
+        let mut ticks = [0u8; OUTPUT_CHUNK];
+        loop {
+            with(cell, |s| s.pulse.fill(&mut ticks));
+            if let Err(e) = outputs.write(&ticks).await {
+                remodaq_shared::error!("outputs: {:?}: the pattern ran dry", e);
+            }
+        }
+    };
+    match select(drain, fill).await {
+        Either::First(never) | Either::Second(never) => never,
+    }
+}
+
+/// A capture in simulated time (the host and QEMU boards): sample `index` since the start is
+/// `sample_at(index)`; the samples due by now are handed out as the hardware ring would.
+pub struct SimulatedCapture<F> {
+    start: Instant,
+    done: u64,
+    sample_at: F,
+}
+
+impl<F: FnMut(u64) -> u16> SimulatedCapture<F> {
+    /// A capture starting now.
+    pub fn new(sample_at: F) -> Self {
+        Self { start: Instant::now(), done: 0, sample_at }
+    }
+}
+
+impl<F: FnMut(u64) -> u16> InputCapture for SimulatedCapture<F> {
+    fn read(&mut self, out: &mut [u16]) -> Result<usize, SamplesLost> {
+        let due = self.start.elapsed().as_micros() * u64::from(crate::di::SAMPLE_RATE_HZ) / 1_000_000;
+        let n = (due.saturating_sub(self.done)).min(out.len() as u64) as usize;
+        for (i, s) in out[..n].iter_mut().enumerate() {
+            *s = (self.sample_at)(self.done + i as u64);
+        }
+        self.done += n as u64;
+        Ok(n)
+    }
+}
+
+/// An output ring played in simulated time (the host and QEMU boards): ticks are consumed at
+/// [`pulse::TICK_HZ`] from the start; `played(levels)` sees each queued chunk.
+pub struct SimulatedPattern<F> {
+    start: Instant,
+    queued: u64,
+    played: F,
+}
+
+impl<F: FnMut(&[u8])> SimulatedPattern<F> {
+    /// A ring starting now, empty.
+    pub fn new(played: F) -> Self {
+        Self { start: Instant::now(), queued: 0, played }
+    }
+}
+
+impl<F: FnMut(&[u8])> OutputPattern for SimulatedPattern<F> {
+    async fn write(&mut self, ticks: &[u8]) -> Result<(), PatternUnderrun> {
+        let tick_us = 1_000_000 / u64::from(pulse::TICK_HZ);
+        let capacity = 2 * OUTPUT_CHUNK as u64;
+        // Wait until the ring has played enough to take these ticks.
+        let room_at = (self.queued + ticks.len() as u64).saturating_sub(capacity) * tick_us;
+        Timer::at(self.start + Duration::from_micros(room_at)).await;
+        let playing = self.start.elapsed().as_micros() / tick_us;
+        let result = if playing > self.queued && self.queued > 0 { Err(PatternUnderrun) } else { Ok(()) };
+        // After a late refill the ring plays on from where it is, as the DMA ring does.
+        self.queued = self.queued.max(playing) + ticks.len() as u64;
+        (self.played)(ticks);
+        result
+    }
+}

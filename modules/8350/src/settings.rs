@@ -1,0 +1,99 @@
+//! Persisted settings of the 8350 (spec §3.5, §1.4): DI modes, DO modes, pulse widths and
+//! counts, network settings. Counters, run bits, flags and output states are not persisted.
+
+use remodaq_shared::net::{NetConfig, NetRecord};
+use remodaq_shared::password::PasswordHash;
+use remodaq_shared::settings::{RecordReader, RecordWriter, Schema};
+
+use crate::di::{self, DiMode};
+use crate::pulse::{self, DoMode, PulseConfig};
+
+/// Everything the 8350 keeps in flash.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Settings {
+    /// Network settings.
+    pub net: NetConfig,
+    /// Configuration password (network settings, restart).
+    pub password: PasswordHash,
+    /// DI n mode (40257 + n).
+    pub di_modes: [DiMode; di::CHANNELS],
+    /// DO n mode (40273 + n).
+    pub do_modes: [DoMode; pulse::CHANNELS],
+    /// DO n pulse widths and count (40025.., 40037.., 40049..).
+    pub pulses: [PulseConfig; pulse::CHANNELS],
+}
+
+mod tag {
+    pub const DI_MODES: u8 = 32;
+    pub const DO_MODES: u8 = 33;
+    pub const LOW: u8 = 34;
+    pub const HIGH: u8 = 35;
+    pub const COUNT: u8 = 36;
+}
+
+fn put_u32s(w: &mut RecordWriter<'_>, tag: u8, values: impl Iterator<Item = u32>) {
+    let mut bytes = [0u8; 4 * pulse::CHANNELS];
+    for (chunk, v) in bytes.chunks_exact_mut(4).zip(values) {
+        chunk.copy_from_slice(&v.to_le_bytes());
+    }
+    w.put(tag, &bytes);
+}
+
+fn get_u32s(r: &RecordReader<'_>, tag: u8) -> Option<[u32; pulse::CHANNELS]> {
+    let bytes: [u8; 4 * pulse::CHANNELS] = r.array(tag)?;
+    let mut out = [0u32; pulse::CHANNELS];
+    for (v, chunk) in out.iter_mut().zip(bytes.chunks_exact(4)) {
+        *v = u32::from_le_bytes([chunk[0], chunk[1], chunk[2], chunk[3]]);
+    }
+    Some(out)
+}
+
+impl Schema for Settings {
+    const VERSION: u8 = 1;
+
+    fn defaults() -> Self {
+        Self {
+            net: NetConfig::FACTORY,
+            password: PasswordHash::factory(),
+            di_modes: [DiMode::Normal; di::CHANNELS],
+            do_modes: [DoMode::Normal; pulse::CHANNELS],
+            pulses: [PulseConfig::default(); pulse::CHANNELS],
+        }
+    }
+
+    fn encode(&self, w: &mut RecordWriter<'_>) {
+        self.net.encode(w);
+        self.password.encode(w);
+        w.put(tag::DI_MODES, &self.di_modes.map(|m| m as u8));
+        w.put(tag::DO_MODES, &self.do_modes.map(|m| m as u8));
+        put_u32s(w, tag::LOW, self.pulses.iter().map(|p| p.low));
+        put_u32s(w, tag::HIGH, self.pulses.iter().map(|p| p.high));
+        put_u32s(w, tag::COUNT, self.pulses.iter().map(|p| p.count));
+    }
+
+    fn decode(_version: u8, r: &RecordReader<'_>) -> Self {
+        let mut s = Self::defaults();
+        s.net = NetConfig::decode(r);
+        s.password = PasswordHash::decode(r);
+        if let Some(modes) = r.array::<{ di::CHANNELS }>(tag::DI_MODES) {
+            for (m, v) in s.di_modes.iter_mut().zip(modes) {
+                *m = DiMode::from_register(u16::from(v)).unwrap_or(DiMode::Normal);
+            }
+        }
+        if let Some(modes) = r.array::<{ pulse::CHANNELS }>(tag::DO_MODES) {
+            for (m, v) in s.do_modes.iter_mut().zip(modes) {
+                *m = DoMode::from_register(u16::from(v)).unwrap_or(DoMode::Normal);
+            }
+        }
+        let d = PulseConfig::default();
+        let (low, high, count) = (get_u32s(r, tag::LOW), get_u32s(r, tag::HIGH), get_u32s(r, tag::COUNT));
+        for (n, p) in s.pulses.iter_mut().enumerate() {
+            p.low = low.map(|v| v[n]).filter(|w| *w >= 1).unwrap_or(d.low);
+            p.high = high.map(|v| v[n]).filter(|w| *w >= 1).unwrap_or(d.high);
+            p.count = count.map_or(d.count, |v| v[n]);
+        }
+        s
+    }
+}
+
+remodaq_shared::impl_common_settings!(Settings);

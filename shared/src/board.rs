@@ -1,0 +1,221 @@
+//! The board contract and the one start-up path of every module on every board.
+//!
+//! A board (the STM32 Nucleo, the QEMU machine, the host PC) implements [`Board`]: its settings
+//! flash, its network and identity, the factory-reset input, restart (inside its [`Network`]'s
+//! discovery effects) and the watchdog heartbeat; and, for each module it can run, [`IoFor`]:
+//! the module's I/O resources. A module (8318, 8350) implements [`Module`]: its settings
+//! schema, its register map over the settings store, and ([`Runs`]) its application over the
+//! board's I/O. [`start`] then brings up any module on any board the same way: settings, factory
+//! reset, identity, register map, network. The image crate only names the pair and declares
+//! the tasks (Embassy tasks cannot be generic), each a line calling [`App`].
+
+use embassy_executor::{SpawnError, SpawnToken, Spawner};
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::mutex::Mutex;
+use embedded_storage_async::nor_flash::NorFlash;
+use static_cell::StaticCell;
+
+use crate::discovery::Identity;
+use crate::identity::FIRMWARE_VERSION;
+use crate::modbus::server::{Slots, MAX_CONNECTIONS, SOCKETS};
+use crate::modbus::RegisterMap;
+use crate::module::{CommonSettings, SettingsAccess};
+use crate::net::NetConfig;
+use crate::settings::{Schema, SettingsStore};
+
+/// The lock every task takes to reach the register map.
+pub type Shared<T> = Mutex<CriticalSectionRawMutex, T>;
+
+/// The connection slots of the Modbus server.
+pub type ModbusSlots = Slots<CriticalSectionRawMutex, SOCKETS>;
+
+/// What every board provides.
+pub trait Board: Sized + 'static {
+    /// The settings flash: a NOR flash whose first [`Board::SETTINGS_SIZE`] bytes hold the
+    /// settings.
+    type Flash: NorFlash + 'static;
+    /// Size of the settings region, bytes.
+    const SETTINGS_SIZE: u32;
+    /// The running network (Modbus/TCP and discovery).
+    type Net: Network;
+
+    /// Brings up the board: clocks, pins, peripherals (the host board: command line, logging).
+    fn init() -> Self;
+    /// The settings flash; called once.
+    fn settings_flash(&mut self) -> Self::Flash;
+    /// Every setting must return to its factory default (the USER button held at power-up,
+    /// `--factory-reset` on the host).
+    fn factory_reset_requested(&self) -> bool;
+    /// The module's MAC address.
+    fn mac(&self) -> [u8; 6];
+    /// Starts the network with the stored settings, and the board's own tasks (network
+    /// runner, watchdog, identify LED). Returns the network and the settings actually in force
+    /// (the host and QEMU boards listen where they are told, not at the stored address).
+    fn start_network(self, spawner: Spawner, stored: NetConfig) -> (Self::Net, NetConfig);
+    /// The application completed a cycle (feeds the watchdog where the board has one).
+    fn app_alive();
+}
+
+/// A board's network: serves one Modbus/TCP connection slot, and the discovery protocol with
+/// the board's identify and restart.
+#[allow(async_fn_in_trait)]
+pub trait Network: 'static {
+    /// Accepts and serves Modbus/TCP connections in `slot`, forever.
+    async fn serve_modbus<M: RegisterMap>(
+        &'static self,
+        map: &'static Shared<M>,
+        slots: &'static ModbusSlots,
+        slot: usize,
+    ) -> !;
+    /// Serves the discovery and configuration protocol, forever.
+    async fn serve_discovery<A: SettingsAccess>(&'static self, map: &'static Shared<A>, identity: Identity) -> !;
+}
+
+/// What a module is, whatever board it runs on.
+pub trait Module: Sized + 'static {
+    /// Module name register value (40211).
+    const MODULE_NAME: u16;
+    /// Model string.
+    const MODEL: &'static str;
+    /// The settings schema.
+    type Settings: CommonSettings;
+    /// Live state shared by the register map and the application outside the map's lock
+    /// (the 8350's engines); `()` where there is none.
+    type State: 'static;
+    /// The register map over the settings store.
+    type Map<F: NorFlash + 'static>: RegisterMap + SettingsAccess<Settings = Self::Settings> + 'static;
+
+    /// The live state, configured from the settings.
+    fn state(settings: &Self::Settings) -> Self::State;
+    /// The register map over the opened store.
+    fn map<F: NorFlash + 'static>(store: SettingsStore<F, Self::Settings>, state: &'static Self::State)
+        -> Self::Map<F>;
+}
+
+/// A module's application over the I/O resources `Io` of a board.
+#[allow(async_fn_in_trait)]
+pub trait Runs<Io>: Module {
+    /// Runs the module's I/O forever; `alive` after each completed cycle.
+    async fn run<F: NorFlash + 'static>(
+        io: Io,
+        state: &'static Self::State,
+        map: &'static Shared<Self::Map<F>>,
+        alive: impl FnMut(),
+    ) -> !;
+}
+
+/// The I/O resources a board gives module `M` (a board implements it for each module it can
+/// run).
+pub trait IoFor<M: Module> {
+    /// The resources, ready to use.
+    type Io;
+    /// Takes them; called once, before the network starts.
+    fn take_io(&mut self) -> Self::Io;
+}
+
+/// The running module: register map, network, identity.
+pub struct App<B: Board, M: Module> {
+    map: Shared<M::Map<B::Flash>>,
+    net: B::Net,
+    slots: ModbusSlots,
+    identity: Identity,
+    state: &'static M::State,
+}
+
+/// The static storage of one module on one board (declare one in the image crate: Rust has
+/// no generic statics).
+pub struct Statics<B: Board, M: Module> {
+    state: StaticCell<M::State>,
+    app: StaticCell<App<B, M>>,
+}
+
+impl<B: Board, M: Module> Statics<B, M> {
+    /// Empty storage.
+    pub const fn new() -> Self {
+        Self { state: StaticCell::new(), app: StaticCell::new() }
+    }
+}
+
+impl<B: Board, M: Module> Default for Statics<B, M> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Brings module `M` up on board `B`: the board, its I/O for the module, the settings (reset
+/// to factory defaults if asked), the register map and the network. Returns the running
+/// module and the I/O for [`App::run`].
+pub async fn start<B, M>(spawner: Spawner, statics: &'static Statics<B, M>) -> (&'static App<B, M>, B::Io)
+where
+    B: Board + IoFor<M>,
+    M: Module,
+{
+    let mut board = B::init();
+    let io = board.take_io();
+    let flash = board.settings_flash();
+    let mut store = SettingsStore::<B::Flash, M::Settings>::open(
+        flash,
+        const { SettingsStore::<B::Flash, M::Settings>::config(0..B::SETTINGS_SIZE) },
+    )
+    .await;
+    if board.factory_reset_requested() {
+        crate::warn!("factory reset: every setting back to its factory default");
+        if store.commit(M::Settings::defaults()).await.is_err() {
+            crate::error!("factory reset: the settings could not be written");
+        }
+    }
+    let stored = store.get().net();
+    let mac = board.mac();
+    let state: &'static M::State = statics.state.init(M::state(store.get()));
+    let map = Mutex::new(M::map(store, state));
+    let (net, running) = board.start_network(spawner, stored);
+    let identity = Identity { model: M::MODULE_NAME, name: M::MODEL, version: FIRMWARE_VERSION, mac, running };
+    crate::info!("{} running, firmware {:04X}", M::MODEL, FIRMWARE_VERSION);
+    let app = statics.app.init(App { map, net, slots: Slots::new(MAX_CONNECTIONS), identity, state });
+    (app, io)
+}
+
+impl<B: Board, M: Module> App<B, M> {
+    /// Serves Modbus/TCP connection slot `slot` (0..[`SOCKETS`]), forever.
+    pub async fn serve_modbus(&'static self, slot: usize) -> ! {
+        self.net.serve_modbus(&self.map, &self.slots, slot).await
+    }
+
+    /// Serves discovery, forever.
+    pub async fn serve_discovery(&'static self) -> ! {
+        self.net.serve_discovery(&self.map, self.identity).await
+    }
+
+    /// Runs the module's application over the board's I/O, forever.
+    pub async fn run<Io>(&'static self, io: Io) -> !
+    where
+        M: Runs<Io>,
+    {
+        M::run(io, self.state, &self.map, B::app_alive).await
+    }
+
+    /// Spawns the module's tasks: `modbus` once per connection slot, `discovery`, and `app`
+    /// with the I/O. A task that cannot be spawned is logged, not a panic.
+    pub fn spawn<Io, S1, S2, S3>(
+        &'static self,
+        spawner: Spawner,
+        io: Io,
+        modbus: impl Fn(&'static Self, usize) -> Result<SpawnToken<S1>, SpawnError>,
+        discovery: impl FnOnce(&'static Self) -> Result<SpawnToken<S2>, SpawnError>,
+        app: impl FnOnce(&'static Self, Io) -> Result<SpawnToken<S3>, SpawnError>,
+    ) {
+        for slot in 0..SOCKETS {
+            spawn(spawner, modbus(self, slot), "modbus");
+        }
+        spawn(spawner, discovery(self), "discovery");
+        spawn(spawner, app(self, io), "app");
+    }
+}
+
+/// Spawns a task, logging (instead of panicking) if its pool is exhausted.
+pub fn spawn<S>(spawner: Spawner, token: Result<SpawnToken<S>, SpawnError>, name: &str) {
+    match token {
+        Ok(token) => spawner.spawn(token),
+        Err(_) => crate::error!("cannot start task {}", name),
+    }
+}
