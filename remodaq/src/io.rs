@@ -4,11 +4,13 @@ use std::net::{SocketAddr, ToSocketAddrs};
 use std::time::Duration;
 
 use clap::{Subcommand, ValueEnum};
-use remodaq_8318::input::{unscale, InputType, Kind};
+use remodaq_protocol::m8318::{self, InputType, Kind, REG_CJC_OFFSET, REG_ENABLE_MASK, REG_INPUT_TYPE};
+use remodaq_protocol::m8350::{self, DiMode as Mode, Point, PulseField, Word};
+use remodaq_protocol::{identity, words_low_first};
 use serde::Serialize;
 use tokio::time::timeout as within;
-use tokio_modbus::client::{tcp, Context, Reader, Writer};
-use tokio_modbus::ExceptionCode;
+use tokio_modbus::client::{tcp, Client, Context};
+use tokio_modbus::{ExceptionCode, Request, Response};
 
 use crate::Error;
 
@@ -61,6 +63,18 @@ pub enum DiMode {
     Frequency,
 }
 
+impl From<DiMode> for Mode {
+    fn from(m: DiMode) -> Mode {
+        match m {
+            DiMode::Normal => Mode::Normal,
+            DiMode::Counter => Mode::Counter,
+            DiMode::LatchRising => Mode::LatchRising,
+            DiMode::LatchFalling => Mode::LatchFalling,
+            DiMode::Frequency => Mode::Frequency,
+        }
+    }
+}
+
 #[derive(Clone, Copy, ValueEnum)]
 pub enum DoMode {
     Normal,
@@ -81,6 +95,16 @@ pub enum OnOff {
 }
 
 const DI_MODES: [&str; 5] = ["normal", "counter", "latch-rising", "latch-falling", "frequency"];
+
+/// The 4X address of an 8350 register point.
+fn reg(point: Point) -> u16 {
+    point.addr().1
+}
+
+/// The 0X address of an 8350 bit point.
+fn bit(point: Point) -> u16 {
+    point.addr().1
+}
 
 fn exception(e: ExceptionCode) -> Error {
     let meaning = match e {
@@ -118,8 +142,8 @@ impl Module {
             .map_err(|_| Error::Timeout(format!("no connection to {addr} within {:.1} s", timeout.as_secs_f64())))?
             .map_err(|e| Error::Other(format!("cannot connect to {addr}: {e}")))?;
         let mut m = Self { ctx, addr, timeout, model: 0 };
-        m.model = m.regs(0xD2, 1).await?[0];
-        if m.model != 0x8318 && m.model != 0x8350 {
+        m.model = m.reg(identity::REG_NAME).await?;
+        if m.model != m8318::MODULE_NAME && m.model != m8350::MODULE_NAME {
             return Err(Error::Other(format!("{addr} is not a RemoDAQ-8318 or -8350 (40211 reads {:04X})", m.model)));
         }
         Ok(m)
@@ -129,24 +153,71 @@ impl Module {
         Error::Timeout(format!("{} did not answer within {:.1} s", self.addr, self.timeout.as_secs_f64()))
     }
 
+    /// The outcome of one request: no answer in time, a reply that does not fit it (another
+    /// transaction or function, undecodable, the connection dropped), an exception, or the
+    /// value.
+    fn outcome<T>(&self, answer: Result<tokio_modbus::Result<T>, tokio::time::error::Elapsed>) -> Result<T, Error> {
+        let reply = answer.map_err(|_| self.late())?;
+        match reply {
+            Ok(result) => result.map_err(exception),
+            Err(tokio_modbus::Error::Protocol(e)) => Err(Error::Reply(format!("{}: {e}", self.addr))),
+            Err(tokio_modbus::Error::Transport(e)) if e.kind() == std::io::ErrorKind::InvalidData => {
+                Err(Error::Reply(format!("{}: not a Modbus/TCP reply ({e})", self.addr)))
+            }
+            Err(tokio_modbus::Error::Transport(e)) => Err(Error::Other(format!("{}: {e}", self.addr))),
+        }
+    }
+
+    /// One request through tokio-modbus's checked `call` (it rejects another transaction or
+    /// function); the caller checks that the response fits the request.
+    async fn call(&mut self, request: Request<'_>) -> Result<Response, Error> {
+        let answer = within(self.timeout, self.ctx.call(request)).await;
+        self.outcome(answer)
+    }
+
+    fn misfit(&self, what: String) -> Error {
+        Error::Reply(format!("{}: {what}", self.addr))
+    }
+
     async fn regs(&mut self, addr: u16, n: u16) -> Result<Vec<u16>, Error> {
-        let r = within(self.timeout, self.ctx.read_holding_registers(addr, n)).await.map_err(|_| self.late())?;
-        r.map_err(|e| Error::Other(format!("{}: {e}", self.addr)))?.map_err(exception)
+        match self.call(Request::ReadHoldingRegisters(addr, n)).await? {
+            Response::ReadHoldingRegisters(words) if words.len() == usize::from(n) => Ok(words),
+            Response::ReadHoldingRegisters(words) => {
+                Err(self.misfit(format!("{} registers in the reply to a read of {n}", words.len())))
+            }
+            other => Err(self.misfit(format!("{other:?} in reply to a read of registers"))),
+        }
+    }
+
+    async fn reg(&mut self, addr: u16) -> Result<u16, Error> {
+        Ok(self.regs(addr, 1).await?[0])
     }
 
     async fn bits(&mut self, addr: u16, n: u16) -> Result<Vec<bool>, Error> {
-        let r = within(self.timeout, self.ctx.read_coils(addr, n)).await.map_err(|_| self.late())?;
-        r.map_err(|e| Error::Other(format!("{}: {e}", self.addr)))?.map_err(exception)
+        match self.call(Request::ReadCoils(addr, n)).await? {
+            // Bits come in whole bytes: the reply carries up to 7 padding bits.
+            Response::ReadCoils(mut bits) if bits.len() >= usize::from(n) && bits.len() < usize::from(n) + 8 => {
+                bits.truncate(usize::from(n));
+                Ok(bits)
+            }
+            Response::ReadCoils(bits) => Err(self.misfit(format!("{} bits in the reply to a read of {n}", bits.len()))),
+            other => Err(self.misfit(format!("{other:?} in reply to a read of bits"))),
+        }
     }
 
     async fn write_regs(&mut self, addr: u16, values: &[u16]) -> Result<(), Error> {
-        let r = within(self.timeout, self.ctx.write_multiple_registers(addr, values)).await.map_err(|_| self.late())?;
-        r.map_err(|e| Error::Other(format!("{}: {e}", self.addr)))?.map_err(exception)
+        let n = values.len() as u16;
+        match self.call(Request::WriteMultipleRegisters(addr, values.into())).await? {
+            Response::WriteMultipleRegisters(a, q) if (a, q) == (addr, n) => Ok(()),
+            other => Err(self.misfit(format!("{other:?} in reply to a write of {n} registers at {addr:#06x}"))),
+        }
     }
 
     async fn write_bit(&mut self, addr: u16, on: bool) -> Result<(), Error> {
-        let r = within(self.timeout, self.ctx.write_single_coil(addr, on)).await.map_err(|_| self.late())?;
-        r.map_err(|e| Error::Other(format!("{}: {e}", self.addr)))?.map_err(exception)
+        match self.call(Request::WriteSingleCoil(addr, on)).await? {
+            Response::WriteSingleCoil(a, v) if (a, v) == (addr, on) => Ok(()),
+            other => Err(self.misfit(format!("{other:?} in reply to a write of bit {addr:#06x}"))),
+        }
     }
 
     fn expect(&self, model: u16) -> Result<(), Error> {
@@ -192,15 +263,15 @@ fn type_name(t: &InputType) -> (String, &'static str, f64) {
 }
 
 async fn read_analog(m: &mut Module) -> Result<Analog, Error> {
-    let values = m.regs(0x00, 9).await?;
-    let code = m.regs(0xC8, 1).await?[0];
-    let offset = m.regs(0xD7, 1).await?[0] as i16;
-    let enabled = m.regs(0xDC, 1).await?[0];
+    let values = m.regs(m8318::REG_VALUE, m8318::CHANNELS as u16 + 1).await?;
+    let code = m.reg(REG_INPUT_TYPE).await?;
+    let offset = m.reg(REG_CJC_OFFSET).await? as i16;
+    let enabled = m.reg(REG_ENABLE_MASK).await?;
     let input =
         InputType::from_code(code as u8).ok_or_else(|| Error::Other(format!("unknown input type {code:02X}")))?;
     let (name, unit, divisor) = type_name(&input);
     let tc = matches!(input.kind, Kind::Thermocouple(_));
-    let channels = (0..8)
+    let channels = (0..m8318::CHANNELS)
         .map(|ch| {
             let raw = values[ch];
             let on = enabled & (1 << ch) != 0;
@@ -211,17 +282,16 @@ async fn read_analog(m: &mut Module) -> Result<Analog, Error> {
                 (true, 0xFFFF) => "over range",
                 _ => "ok",
             };
-            let value =
-                (status == "ok").then(|| (unscale(raw, input.lo, input.hi) / divisor * 1000.0).round() / 1000.0);
+            let value = (status == "ok").then(|| (input.value(raw) / divisor * 1000.0).round() / 1000.0);
             AnalogChannel { channel: ch, enabled: on, raw, value, status }
         })
         .collect();
     Ok(Analog {
-        model: "RemoDAQ-8318",
+        model: m8318::MODEL,
         input_type: name,
         type_code: format!("{code:02X}"),
         unit,
-        cold_junction_c: f64::from(values[8] as i16) / 100.0,
+        cold_junction_c: f64::from(values[m8318::CHANNELS] as i16) / 100.0,
         cjc_offset_c: f64::from(offset) / 100.0,
         channels,
     })
@@ -258,19 +328,21 @@ struct Output {
 }
 
 fn pairs(words: &[u16]) -> Vec<u32> {
-    words.chunks(2).map(|p| u32::from(p[0]) | u32::from(p[1]) << 16).collect()
+    words.chunks_exact(2).map(|p| remodaq_protocol::u32_low_first(p[0], p[1])).collect()
 }
 
 async fn read_digital(m: &mut Module) -> Result<Digital, Error> {
-    let states = m.regs(0x12C, 1).await?[0];
-    let counters = pairs(&m.regs(0x00, 24).await?);
-    let pulses = pairs(&m.regs(0x18, 36).await?);
-    let di_modes = m.regs(0x100, 12).await?;
-    let do_modes = m.regs(0x110, 6).await?;
-    let dos = m.bits(0x10, 6).await?;
+    const DI: u16 = m8350::DI_CHANNELS as u16;
+    const DO: u16 = m8350::DO_CHANNELS as u16;
+    let states = m.reg(reg(Point::AllDi)).await?;
+    let counters = pairs(&m.regs(reg(Point::Counter(0, Word::Low)), 2 * DI).await?);
+    let pulses = pairs(&m.regs(reg(Point::Pulse(PulseField::Low, 0, Word::Low)), 6 * DO).await?);
+    let di_modes = m.regs(reg(Point::DiMode(0)), DI).await?;
+    let do_modes = m.regs(reg(Point::DoMode(0)), DO).await?;
+    let dos = m.bits(bit(Point::Do(0)), DO).await?;
     // Reading the overflow and latch flags clears them (the module's documented behaviour).
-    let flags = m.bits(0x20, 48).await?;
-    let inputs = (0..12)
+    let flags = m.bits(bit(Point::CounterRun(0)), 4 * DI).await?;
+    let inputs = (0..m8350::DI_CHANNELS)
         .map(|n| Input {
             channel: n,
             state: states & (1 << n) != 0,
@@ -281,7 +353,7 @@ async fn read_digital(m: &mut Module) -> Result<Digital, Error> {
             latch: flags[4 * n + 3],
         })
         .collect();
-    let outputs = (0..6)
+    let outputs = (0..m8350::DO_CHANNELS)
         .map(|n| Output {
             channel: n,
             state: dos[n],
@@ -291,11 +363,11 @@ async fn read_digital(m: &mut Module) -> Result<Digital, Error> {
             count: pulses[12 + n],
         })
         .collect();
-    Ok(Digital { model: "RemoDAQ-8350", inputs, outputs })
+    Ok(Digital { model: m8350::MODEL, inputs, outputs })
 }
 
 async fn read_once(m: &mut Module, json: bool) -> Result<(), Error> {
-    if m.model == 0x8318 {
+    if m.model == m8318::MODULE_NAME {
         let a = read_analog(m).await?;
         if json {
             println!("{}", serde_json::to_string(&a).unwrap_or_default());
@@ -394,9 +466,9 @@ fn parse_number(s: &str) -> Result<u32, Error> {
 
 fn type_code(s: &str) -> Result<u16, Error> {
     let letter = s.trim().to_ascii_uppercase();
-    let by_letter = ["J", "K", "T", "E", "R", "S", "B", "N", "C", "L", "M"].iter().position(|l| *l == letter);
-    if let Some(i) = by_letter {
-        return Ok(0x0E + i as u16);
+    let by_letter = m8318::INPUT_TYPES.iter().find(|t| t.thermocouple().is_some_and(|tc| tc.letter() == letter));
+    if let Some(t) = by_letter {
+        return Ok(u16::from(t.code));
     }
     let code = u16::from_str_radix(letter.trim_start_matches("0X"), 16)
         .map_err(|_| Error::Other(format!("`{s}` is not a type code")))?;
@@ -406,11 +478,10 @@ fn type_code(s: &str) -> Result<u16, Error> {
         .ok_or_else(|| Error::Other(format!("{code:02X} is not an input type code (00-06, 0E-18)")))
 }
 
-fn channel(n: u16, count: u16) -> Result<u16, Error> {
-    if n < count {
-        Ok(n)
-    } else {
-        Err(Error::Other(format!("channel {n} does not exist (0..{})", count - 1)))
+fn channel(n: u16, count: usize) -> Result<u8, Error> {
+    match u8::try_from(n) {
+        Ok(ch) if usize::from(n) < count => Ok(ch),
+        _ => Err(Error::Other(format!("channel {n} does not exist (0..{})", count - 1))),
     }
 }
 
@@ -423,75 +494,75 @@ fn ticks(ms: f64) -> Result<u32, Error> {
     }
 }
 
-fn words(v: u32) -> [u16; 2] {
-    [v as u16, (v >> 16) as u16]
-}
-
 /// `remodaq config`.
 pub async fn config(module: &str, setting: Setting, timeout: Duration, json: bool) -> Result<(), Error> {
     let mut m = Module::connect(module, timeout).await?;
     let done = match setting {
         Setting::Type { code } => {
-            m.expect(0x8318)?;
+            m.expect(m8318::MODULE_NAME)?;
             let code = type_code(&code)?;
-            m.write_regs(0xC8, &[code]).await?;
+            m.write_regs(REG_INPUT_TYPE, &[code]).await?;
             format!("input type {code:02X}")
         }
         Setting::Enable { mask } => {
-            m.expect(0x8318)?;
+            m.expect(m8318::MODULE_NAME)?;
             let mask = parse_number(&mask)?;
             if mask > 0xFF {
                 return Err(Error::Other("the enable mask has 8 bits (0x00 to 0xFF)".into()));
             }
-            m.write_regs(0xDC, &[mask as u16]).await?;
+            m.write_regs(REG_ENABLE_MASK, &[mask as u16]).await?;
             format!("enabled channels {mask:#04x}")
         }
         Setting::CjcOffset { celsius } => {
-            m.expect(0x8318)?;
+            m.expect(m8318::MODULE_NAME)?;
             let hundredths = (celsius * 100.0).round();
             if !(-5000.0..=5000.0).contains(&hundredths) {
                 return Err(Error::Other("the CJC offset is -50.00 to 50.00 °C".into()));
             }
-            m.write_regs(0xD7, &[hundredths as i16 as u16]).await?;
+            m.write_regs(REG_CJC_OFFSET, &[m8318::cjc_offset_to_register(hundredths as i16)]).await?;
             format!("CJC offset {:+.2} °C", hundredths / 100.0)
         }
         Setting::DiMode { channel: n, mode } => {
-            m.expect(0x8350)?;
-            m.write_regs(0x100 + channel(n, 12)?, &[mode as u16]).await?;
+            m.expect(m8350::MODULE_NAME)?;
+            let n = channel(n, m8350::DI_CHANNELS)?;
+            m.write_regs(reg(Point::DiMode(n)), &[Mode::from(mode) as u16]).await?;
             format!("DI{n} mode {}", DI_MODES[mode as usize])
         }
         Setting::DoMode { channel: n, mode } => {
-            m.expect(0x8350)?;
-            m.write_regs(0x110 + channel(n, 6)?, &[mode as u16]).await?;
+            m.expect(m8350::MODULE_NAME)?;
+            let n = channel(n, m8350::DO_CHANNELS)?;
+            m.write_regs(reg(Point::DoMode(n)), &[mode as u16]).await?;
             format!("DO{n} mode {}", if matches!(mode, DoMode::Pulse) { "pulse" } else { "normal" })
         }
         Setting::Pulse { channel: n, low_ms, high_ms, count } => {
-            m.expect(0x8350)?;
-            let n = channel(n, 6)?;
+            m.expect(m8350::MODULE_NAME)?;
+            let n = channel(n, m8350::DO_CHANNELS)?;
             let (low, high) = (ticks(low_ms)?, ticks(high_ms)?);
-            m.write_regs(0x18 + 2 * n, &words(low)).await?;
-            m.write_regs(0x24 + 2 * n, &words(high)).await?;
-            m.write_regs(0x30 + 2 * n, &words(count)).await?;
+            for (field, value) in [(PulseField::Low, low), (PulseField::High, high), (PulseField::Count, count)] {
+                m.write_regs(reg(Point::Pulse(field, n, Word::Low)), &words_low_first(value)).await?;
+            }
             format!("DO{n} pulses: low {low_ms} ms, high {high_ms} ms, count {count}")
         }
         Setting::Extra { channel: n, pulses } => {
-            m.expect(0x8350)?;
-            m.write_regs(0x3C + 2 * channel(n, 6)?, &words(pulses)).await?;
+            m.expect(m8350::MODULE_NAME)?;
+            let n = channel(n, m8350::DO_CHANNELS)?;
+            m.write_regs(reg(Point::Pulse(PulseField::Extra, n, Word::Low)), &words_low_first(pulses)).await?;
             format!("DO{n}: {pulses} extra pulses")
         }
         Setting::Counter { channel: n, action } => {
-            m.expect(0x8350)?;
-            let base = 0x20 + 4 * channel(n, 12)?;
+            m.expect(m8350::MODULE_NAME)?;
+            let n = channel(n, m8350::DI_CHANNELS)?;
             match action {
-                CounterAction::Start => m.write_bit(base, true).await?,
-                CounterAction::Stop => m.write_bit(base, false).await?,
-                CounterAction::Clear => m.write_bit(base + 1, true).await?,
+                CounterAction::Start => m.write_bit(bit(Point::CounterRun(n)), true).await?,
+                CounterAction::Stop => m.write_bit(bit(Point::CounterRun(n)), false).await?,
+                CounterAction::Clear => m.write_bit(bit(Point::CounterClear(n)), true).await?,
             }
             format!("DI{n} counter {}", ["started", "stopped", "cleared"][action as usize])
         }
         Setting::LatchClear { channel: n } => {
-            m.expect(0x8350)?;
-            m.write_bit(0x23 + 4 * channel(n, 12)?, false).await?;
+            m.expect(m8350::MODULE_NAME)?;
+            let n = channel(n, m8350::DI_CHANNELS)?;
+            m.write_bit(bit(Point::Latch(n)), false).await?;
             format!("DI{n} latch cleared")
         }
         Setting::Register { address, value } => {
@@ -504,9 +575,10 @@ pub async fn config(module: &str, setting: Setting, timeout: Duration, json: boo
             format!("register {} ({pdu:#06x}) = {v:#06x}", u32::from(pdu) + 40001)
         }
         Setting::Do { channel: n, state } => {
-            m.expect(0x8350)?;
+            m.expect(m8350::MODULE_NAME)?;
+            let n = channel(n, m8350::DO_CHANNELS)?;
             let on = matches!(state, OnOff::On);
-            m.write_bit(0x10 + channel(n, 6)?, on).await?;
+            m.write_bit(bit(Point::Do(n)), on).await?;
             format!("DO{n} {}", if on { "on" } else { "off" })
         }
     };

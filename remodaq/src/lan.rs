@@ -4,8 +4,8 @@ use std::net::{Ipv4Addr, SocketAddr};
 use std::str::FromStr;
 use std::time::{Duration, Instant};
 
-use remodaq_shared::discovery::{decode_info, decode_result, op, Status, Writer, MAX_DATAGRAM};
-use remodaq_shared::net::NetConfig;
+use remodaq_protocol::discovery::{decode_info, decode_result, op, Status, Writer, MAX_DATAGRAM};
+use remodaq_protocol::net::NetConfig;
 use serde::Serialize;
 use tokio::net::UdpSocket;
 

@@ -137,6 +137,9 @@ pub enum Error {
     Exception(String),
     /// Wrong password or rate limited (exit 5).
     Refused(String),
+    /// The peer's reply does not fit the request: short, long, another function or
+    /// transaction, or not Modbus at all (exit 6). Not a RemoDAQ module, or a broken one.
+    Reply(String),
     /// Anything else: connection, bad argument, unexpected answer (exit 1).
     Other(String),
 }
@@ -148,6 +151,7 @@ impl Error {
             Error::Timeout(_) => 3,
             Error::Exception(_) => 4,
             Error::Refused(_) => 5,
+            Error::Reply(_) => 6,
         }
     }
 }
@@ -156,6 +160,7 @@ impl std::fmt::Display for Error {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Error::Timeout(m) => write!(f, "timeout: {m}"),
+            Error::Reply(m) => write!(f, "bad reply: {m}"),
             Error::Exception(m) | Error::Refused(m) | Error::Other(m) => f.write_str(m),
         }
     }

@@ -2,19 +2,23 @@
 //! (Search aims at each module's unicast discovery address instead of the broadcast address.)
 
 use std::net::{SocketAddr, TcpListener};
-use std::path::PathBuf;
-use std::process::{Command, Stdio};
+use std::path::{Path, PathBuf};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-use remodaq_board_host::testing::SimModule;
+use remodaq_board_host::testing::{command, program, SimModule};
 use serde_json::Value;
 
-const TOOL: &str = env!("CARGO_BIN_EXE_remodaq");
+/// The tool under test: this build's, or the one in `REMODAQ_E2E_BIN_DIR` (see
+/// `remodaq_board_host::testing`).
+fn tool() -> PathBuf {
+    program("remodaq", Path::new(env!("CARGO_BIN_EXE_remodaq")))
+}
 
-/// A firmware's host build, next to this tool's binary (`cargo test --workspace` builds it).
+/// A firmware's host build, next to the tool's binary (`cargo test --workspace` builds it).
 fn firmware(model: &str) -> String {
-    let dir = PathBuf::from(TOOL).parent().expect("bin dir").to_path_buf();
-    let path = dir.join(format!("firmware-{model}"));
+    let beside = PathBuf::from(env!("CARGO_BIN_EXE_remodaq")).with_file_name(format!("firmware-{model}"));
+    let path = program(&format!("firmware-{model}"), &beside);
     assert!(path.exists(), "{} is missing: run the workspace's tests (cargo test --workspace)", path.display());
     path.to_string_lossy().into_owned()
 }
@@ -29,7 +33,7 @@ fn temp(name: &str) -> PathBuf {
 
 /// Runs the tool (bounded to 30 s): exit code, stdout, stderr.
 fn remodaq(args: &[&str]) -> (i32, String, String) {
-    let mut child = Command::new(TOOL)
+    let mut child = command(&tool())
         .args(args)
         .env_remove("REMODAQ_PASSWORD")
         .stdout(Stdio::piped())

@@ -38,11 +38,13 @@ pub trait Board: Sized + 'static {
     const SETTINGS_SIZE: u32;
     /// The running network (Modbus/TCP and discovery).
     type Net: Network;
+    /// What the board reserves for the modules' I/O (pins and peripherals; the scenario on the
+    /// host), handed to [`IoFor::io`].
+    type Resources;
 
-    /// Brings up the board: clocks, pins, peripherals (the host board: command line, logging).
-    fn init() -> Self;
-    /// The settings flash; called once.
-    fn settings_flash(&mut self) -> Self::Flash;
+    /// Brings up the board (clocks, pins, peripherals; on the host: command line, logging):
+    /// the board, its settings flash and the modules' I/O resources.
+    fn init() -> (Self, Self::Flash, Self::Resources);
     /// Every setting must return to its factory default (the USER button held at power-up,
     /// `--factory-reset` on the host).
     fn factory_reset_requested(&self) -> bool;
@@ -104,13 +106,12 @@ pub trait Runs<Io>: Module {
     ) -> !;
 }
 
-/// The I/O resources a board gives module `M` (a board implements it for each module it can
-/// run).
-pub trait IoFor<M: Module> {
-    /// The resources, ready to use.
+/// The I/O a board gives module `M` (a board implements it for each module it can run).
+pub trait IoFor<M: Module>: Board {
+    /// The module's I/O, ready to use.
     type Io;
-    /// Takes them; called once, before the network starts.
-    fn take_io(&mut self) -> Self::Io;
+    /// Starts the module's I/O from the board's resources (before the network starts).
+    fn io(resources: Self::Resources) -> Self::Io;
 }
 
 /// The running module: register map, network, identity.
@@ -147,12 +148,11 @@ impl<B: Board, M: Module> Default for Statics<B, M> {
 /// module and the I/O for [`App::run`].
 pub async fn start<B, M>(spawner: Spawner, statics: &'static Statics<B, M>) -> (&'static App<B, M>, B::Io)
 where
-    B: Board + IoFor<M>,
+    B: IoFor<M>,
     M: Module,
 {
-    let mut board = B::init();
-    let io = board.take_io();
-    let flash = board.settings_flash();
+    let (board, flash, resources) = B::init();
+    let io = B::io(resources);
     let mut store = SettingsStore::<B::Flash, M::Settings>::open(
         flash,
         const { SettingsStore::<B::Flash, M::Settings>::config(0..B::SETTINGS_SIZE) },

@@ -9,7 +9,7 @@ use remodaq_8318::M8318;
 use remodaq_shared::board::IoFor;
 
 use crate::scenario::{parse_analog, Analog, Terminal, Watched};
-use crate::{fail, HostBoard};
+use crate::{fail, HostBoard, Scenario};
 
 /// The simulated analog front end: the scenario's terminals, re-read once per cycle.
 pub struct ScenarioFrontEnd {
@@ -22,9 +22,8 @@ impl IoFor<M8318> for HostBoard {
 
     /// Loads the scenario (`--scenario`); a missing or malformed file ends the process with
     /// status 2, naming the line.
-    fn take_io(&mut self) -> ScenarioFrontEnd {
-        let scenario =
-            self.options.scenario.as_deref().map(|path| Watched::load(path, parse_analog).unwrap_or_else(|e| fail(&e)));
+    fn io(scenario: Scenario) -> ScenarioFrontEnd {
+        let scenario = scenario.0.as_deref().map(|path| Watched::load(path, parse_analog).unwrap_or_else(|e| fail(&e)));
         ScenarioFrontEnd { scenario, current: Analog::default() }
     }
 }

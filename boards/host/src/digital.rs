@@ -8,7 +8,7 @@ use remodaq_8350::M8350;
 use remodaq_shared::board::IoFor;
 
 use crate::scenario::{parse_digital, Digital, Watched};
-use crate::{fail, HostBoard};
+use crate::{fail, HostBoard, Scenario};
 
 /// The simulated input capture: sample `index` of the scenario's signals.
 pub type Capture = SimulatedCapture<Box<dyn FnMut(u64) -> u16>>;
@@ -20,12 +20,9 @@ impl IoFor<M8350> for HostBoard {
 
     /// Loads the scenario (`--scenario`); a missing or malformed file ends the process with
     /// status 2, naming the line. The file is read again when it changes.
-    fn take_io(&mut self) -> (Capture, Pattern) {
-        let mut scenario = self
-            .options
-            .scenario
-            .as_deref()
-            .map(|path| Watched::load(path, parse_digital).unwrap_or_else(|e| fail(&e)));
+    fn io(scenario: Scenario) -> (Capture, Pattern) {
+        let mut scenario =
+            scenario.0.as_deref().map(|path| Watched::load(path, parse_digital).unwrap_or_else(|e| fail(&e)));
         let mut current = Digital::default();
         let rate = f64::from(SAMPLE_RATE_HZ);
         let sample_at = move |index: u64| {

@@ -38,15 +38,10 @@ pub fn fail(message: &str) -> ! {
 pub struct HostBoard {
     options: cli::Options,
     path: PathBuf,
-    flash: Option<flash::FileFlash>,
 }
 
-impl HostBoard {
-    /// The command line.
-    pub fn options(&self) -> &cli::Options {
-        &self.options
-    }
-}
+/// The host board's I/O resources: the scenario file, if one was given.
+pub struct Scenario(pub Option<PathBuf>);
 
 /// The simulated module's network: the Modbus/TCP listener and the discovery socket.
 pub struct HostNet {
@@ -58,21 +53,19 @@ impl Board for HostBoard {
     type Flash = flash::FileFlash;
     const SETTINGS_SIZE: u32 = flash::SIZE as u32;
     type Net = HostNet;
+    type Resources = Scenario;
 
     /// Logging, the command line and the flash image; a flash image that cannot be used ends
     /// the process with status 2.
-    fn init() -> Self {
+    fn init() -> (Self, flash::FileFlash, Scenario) {
         init_logging();
         let options = cli::Options::parse();
         let path = options.flash_path();
         let flash =
             flash::FileFlash::open(&path).unwrap_or_else(|e| fail(&format!("flash image {}: {e}", path.display())));
         log::info!("settings in {}", path.display());
-        Self { options, path, flash: Some(flash) }
-    }
-
-    fn settings_flash(&mut self) -> flash::FileFlash {
-        self.flash.take().unwrap_or_else(|| fail("the settings flash was taken twice"))
+        let scenario = Scenario(options.scenario.clone());
+        (Self { options, path }, flash, scenario)
     }
 
     fn factory_reset_requested(&self) -> bool {

@@ -1,11 +1,45 @@
 //! For end-to-end tests: start a simulated module as a child process and find its addresses.
+//!
+//! The programs under test are this build's by default. Two variables run the same tests on
+//! other builds: `REMODAQ_E2E_BIN_DIR` (a directory holding `remodaq`, `firmware-8318` and
+//! `firmware-8350`, e.g. the Windows build `target/x86_64-pc-windows-gnu/debug`) and
+//! `REMODAQ_E2E_RUNNER` (a program that runs them, e.g. `wine`).
 
 use std::io::{BufRead, BufReader};
 use std::net::SocketAddr;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::mpsc::{self, Receiver};
 use std::time::Duration;
+
+/// The program `name` (`remodaq`, `firmware-8318`, ...): in `REMODAQ_E2E_BIN_DIR` if set
+/// (with `.exe` where that exists), else `default`.
+pub fn program(name: &str, default: &Path) -> PathBuf {
+    match std::env::var_os("REMODAQ_E2E_BIN_DIR") {
+        Some(dir) => {
+            let dir = PathBuf::from(dir);
+            let exe = dir.join(format!("{name}.exe"));
+            if exe.exists() {
+                exe
+            } else {
+                dir.join(name)
+            }
+        }
+        None => default.to_path_buf(),
+    }
+}
+
+/// A command running `program`, through `REMODAQ_E2E_RUNNER` if set.
+pub fn command(program: &Path) -> Command {
+    match std::env::var_os("REMODAQ_E2E_RUNNER").filter(|r| !r.is_empty()) {
+        Some(runner) => {
+            let mut c = Command::new(runner);
+            c.arg(program);
+            c
+        }
+        None => Command::new(program),
+    }
+}
 
 /// A running simulated module; killed when dropped.
 pub struct SimModule {
@@ -27,7 +61,7 @@ impl SimModule {
     /// Starts `binary` with the flash image, an ephemeral loopback discovery port and `args`
     /// (which should say where Modbus listens, e.g. `--listen 127.0.0.1:0`).
     pub fn start_with(binary: &str, flash: &Path, args: &[&str]) -> Self {
-        let mut child = Command::new(binary)
+        let mut child = command(Path::new(binary))
             .args(["--discovery", "127.0.0.1:0", "--flash"])
             .arg(flash)
             .args(args)

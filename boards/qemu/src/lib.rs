@@ -14,6 +14,8 @@
 #![no_std]
 #![cfg(target_os = "none")]
 
+pub mod analog;
+pub mod digital;
 pub mod executor;
 pub mod flash;
 mod time;
@@ -23,12 +25,13 @@ use core::sync::atomic::{AtomicBool, Ordering};
 use cortex_m::interrupt::InterruptNumber;
 use cortex_m::peripheral::NVIC;
 use embassy_executor::Spawner;
-use embassy_net::{Ipv4Address, Ipv4Cidr, Stack, StackResources, StaticConfigV4};
+use embassy_net::{Ipv4Address, Ipv4Cidr, StackResources, StaticConfigV4};
 use remodaq_lan9118::{Lan9118, Registers};
-use remodaq_shared::discovery::{Effect, Identity};
+use remodaq_shared::board::{spawn, Board};
+use remodaq_shared::discovery::Effect;
+use remodaq_shared::embassy_net::{Effects, EmbassyNet};
 use remodaq_shared::info;
-use remodaq_shared::module::SettingsAccess;
-use remodaq_shared::net::mac_from_uid;
+use remodaq_shared::net::{mac_from_uid, NetConfig};
 use static_cell::StaticCell;
 
 /// The LAN9118's registers.
@@ -81,33 +84,37 @@ pub type Device = Lan9118<Mmio>;
 /// Sockets: the Modbus connection tasks, discovery, and slack.
 const STACK_SOCKETS: usize = remodaq_shared::modbus::server::SOCKETS + 3;
 
-/// The board, until its network is started.
-pub struct Board {
+/// The MPS2 AN386 as QEMU emulates it.
+pub struct QemuBoard {
     mac: [u8; 6],
 }
 
-/// Starts the time driver and returns the board and the settings flash.
-pub fn init() -> (Board, flash::SettingsFlash) {
-    let Some(mut core) = cortex_m::Peripherals::take() else { panic!("init twice") };
-    time::start(&mut core.SYST);
-    let flash = flash::SettingsFlash::take();
-    (Board { mac: mac_from_uid(b"qemu-mps2-an") }, flash)
-}
+impl Board for QemuBoard {
+    type Flash = flash::SettingsFlash;
+    const SETTINGS_SIZE: u32 = flash::SIZE as u32;
+    type Net = EmbassyNet<QemuEffects>;
+    /// The modules' I/O is simulated: nothing to reserve.
+    type Resources = ();
 
-impl Board {
-    /// What discovery tells about a module of name register `model` (the QEMU network).
-    pub fn identity(&self, model: u16, name: &'static str, port: u16) -> Identity {
-        Identity {
-            model,
-            name,
-            version: remodaq_shared::identity::FIRMWARE_VERSION,
-            mac: self.mac,
-            running: remodaq_shared::net::NetConfig { ip: GUEST_IP, mask: [255, 255, 255, 0], gateway: GATEWAY, port },
-        }
+    /// Starts the time driver.
+    fn init() -> (Self, flash::SettingsFlash, ()) {
+        let Some(mut core) = cortex_m::Peripherals::take() else { panic!("init twice") };
+        time::start(&mut core.SYST);
+        (QemuBoard { mac: mac_from_uid(b"qemu-mps2-an") }, flash::SettingsFlash::take(), ())
     }
 
-    /// Brings up the LAN9118 and the network stack.
-    pub fn start(self, spawner: &Spawner) -> Stack<'static> {
+    /// No button on this board.
+    fn factory_reset_requested(&self) -> bool {
+        false
+    }
+
+    fn mac(&self) -> [u8; 6] {
+        self.mac
+    }
+
+    /// Brings up the LAN9118 and the network stack on QEMU's user network (10.0.2.15/24,
+    /// whatever the stored address; the Modbus port is the stored one).
+    fn start_network(self, spawner: Spawner, stored: NetConfig) -> (EmbassyNet<QemuEffects>, NetConfig) {
         let device = match Lan9118::new(Mmio, self.mac) {
             Ok(device) => device,
             Err(e) => panic!("LAN9118: {:?}", defmt::Debug2Format(&e)),
@@ -123,35 +130,36 @@ impl Board {
         let (stack, runner) = embassy_net::new(device, config, RESOURCES.init(StackResources::new()), 0x5EED_8300);
         spawn(spawner, net_task(runner), "net");
         info!("network: 10.0.2.15/24 (QEMU user network)");
-        stack
+        let running = NetConfig { ip: GUEST_IP, mask: [255, 255, 255, 0], gateway: GATEWAY, port: stored.port };
+        (EmbassyNet { stack, port: stored.port, effects: QemuEffects }, running)
+    }
+
+    /// No watchdog on this board.
+    fn app_alive() {}
+}
+
+/// Discovery's effects here: identify is a log line, restart a system reset.
+pub struct QemuEffects;
+
+impl Effects for QemuEffects {
+    async fn apply(&self, effect: Effect) {
+        match effect {
+            Effect::None => {}
+            Effect::Identify => info!("identify"),
+            Effect::Restart => {
+                embassy_time::Timer::after_millis(300).await;
+                cortex_m::peripheral::SCB::sys_reset();
+            }
+        }
     }
 }
 
 const GUEST_IP: [u8; 4] = [10, 0, 2, 15];
 const GATEWAY: [u8; 4] = [10, 0, 2, 2];
 
-pub use remodaq_shared::embassy_net::spawn;
-
 #[embassy_executor::task]
 async fn net_task(mut runner: embassy_net::Runner<'static, Device>) -> ! {
     runner.run().await
-}
-
-/// Serves discovery; identify is a log line, restart a system reset.
-pub async fn discovery<A: SettingsAccess>(
-    stack: Stack<'static>,
-    map: &embassy_sync::mutex::Mutex<embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex, A>,
-    identity: Identity,
-) -> ! {
-    remodaq_shared::embassy_net::discovery(stack, map, identity, async |effect| match effect {
-        Effect::None => {}
-        Effect::Identify => info!("identify"),
-        Effect::Restart => {
-            embassy_time::Timer::after_millis(300).await;
-            cortex_m::peripheral::SCB::sys_reset();
-        }
-    })
-    .await
 }
 
 /// Logs go nowhere on this board (defmt needs a logger to link).

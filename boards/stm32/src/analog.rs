@@ -13,6 +13,11 @@ use embassy_stm32::time::Hertz;
 use embassy_stm32::{bind_interrupts, dma, Peri};
 use embassy_time::Delay;
 use embedded_hal_bus::spi::ExclusiveDevice;
+use remodaq_8318::ad7124::{Ad7124FrontEnd, NtcDivider};
+use remodaq_8318::M8318;
+use remodaq_shared::board::IoFor;
+
+use crate::{Io, Stm32Board};
 
 bind_interrupts!(struct Irqs {
     DMA2_STREAM2 => dma::InterruptHandler<DMA2_CH2>;
@@ -41,16 +46,27 @@ pub struct NtcInput {
     pin: Peri<'static, PA3>,
 }
 
-impl NtcInput {
-    /// V(NTC) / VDDA, 0..1.
-    pub fn ratio(&mut self) -> f64 {
+impl NtcDivider for NtcInput {
+    fn ratio(&mut self) -> f64 {
         f64::from(self.adc.blocking_read(&mut self.pin, SampleTime::CYCLES480)) / 4095.0
+    }
+}
+
+/// The 8318's front end on this board.
+pub type FrontEnd = Ad7124FrontEnd<AdcSpi, NtcInput>;
+
+impl IoFor<M8318> for Stm32Board {
+    type Io = FrontEnd;
+
+    fn io(resources: Io) -> FrontEnd {
+        let (spi, ntc) = resources.analog.start();
+        Ad7124FrontEnd::new(spi, ntc)
     }
 }
 
 impl AnalogPeripherals {
     /// Brings up the SPI bus and the ADC: the AD7124-8 device and the NTC input.
-    pub fn start(self) -> (AdcSpi, NtcInput) {
+    fn start(self) -> (AdcSpi, NtcInput) {
         let mut config = spi::Config::default();
         config.mode = MODE_3;
         config.frequency = Hertz(4_000_000);

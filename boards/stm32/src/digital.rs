@@ -16,21 +16,24 @@ use embassy_stm32::peripherals::{DMA2_CH1, DMA2_CH5, TIM1, TIM8};
 use embassy_stm32::time::Hertz;
 use embassy_stm32::timer::low_level::{RoundTo, Timer};
 use embassy_stm32::{bind_interrupts, dma, pac, Peri};
+use remodaq_8350::di::SAMPLE_RATE_HZ;
+use remodaq_8350::io::{InputCapture, OutputPattern, PatternUnderrun, SamplesLost, OUTPUT_CHUNK};
+use remodaq_8350::pulse::TICK_HZ;
+use remodaq_8350::M8350;
+use remodaq_shared::board::IoFor;
 use static_cell::StaticCell;
+
+use crate::{Io, Stm32Board};
 
 bind_interrupts!(struct Irqs {
     DMA2_STREAM5 => dma::InterruptHandler<DMA2_CH5>;
     DMA2_STREAM1 => dma::InterruptHandler<DMA2_CH1>;
 });
 
-/// Input samples per second.
-pub const SAMPLE_RATE_HZ: u32 = 50_000;
-/// Output ticks per second.
-pub const TICK_HZ: u32 = 10_000;
-/// Capture ring, samples.
+/// Capture ring, samples (82 ms at the module's 50 kHz).
 const CAPTURE_LEN: usize = 4096;
-/// Output pattern ring, ticks.
-pub const PATTERN_LEN: usize = 256;
+/// Output pattern ring, ticks: two of the module's refill chunks.
+const PATTERN_LEN: usize = 2 * OUTPUT_CHUNK;
 /// DMA request (channel selection) of TIM1_UP on DMA2 stream 5, TIM8_UP on DMA2 stream 1.
 const TIM1_UP_REQUEST: u8 = 6;
 const TIM8_UP_REQUEST: u8 = 7;
@@ -51,24 +54,15 @@ pub struct DigitalPeripherals {
     pub(crate) outputs: [Peri<'static, AnyPin>; 6],
 }
 
-/// The capture ring ran over: samples were lost.
-#[derive(Debug, defmt::Format)]
-pub struct Overrun;
-
-/// The pattern ring ran dry: the outputs replayed old ticks.
-#[derive(Debug, defmt::Format)]
-pub struct Underrun;
-
 /// The running input capture.
-pub struct InputCapture {
+pub struct Capture {
     ring: ReadableRingBuffer<'static, u16>,
     _pins: [Input<'static>; 12],
     _timer: Timer<'static, TIM1>,
 }
 
-impl InputCapture {
-    /// Takes the captured samples (bit n = DIn), oldest first; returns how many.
-    pub fn read(&mut self, out: &mut [u16]) -> Result<usize, Overrun> {
+impl InputCapture for Capture {
+    fn read(&mut self, out: &mut [u16]) -> Result<usize, SamplesLost> {
         match self.ring.read(out) {
             Ok((n, _)) => {
                 for s in &mut out[..n] {
@@ -78,14 +72,14 @@ impl InputCapture {
             }
             Err(_) => {
                 self.ring.clear();
-                Err(Overrun)
+                Err(SamplesLost)
             }
         }
     }
 }
 
 /// The running output pattern.
-pub struct OutputPattern {
+pub struct Pattern {
     ring: WritableRingBuffer<'static, u32>,
     _pins: [Output<'static>; 6],
     _timer: Timer<'static, TIM8>,
@@ -105,24 +99,31 @@ fn bsrr(levels: u8) -> u32 {
     )
 }
 
-impl OutputPattern {
-    /// Queues ticks (bit n = DOn), waiting for room in the pattern.
-    pub async fn write(&mut self, levels: &[u8]) -> Result<(), Underrun> {
-        let mut words = [0u32; PATTERN_LEN / 2];
+impl OutputPattern for Pattern {
+    async fn write(&mut self, levels: &[u8]) -> Result<(), PatternUnderrun> {
+        let mut words = [0u32; OUTPUT_CHUNK];
         let n = levels.len().min(words.len());
         for (w, l) in words.iter_mut().zip(&levels[..n]) {
             *w = bsrr(*l);
         }
         self.ring.write_exact(&words[..n]).await.map(|_| ()).map_err(|_| {
             self.ring.clear();
-            Underrun
+            PatternUnderrun
         })
     }
 }
 
+impl IoFor<M8350> for Stm32Board {
+    type Io = (Capture, Pattern);
+
+    fn io(resources: Io) -> (Capture, Pattern) {
+        resources.digital.start()
+    }
+}
+
 impl DigitalPeripherals {
-    /// Starts capture and output. `first_ticks` fills the pattern before the timer starts.
-    pub fn start(self, first_ticks: impl FnOnce(&mut [u8])) -> (InputCapture, OutputPattern) {
+    /// Starts capture and output; the pattern starts with every output off (spec §3.4).
+    fn start(self) -> (Capture, Pattern) {
         let pins = self.di.map(|pin| Input::new(pin, Pull::Down));
         static CAPTURE: StaticCell<[u16; CAPTURE_LEN]> = StaticCell::new();
         let buffer = CAPTURE.init([0; CAPTURE_LEN]);
@@ -142,13 +143,11 @@ impl DigitalPeripherals {
         timer.set_frequency(Hertz(SAMPLE_RATE_HZ), RoundTo::Slower);
         timer.enable_update_dma(true);
         timer.start();
-        let capture = InputCapture { ring, _pins: pins, _timer: timer };
+        let capture = Capture { ring, _pins: pins, _timer: timer };
 
         let outputs = self.outputs.map(|pin| Output::new(pin, Level::Low, Speed::High));
         static PATTERN: StaticCell<[u32; PATTERN_LEN]> = StaticCell::new();
-        let mut ticks = [0u8; PATTERN_LEN];
-        first_ticks(&mut ticks);
-        let buffer = PATTERN.init(ticks.map(bsrr));
+        let buffer = PATTERN.init([bsrr(0); PATTERN_LEN]);
         // SAFETY: GPIOF's set/reset register is a valid, write-only peripheral address whose
         // writes only change the pins of its set bits; the buffer is 'static.
         let mut ring = unsafe {
@@ -165,6 +164,6 @@ impl DigitalPeripherals {
         timer.set_frequency(Hertz(TICK_HZ), RoundTo::Slower);
         timer.enable_update_dma(true);
         timer.start();
-        (capture, OutputPattern { ring, _pins: outputs, _timer: timer })
+        (capture, Pattern { ring, _pins: outputs, _timer: timer })
     }
 }

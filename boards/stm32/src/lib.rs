@@ -6,10 +6,12 @@
 
 pub mod analog;
 pub mod digital;
-pub mod discovery;
+
+use defmt_rtt as _;
+use panic_probe as _;
 
 use embassy_executor::Spawner;
-use embassy_net::{Ipv4Address, Ipv4Cidr, Stack, StackResources, StaticConfigV4};
+use embassy_net::{Ipv4Address, Ipv4Cidr, StackResources, StaticConfigV4};
 use embassy_stm32::eth::{Ethernet, GenericPhy, PacketQueue, Sma};
 use embassy_stm32::flash::{Async, Bank2Region1, Flash};
 use embassy_stm32::gpio::{Input, Level, Output, Pull, Speed};
@@ -18,7 +20,12 @@ use embassy_stm32::rng::Rng;
 use embassy_stm32::time::Hertz;
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, eth, flash, peripherals, rng, Config};
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Timer};
+use remodaq_shared::board::{spawn, Board};
+use remodaq_shared::discovery::Effect;
+use remodaq_shared::embassy_net::{Effects, EmbassyNet};
 use remodaq_shared::health::{self, Heartbeat};
 use remodaq_shared::net::{mac_from_uid, NetConfig};
 use remodaq_shared::{error, info};
@@ -34,10 +41,8 @@ bind_interrupts!(struct Irqs {
 pub type Device = Ethernet<'static, ETH, GenericPhy<Sma<'static, ETH_SMA>>>;
 /// The settings flash: bank 2, sectors 12-15 (16 KiB each, 0x0810_0000), see `memory.x`.
 pub type SettingsFlash = Bank2Region1<'static, Async>;
-/// Size of [`SettingsFlash`] used for settings.
-pub const SETTINGS_SIZE: u32 = 64 * 1024;
 
-/// Sockets: Modbus connection tasks plus the discovery socket to come, plus DHCP-free slack.
+/// Sockets: Modbus connection tasks plus the discovery socket, plus slack.
 const STACK_SOCKETS: usize = remodaq_shared::modbus::server::SOCKETS + 3;
 /// Independent watchdog period; fed every [`FEED_EVERY`] while all watched tasks beat.
 const WATCHDOG_TIMEOUT_US: u32 = 4_000_000;
@@ -45,25 +50,23 @@ const FEED_EVERY: Duration = Duration::from_millis(1000);
 
 /// Liveness of the watched tasks (network, application), read by the watchdog task.
 pub static HEARTBEAT: Heartbeat = Heartbeat::new(health::NET | health::APP);
+/// Raised to blink the identify LED.
+static IDENTIFY: Signal<CriticalSectionRawMutex, ()> = Signal::new();
 
-/// The board's network side, started by [`Board::start`] once the settings are loaded.
-pub struct Board {
-    /// MAC address (from the unique id).
-    pub mac: [u8; 6],
+/// The Nucleo-F429ZI.
+pub struct Stm32Board {
+    mac: [u8; 6],
     /// The USER button (B1, PC13) was held at power-up: reset every setting to its factory
     /// default (the documented way back when the password is lost).
-    pub factory_reset: bool,
-    parts: Parts,
-}
-
-struct Parts {
+    factory_reset: bool,
     eth: Device,
     seed: u64,
     iwdg: embassy_stm32::Peri<'static, IWDG>,
     led: Output<'static>,
 }
 
-/// The peripherals reserved for the modules' I/O, started by the module's board file.
+/// The peripherals reserved for the modules' I/O; each module's image starts its own part
+/// (`IoFor`, in `analog.rs` and `digital.rs`) and leaves the rest unused.
 pub struct Io {
     /// The 8318's analog front end.
     pub analog: analog::AnalogPeripherals,
@@ -72,8 +75,7 @@ pub struct Io {
 }
 
 /// Clocks at 180 MHz from the ST-LINK's 8 MHz MCO (HSE bypass), then the peripherals.
-/// Returns the board, the settings flash and the module I/O peripherals.
-pub fn init() -> (Board, SettingsFlash, Io) {
+fn init() -> (Stm32Board, SettingsFlash, Io) {
     let mut config = Config::default();
     {
         use embassy_stm32::rcc::*;
@@ -158,38 +160,32 @@ pub fn init() -> (Board, SettingsFlash, Io) {
             outputs: [p.PF12.into(), p.PF13.into(), p.PF14.into(), p.PF15.into(), p.PF3.into(), p.PF5.into()],
         },
     };
-    let parts = Parts { eth, seed: u64::from_le_bytes(seed), iwdg: p.IWDG, led };
-    (Board { mac, factory_reset, parts }, settings_flash, io)
+    let board = Stm32Board { mac, factory_reset, eth, seed: u64::from_le_bytes(seed), iwdg: p.IWDG, led };
+    (board, settings_flash, io)
 }
 
-impl Board {
-    /// What discovery tells about a module of name register `model` running with `net`.
-    pub fn identity(&self, model: u16, name: &'static str, net: NetConfig) -> remodaq_shared::discovery::Identity {
-        remodaq_shared::discovery::Identity {
-            model,
-            name,
-            version: remodaq_shared::identity::FIRMWARE_VERSION,
-            mac: self.mac,
-            running: net,
-        }
+impl Board for Stm32Board {
+    type Flash = SettingsFlash;
+    const SETTINGS_SIZE: u32 = 64 * 1024;
+    type Net = EmbassyNet<Stm32Effects>;
+    type Resources = Io;
+
+    fn init() -> (Self, SettingsFlash, Io) {
+        init()
     }
 
-    /// Resets the settings to factory defaults if the USER button was held at power-up.
-    pub async fn factory_reset<S: remodaq_shared::settings::Schema>(
-        &self,
-        store: &mut remodaq_shared::settings::SettingsStore<SettingsFlash, S>,
-    ) {
-        if self.factory_reset {
-            remodaq_shared::warn!("USER button held at power-up: factory reset of every setting");
-            if store.commit(S::defaults()).await.is_err() {
-                error!("factory reset: the settings could not be written");
-            }
-        }
+    fn factory_reset_requested(&self) -> bool {
+        self.factory_reset
     }
 
-    /// Starts the network with the stored settings (QEMU-free static IPv4) and the watchdog.
-    pub fn start(self, spawner: &Spawner, net: &NetConfig) -> Stack<'static> {
-        let Parts { eth, seed, iwdg, led } = self.parts;
+    fn mac(&self) -> [u8; 6] {
+        self.mac
+    }
+
+    /// Starts the network with the stored settings (static IPv4), the watchdog and the
+    /// identify LED.
+    fn start_network(self, spawner: Spawner, net: NetConfig) -> (EmbassyNet<Stm32Effects>, NetConfig) {
+        let Stm32Board { eth, seed, iwdg, led, .. } = self;
         let prefix = net.prefix_len().unwrap_or(24);
         let gateway = (net.gateway != [0; 4]).then(|| Ipv4Address::from(net.gateway));
         let config = embassy_net::Config::ipv4_static(StaticConfigV4 {
@@ -203,11 +199,31 @@ impl Board {
         spawn(spawner, watchdog_task(IndependentWatchdog::new(iwdg, WATCHDOG_TIMEOUT_US)), "watchdog");
         spawn(spawner, identify_task(led), "identify");
         info!("network: {}.{}.{}.{}/{} port {}", net.ip[0], net.ip[1], net.ip[2], net.ip[3], prefix, net.port);
-        stack
+        (EmbassyNet { stack, port: net.port, effects: Stm32Effects }, net)
+    }
+
+    fn app_alive() {
+        HEARTBEAT.beat(health::APP);
     }
 }
 
-pub use remodaq_shared::embassy_net::spawn;
+/// The discovery service's effects on this board: identify blinks LD1 for 10 s; restart resets
+/// the MCU once the reply has had time to leave.
+pub struct Stm32Effects;
+
+impl Effects for Stm32Effects {
+    async fn apply(&self, effect: Effect) {
+        match effect {
+            Effect::None => {}
+            Effect::Identify => IDENTIFY.signal(()),
+            Effect::Restart => {
+                info!("restart requested");
+                Timer::after(Duration::from_millis(300)).await;
+                cortex_m::peripheral::SCB::sys_reset();
+            }
+        }
+    }
+}
 
 #[embassy_executor::task]
 async fn net_task(mut runner: embassy_net::Runner<'static, Device>) -> ! {
@@ -226,7 +242,7 @@ async fn net_task(mut runner: embassy_net::Runner<'static, Device>) -> ! {
 #[embassy_executor::task]
 async fn identify_task(mut led: Output<'static>) -> ! {
     loop {
-        discovery::IDENTIFY.wait().await;
+        IDENTIFY.wait().await;
         for _ in 0..50 {
             led.set_high();
             Timer::after_millis(100).await;

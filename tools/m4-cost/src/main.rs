@@ -20,7 +20,7 @@ mod target {
     use cortex_m::peripheral::syst::SystClkSource;
     use cortex_m_rt::entry;
     use cortex_m_semihosting::{debug, hprintln};
-    use remodaq_8318::thermocouple::TcType;
+    use remodaq_8318::thermocouple::{Reference, TcType};
 
     const POINTS: u32 = 64;
 
@@ -35,12 +35,6 @@ mod target {
         f();
         now().wrapping_sub(start) & 0x00FF_FFFF
     }
-
-    /// Device interrupt vectors: none are used. (cortex-m-rt's `device` feature is switched on
-    /// by the STM32 crates that `firmware-8318`'s target dependencies bring along.)
-    #[unsafe(link_section = ".vector_table.interrupts")]
-    #[unsafe(no_mangle)]
-    static __INTERRUPTS: [usize; 32] = [0; 32];
 
     #[panic_handler]
     fn panic(_: &core::panic::PanicInfo) -> ! {

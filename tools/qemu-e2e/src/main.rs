@@ -9,8 +9,8 @@ use std::net::{SocketAddr, TcpListener};
 use std::process::{Child, Command, ExitCode, Stdio};
 use std::time::{Duration, Instant};
 
-use remodaq_8318::input::InputType;
-use remodaq_8318::thermocouple::{Inverse, TcType};
+use remodaq_protocol::m8318::{REG_CJC, REG_INPUT_TYPE};
+use remodaq_protocol::m8350::{REG_ALL_DI, REG_DI_MODE};
 use tokio::time::{sleep, timeout};
 use tokio_modbus::client::{tcp, Context, Reader, Writer};
 
@@ -97,42 +97,87 @@ impl Report {
     }
 }
 
-async fn live_values(model: u16, ctx: &mut Context) -> Result<(), String> {
-    if model == 0x8318 {
-        // ch0: type K at 100 °C with the cold junction at 25 °C; 40009 = 25.00 °C.
-        let v = regs(ctx, 0, 9).await?;
-        let Inverse::Celsius(t) = TcType::K.temperature_c(4.096 - 1.000 + TcType::K.emf_mv(25.0).unwrap_or(1.0)) else {
-            return Err("reference".into());
-        };
-        let want = InputType::from_code(0x0F).map(|k| k.raw(t)).unwrap_or(0);
-        if v[0].abs_diff(want) > 2 || v[8] != 2500 || v[3] != 0xFFFF {
-            return Err(format!("registers {v:04x?}, expected ch0 {want:04x}, 40009 09c4, ch3 ffff"));
+/// Reads `n` registers from `addr` until `ok` accepts them (at most 3 s: a few acquisition
+/// cycles after a setting changed).
+async fn regs_until(ctx: &mut Context, addr: u16, n: u16, ok: impl Fn(&[u16]) -> bool) -> Result<Vec<u16>, String> {
+    let deadline = Instant::now() + Duration::from_secs(3);
+    loop {
+        let v = regs(ctx, addr, n).await?;
+        if ok(&v) || Instant::now() > deadline {
+            return Ok(v);
         }
-        // ch4 ramps: it moves.
-        let before = v[4];
-        sleep(Duration::from_millis(1500)).await;
-        let after = regs(ctx, 4, 1).await?[0];
-        if after == before {
-            return Err(format!("ch4 stayed at {before:04x}"));
-        }
+        sleep(Duration::from_millis(100)).await;
+    }
+}
+
+/// |raw - expected| <= tolerance, else an error naming the channel.
+fn near(what: &str, raw: u16, expected: f64, tolerance: f64) -> Result<(), String> {
+    if (f64::from(raw) - expected).abs() <= tolerance {
+        Ok(())
     } else {
-        // DI3 is high; DI0's 1 kHz square wave counted in counter mode.
-        let di = regs(ctx, 0x12C, 1).await?[0];
-        if di & 0b1000 == 0 {
-            return Err(format!("all-DI register {di:04x}: DI3 should be high"));
-        }
-        write(ctx, 0x100, &[1]).await?;
-        let c0 = regs(ctx, 0, 2).await?;
-        let t0 = Instant::now();
-        sleep(Duration::from_millis(2000)).await;
-        let c1 = regs(ctx, 0, 2).await?;
-        let count = |w: &[u16]| u32::from(w[0]) | u32::from(w[1]) << 16;
-        let rate = f64::from(count(&c1).wrapping_sub(count(&c0))) / t0.elapsed().as_secs_f64();
-        if !(700.0..1300.0).contains(&rate) {
-            return Err(format!("DI0 counted {rate:.0}/s, expected about 1000"));
+        Err(format!("{what} reads {raw} ({raw:04x}), expected {expected:.1} ± {tolerance}"))
+    }
+}
+
+/// The expected values come from the spec (§2.2 ranges, §2.3 scaling) and the NIST type K
+/// table, for the QEMU board's simulated terminals (boards/qemu/src/analog.rs).
+async fn live_values_8318(ctx: &mut Context) -> Result<(), String> {
+    // Type K (factory, -250 .. 1400 °C): ch0 at 100 °C by the NIST table (4.096 mV, less the
+    // cold junction's 1.000 mV at 25 °C): (100 + 250) / 1650 * 65535 = 13901.4; the table's
+    // 3 decimals are worth 0.02 °C (one count): allow 2. 40009 = 25.00 °C; ch3 open = FFFFh.
+    let v = regs(ctx, 0, 9).await?;
+    near("ch0 (type K, 100 °C)", v[0], 13901.4, 2.0)?;
+    if v[REG_CJC as usize] != 2500 || v[3] != 0xFFFF {
+        return Err(format!("40009 reads {:04x}, ch3 {:04x}: expected 09c4 and ffff", v[8], v[3]));
+    }
+    // ±50 mV (code 01): ch1 at 20 mV: (20 + 50) / 100 * 65535 = 45874.5.
+    write(ctx, REG_INPUT_TYPE, &[0x01]).await?;
+    let v = regs_until(ctx, 0, 9, |v| v[3] != 0xFFFF).await?;
+    near("ch1 (±50 mV, 20 mV)", v[1], 45874.5, 1.0)?;
+    // ±20 mA (code 06): ch2 at 12 mA: (12 + 20) / 40 * 65535 = 52428.0.
+    write(ctx, REG_INPUT_TYPE, &[0x06]).await?;
+    let v = regs_until(ctx, 0, 9, |v| v[2].abs_diff(52428) <= 1).await?;
+    near("ch2 (±20 mA, 12 mA)", v[2], 52428.0, 1.0)?;
+    // ±15 mV (code 00): ch4 ramps over 0 .. 10 mV, so reads within (0 + 15) / 30 * 65535 =
+    // 32767.5 and (10 + 15) / 30 * 65535 = 54612.5, and moves.
+    write(ctx, REG_INPUT_TYPE, &[0x00]).await?;
+    let before = regs_until(ctx, 4, 1, |v| v[0] >= 32767).await?[0];
+    sleep(Duration::from_millis(1500)).await;
+    let after = regs(ctx, 4, 1).await?[0];
+    for raw in [before, after] {
+        if !(32767..=54613).contains(&raw) {
+            return Err(format!("ch4 (0 .. 10 mV ramp on ±15 mV) reads {raw}, outside 32767 ..= 54613"));
         }
     }
-    Ok(())
+    if after == before {
+        return Err(format!("ch4 stayed at {before:04x}"));
+    }
+    write(ctx, REG_INPUT_TYPE, &[0x0F]).await
+}
+
+/// DI3 high, and DI0's 1 kHz square wave (boards/qemu/src/digital.rs) measured in frequency
+/// mode: rising edges over the module's 1 s gate, which runs on the guest's clock, so exactly
+/// 1000 Hz (± one edge for where the gate falls).
+async fn live_values_8350(ctx: &mut Context) -> Result<(), String> {
+    let di = regs(ctx, REG_ALL_DI, 1).await?[0];
+    if di & 0b1000 == 0 {
+        return Err(format!("all-DI register {di:04x}: DI3 should be high"));
+    }
+    write(ctx, REG_DI_MODE, &[4]).await?;
+    sleep(Duration::from_millis(2500)).await;
+    let hz = regs(ctx, 0, 2).await?;
+    if hz[0].abs_diff(1000) > 1 || hz[1] != 0 {
+        return Err(format!("DI0 frequency reads {hz:?}, expected [1000, 0] (± 1 Hz)"));
+    }
+    write(ctx, REG_DI_MODE, &[0]).await
+}
+
+async fn live_values(model: u16, ctx: &mut Context) -> Result<(), String> {
+    if model == 0x8318 {
+        live_values_8318(ctx).await
+    } else {
+        live_values_8350(ctx).await
+    }
 }
 
 async fn setting_round_trip(model: u16, ctx: &mut Context) -> Result<(), String> {
