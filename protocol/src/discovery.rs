@@ -205,8 +205,6 @@ impl<'a> Writer<'a> {
     }
 }
 
-/// What a module says about itself.
-
 /// A decoded INFO reply (the PC side).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Info<'a> {

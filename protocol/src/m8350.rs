@@ -61,7 +61,7 @@ pub enum Word {
 
 impl Word {
     fn of(offset: u16) -> Self {
-        if offset % 2 == 0 {
+        if offset.is_multiple_of(2) {
             Word::Low
         } else {
             Word::High

@@ -28,7 +28,7 @@ impl IoFor<M8350> for HostBoard {
         let sample_at = move |index: u64| {
             // Once per drained batch of a 2 ms pass is plenty: refresh on the first sample of
             // each 10 ms.
-            if index % (SAMPLE_RATE_HZ as u64 / 100) == 0 {
+            if index.is_multiple_of(u64::from(SAMPLE_RATE_HZ) / 100) {
                 if let Some(watched) = scenario.as_mut() {
                     current = watched.refresh().clone();
                 }
