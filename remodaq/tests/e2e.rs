@@ -2,18 +2,13 @@
 //! (Search aims at each module's unicast discovery address instead of the broadcast address.)
 
 use std::net::{SocketAddr, TcpListener};
-use std::path::{Path, PathBuf};
-use std::process::Stdio;
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use remodaq_board_host::testing::{command, program, SimModule};
+use remodaq_board_host::testing::{program, SimModule};
 use serde_json::Value;
 
-/// The tool under test: this build's, or the one in `REMODAQ_E2E_BIN_DIR` (see
-/// `remodaq_board_host::testing`).
-fn tool() -> PathBuf {
-    program("remodaq", Path::new(env!("CARGO_BIN_EXE_remodaq")))
-}
+mod common;
 
 /// A firmware's host build, next to the tool's binary (`cargo test --workspace` builds it).
 fn firmware(model: &str) -> String {
@@ -31,28 +26,9 @@ fn temp(name: &str) -> PathBuf {
     path
 }
 
-/// Runs the tool (bounded to 30 s): exit code, stdout, stderr.
+/// Runs the tool: exit code, stdout, stderr.
 fn remodaq(args: &[&str]) -> (i32, String, String) {
-    let mut child = command(&tool())
-        .args(args)
-        .env_remove("REMODAQ_PASSWORD")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("run remodaq");
-    let deadline = Instant::now() + Duration::from_secs(30);
-    while child.try_wait().expect("wait").is_none() {
-        if Instant::now() > deadline {
-            let _ = child.kill();
-            panic!("remodaq {args:?} did not finish within 30 s");
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    let out = child.wait_with_output().expect("output");
-    let (stdout, stderr) =
-        (String::from_utf8_lossy(&out.stdout).into_owned(), String::from_utf8_lossy(&out.stderr).into_owned());
-    eprintln!("$ remodaq {}\n{stdout}{stderr}", args.join(" "));
-    (out.status.code().unwrap_or(-1), stdout, stderr)
+    common::remodaq(args, &[])
 }
 
 fn json(args: &[&str]) -> Value {

@@ -6,11 +6,9 @@
 
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
-use std::path::Path;
-use std::process::Stdio;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-use remodaq_board_host::testing::{command, program};
+mod common;
 
 /// What the fake server answers to one request frame (MBAP header + PDU); `None` closes the
 /// connection.
@@ -73,28 +71,10 @@ fn serve(mut stream: TcpStream, answer: Answer) {
     }
 }
 
-/// Runs the tool (at most 60 s): exit status and stderr.
+/// Runs the tool: exit status and stderr.
 fn remodaq(args: &[&str]) -> (i32, String) {
-    let tool = program("remodaq", Path::new(env!("CARGO_BIN_EXE_remodaq")));
-    let mut child = command(&tool)
-        .args(args)
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("run remodaq");
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while child.try_wait().expect("wait").is_none() {
-        if Instant::now() > deadline {
-            let _ = child.kill();
-            panic!("remodaq {args:?} did not finish within 60 s");
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    let out = child.wait_with_output().expect("output");
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    eprintln!("$ remodaq {}\n{}{stderr}", args.join(" "), String::from_utf8_lossy(&out.stdout));
-    (out.status.code().unwrap_or(-1), stderr)
+    let (code, _, stderr) = common::remodaq(args, &[]);
+    (code, stderr)
 }
 
 /// Every command that talks Modbus, against `answer`: each ends with exit `status` and one

@@ -6,7 +6,10 @@ use std::collections::HashMap;
 
 use embedded_hal_async::spi::{ErrorType, Operation, SpiDevice};
 use futures_executor::block_on;
-use remodaq_8318::ad7124::{code_to_mv, gain_for_span, ntc_celsius, reg, Ad7124, Error};
+use remodaq_8318::acquisition::{AnalogFrontEnd, Measurement};
+use remodaq_8318::ad7124::{
+    code_to_mv, gain_for_span, ntc_celsius, reg, Ad7124, Ad7124FrontEnd, Error, FrontEndError, NtcDivider,
+};
 
 #[derive(Default)]
 struct FakeChip {
@@ -18,6 +21,8 @@ struct FakeChip {
     resets: usize,
     /// Conversions that never finish (a dead chip).
     stuck: bool,
+    /// The next this many conversions never finish, then the chip works again.
+    stuck_for: usize,
     id: u8,
 }
 
@@ -78,8 +83,12 @@ impl SpiDevice for FakeChip {
                 let value = bytes[1..].iter().fold(0u32, |a, b| a << 8 | u32::from(*b));
                 self.writes.push((addr, value));
                 self.regs.insert(addr, value);
-                if addr == reg::ADC_CONTROL && (value >> 2) & 0xF == 1 && !self.stuck {
-                    self.convert();
+                if addr == reg::ADC_CONTROL && (value >> 2) & 0xF == 1 {
+                    if self.stuck_for > 0 {
+                        self.stuck_for -= 1;
+                    } else if !self.stuck {
+                        self.convert();
+                    }
                 }
             }
             [Operation::Write([comms]), Operation::Read(buf)] => {
@@ -192,4 +201,45 @@ fn ntc_temperatures() {
     }
     assert_eq!(ntc_celsius(0.0), None);
     assert_eq!(ntc_celsius(1.0), None);
+}
+
+/// The NTC divider at a fixed ratio.
+struct Ntc(f64);
+
+impl NtcDivider for Ntc {
+    fn ratio(&mut self) -> f64 {
+        self.0
+    }
+}
+
+#[test]
+fn front_end_sets_the_chip_up_again_after_a_failure() {
+    let chip = FakeChip { stuck_for: 1, inputs: [Some(10.0); 8], ..FakeChip::new() };
+    let mut fe = Ad7124FrontEnd::new(chip, Ntc(0.5));
+    block_on(async {
+        // First conversion: set-up (reset 1), then the conversion never finishes.
+        assert_eq!(fe.measure(0, 100.0, false).await, Err(FrontEndError::Adc));
+        // Next: set up again (reset 2), and it converts.
+        let Ok(Measurement::Millivolts(mv)) = fe.measure(0, 100.0, false).await else { panic!("no reading") };
+        assert!((mv - 10.0).abs() < 1e-4, "{mv}");
+        // A working chip is not reset again.
+        assert!(matches!(fe.measure(1, 100.0, false).await, Ok(Measurement::Millivolts(_))));
+        assert_eq!(fe.cold_junction_c().await.map(|t| (t * 1e6).round() / 1e6), Ok(25.0));
+    });
+    assert_eq!(fe.failures(), 1);
+    let (chip, _) = fe.into_inner();
+    assert_eq!(chip.resets, 2, "set up at the first conversion, and again after the failure only");
+}
+
+#[test]
+fn front_end_keeps_trying_a_chip_that_does_not_answer() {
+    let mut fe = Ad7124FrontEnd::new(FakeChip { id: 0x00, ..FakeChip::new() }, Ntc(0.0));
+    block_on(async {
+        for _ in 0..3 {
+            assert_eq!(fe.measure(0, 100.0, false).await, Err(FrontEndError::Adc));
+        }
+        assert_eq!(fe.cold_junction_c().await, Err(FrontEndError::Ntc), "a shorted NTC");
+    });
+    assert_eq!(fe.failures(), 3);
+    assert_eq!(fe.into_inner().0.resets, 3, "a reset before every attempt");
 }

@@ -1,5 +1,6 @@
-//! Target builds: the workspace's `memory.x` (STM32F429ZI) on the linker search path, and the
-//! cortex-m-rt and defmt linker scripts.
+//! The build script of both image crates (`build` in their Cargo.toml). Target builds: the
+//! workspace's `memory.x` (STM32F429ZI) on the linker search path, and the cortex-m-rt and
+//! defmt linker scripts.
 fn main() {
     println!("cargo:rerun-if-changed=../memory.x");
     if std::env::var("CARGO_CFG_TARGET_OS").as_deref() == Ok("none") {
