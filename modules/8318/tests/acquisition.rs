@@ -2,7 +2,6 @@
 
 use futures_executor::block_on;
 use remodaq_8318::acquisition::{acquire, AnalogFrontEnd, Measurement, Snapshot, CJC_INVALID};
-use remodaq_8318::input::InputType;
 use remodaq_8318::map::Map8318;
 use remodaq_8318::settings::Settings;
 use remodaq_8318::thermocouple::{Reference, TcType};
@@ -42,8 +41,17 @@ fn settings(input_type: u8, enable_mask: u8, cjc_offset: i16) -> Settings {
     Settings { input_type, enable_mask, cjc_offset, ..Settings::defaults() }
 }
 
-fn expected_tc(code: u8, t: f64) -> u16 {
-    InputType::from_code(code).unwrap().raw(t)
+/// Spec §2.2-2.3 as literals: raw = round((x - lo) / (hi - lo) * 65535) on the code's range.
+fn expected(code: u8, x: f64) -> u16 {
+    let (lo, hi) = match code {
+        0x00 => (-15.0, 15.0),
+        0x05 => (-2500.0, 2500.0),
+        0x06 => (-20.0, 20.0),
+        0x0E => (-200.0, 1100.0),
+        0x0F => (-250.0, 1400.0),
+        other => panic!("no spec range written down here for {other:02X}"),
+    };
+    ((x - lo) / (hi - lo) * 65535.0).round() as u16
 }
 
 #[test]
@@ -56,11 +64,11 @@ fn thermocouple_channels_with_cold_junction_compensation() {
         }
         fe.mv[3] = None; // open
         let snap = block_on(acquire(&mut fe, &settings(0x0F, 0xFF, 0)));
-        assert_eq!(snap.values[0], expected_tc(0x0F, 100.0), "cjc {cjc}");
-        assert_eq!(snap.values[1], expected_tc(0x0F, 500.0), "cjc {cjc}");
-        assert_eq!(snap.values[2], expected_tc(0x0F, 1000.0), "cjc {cjc}");
+        assert_eq!(snap.values[0], expected(0x0F, 100.0), "cjc {cjc}");
+        assert_eq!(snap.values[1], expected(0x0F, 500.0), "cjc {cjc}");
+        assert_eq!(snap.values[2], expected(0x0F, 1000.0), "cjc {cjc}");
         assert_eq!(snap.values[3], 0xFFFF, "open thermocouple");
-        assert_eq!(snap.values[4], expected_tc(0x0F, cjc), "0 mV reads the cold junction");
+        assert_eq!(snap.values[4], expected(0x0F, cjc), "0 mV reads the cold junction");
         assert_eq!(snap.cjc, (cjc * 100.0) as i16);
         assert!(fe.spans.iter().all(|&(_, span, open)| span == 100.0 && open));
     }
@@ -72,7 +80,7 @@ fn cjc_offset_is_added_to_the_cold_junction() {
     fe.mv[0] = Some(TcType::J.emf_mv(300.0).unwrap() - TcType::J.emf_mv(27.5).unwrap());
     // The sensor reads 25.0 but the terminals are at 27.5: an offset of +2.50 °C corrects it.
     let snap = block_on(acquire(&mut fe, &settings(0x0E, 0x01, 250)));
-    assert_eq!(snap.values[0], expected_tc(0x0E, 300.0));
+    assert_eq!(snap.values[0], expected(0x0E, 300.0));
     assert_eq!(snap.cjc, 2750);
     let snap = block_on(acquire(&mut Fake::new(25.0), &settings(0x0E, 0x01, -1234)));
     assert_eq!(snap.cjc, 2500 - 1234);
@@ -83,8 +91,7 @@ fn voltage_and_current_channels_and_edges() {
     let mut fe = Fake::new(25.0);
     fe.mv = [Some(1200.0), Some(-2500.0), Some(2500.0), Some(-3000.0), Some(3000.0), Some(0.0), None, Some(1.0)];
     let snap = block_on(acquire(&mut fe, &settings(0x05, 0xFF, 0)));
-    let v = InputType::from_code(0x05).unwrap();
-    assert_eq!(snap.values[0], v.raw(1200.0));
+    assert_eq!(snap.values[0], expected(0x05, 1200.0));
     assert_eq!(snap.values[1..5], [0x0000, 0xFFFF, 0x0000, 0xFFFF], "min, max, under, over");
     assert_eq!(snap.values[5], 0x8000);
     assert_eq!(snap.values[6], 0xFFFF, "open input");
@@ -94,7 +101,7 @@ fn voltage_and_current_channels_and_edges() {
     fe.mv[0] = Some(12.0 * 125.0);
     fe.mv[1] = Some(-20.0 * 125.0);
     let snap = block_on(acquire(&mut fe, &settings(0x06, 0x03, 0)));
-    assert_eq!(snap.values[0], InputType::from_code(0x06).unwrap().raw(12.0));
+    assert_eq!(snap.values[0], expected(0x06, 12.0));
     assert_eq!(snap.values[0], 52428);
     assert_eq!(snap.values[1], 0);
 }
@@ -108,7 +115,7 @@ fn disabled_channels_read_zero_and_are_not_converted() {
         if 0b1010_0101 & (1 << ch) == 0 {
             assert_eq!(snap.values[ch], 0, "channel {ch}");
         } else {
-            assert_eq!(snap.values[ch], InputType::from_code(0).unwrap().raw(5.0));
+            assert_eq!(snap.values[ch], expected(0x00, 5.0));
         }
     }
     assert_eq!(fe.spans.iter().map(|s| s.0).collect::<Vec<_>>(), vec![0, 2, 5, 7]);
