@@ -254,7 +254,8 @@ fn random_and_mutated_datagrams_never_panic_nor_change_settings() {
         seed
     };
     let valid = valid_requests();
-    for i in 0..200_000 {
+    let mut statuses = std::collections::BTreeMap::new();
+    for i in 0..200_000u64 {
         let mut d = if i % 2 == 0 {
             let len = (next() % 200) as usize;
             (0..len).map(|_| next() as u8).collect::<Vec<u8>>()
@@ -271,10 +272,22 @@ fn random_and_mutated_datagrams_never_panic_nor_change_settings() {
         let _ = decode_request(&d);
         let _ = decode_info(&d);
         let _ = decode_result(&d);
-        // Through the service, but never with the right password: nothing may change.
+        // Through the service, but never with the right password: nothing may change. Each
+        // datagram comes 6 minutes after the last, longer than the longest lock-out (5 min),
+        // so every command is really checked against the password, never just rate limited.
         if !d.windows(7).any(|w| w == b"remodaq") {
-            let _ = ask(&mut service, &mut module, &d, 10_000_000 + i);
+            if let Some((reply, _)) = ask(&mut service, &mut module, &d, i * 360_000) {
+                if let Some((opcode, _, _, status)) = decode_result(&reply) {
+                    let what = if opcode == op::IDENTIFY { "identify" } else { "command" };
+                    *statuses.entry(format!("{what} {status:?}")).or_insert(0u32) += 1;
+                }
+            }
         }
     }
     assert_eq!(*module.settings(), before);
+    // What the service answered: thousands of commands reached the password check and were
+    // refused, none was locked out, and only identify (which needs no password) succeeded.
+    assert_eq!(statuses.get("command RateLimited"), None, "{statuses:?}");
+    assert_eq!(statuses.get("command Ok"), None, "{statuses:?}");
+    assert!(statuses.get("command WrongPassword").copied().unwrap_or(0) > 5_000, "{statuses:?}");
 }

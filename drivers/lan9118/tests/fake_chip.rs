@@ -3,11 +3,18 @@
 use std::cell::RefCell;
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex, MutexGuard};
 use std::task::{Context, Wake, Waker};
 
 use embassy_net_driver::{Driver, HardwareAddress, RxToken as _, TxToken as _};
 use remodaq_lan9118::{on_interrupt, reg, InitError, Lan9118, Registers, INT_RSFL};
+
+/// The driver's receive waker is one static (the interrupt handler's), so tests that register
+/// wakers or raise the interrupt run one at a time.
+fn serial() -> MutexGuard<'static, ()> {
+    static LOCK: Mutex<()> = Mutex::new(());
+    LOCK.lock().unwrap_or_else(|e| e.into_inner())
+}
 
 #[derive(Default)]
 struct State {
@@ -111,6 +118,7 @@ impl Wake for Count {
 
 #[test]
 fn init_checks_byte_order_resets_and_configures() {
+    let _serial = serial();
     let bad = RefCell::new(State { byte_test: 0x4321_8765, ..State::default() });
     assert_eq!(Lan9118::new(Fake(&bad), MAC).err(), Some(InitError::ByteTest(0x4321_8765)));
     let stuck = RefCell::new(State { byte_test: 0x8765_4321, reset_polls: u32::MAX, ..State::default() });
@@ -133,6 +141,7 @@ fn init_checks_byte_order_resets_and_configures() {
 
 #[test]
 fn receives_frames_of_any_length_and_drops_bad_ones() {
+    let _serial = serial();
     let state = chip();
     let mut driver = Lan9118::new(Fake(&state), MAC).unwrap();
     let waker = Waker::from(Arc::new(Count(AtomicUsize::new(0))));
@@ -153,6 +162,7 @@ fn receives_frames_of_any_length_and_drops_bad_ones() {
 
 #[test]
 fn transmits_through_the_tx_fifo() {
+    let _serial = serial();
     let state = chip();
     let mut driver = Lan9118::new(Fake(&state), MAC).unwrap();
     let waker = Waker::from(Arc::new(Count(AtomicUsize::new(0))));
@@ -168,6 +178,7 @@ fn transmits_through_the_tx_fifo() {
 
 #[test]
 fn interrupt_clears_status_and_wakes_the_stack() {
+    let _serial = serial();
     let state = chip();
     let mut driver = Lan9118::new(Fake(&state), MAC).unwrap();
     let count = Arc::new(Count(AtomicUsize::new(0)));

@@ -168,7 +168,11 @@ impl DiEngine {
         self.frequency[n] = 0;
         self.overflow &= !(1 << n);
         self.latch &= !(1 << n);
-        self.partial_gate |= 1 << n;
+        // A gate that has already counted samples in the old mode is not published; a change
+        // at a gate's start (or before the first sample) loses nothing.
+        if self.gate_left < self.samples_per_gate {
+            self.partial_gate |= 1 << n;
+        }
         self.update_masks();
     }
 
@@ -211,6 +215,12 @@ impl DiEngine {
     /// Channel `n`'s latch flag; reading clears it.
     pub fn take_latch(&mut self, n: usize) -> bool {
         take(&mut self.latch, n)
+    }
+
+    /// The overflow and latch flags, bit n = DIn, without clearing them (diagnostics and
+    /// tests; Modbus reads clear them through [`Self::take_overflow`], [`Self::take_latch`]).
+    pub fn flags(&self) -> (u16, u16) {
+        (self.overflow, self.latch)
     }
 
     /// Clears channel `n`'s overflow flag.

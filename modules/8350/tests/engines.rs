@@ -103,10 +103,14 @@ fn overflow_at_2_pow_32() {
     assert_eq!(e.counter_value(3), 1);
     assert!(e.take_overflow(3));
     assert!(!e.take_overflow(3), "cleared by the read");
+    // Wrapping again sets the flag again (seen without clearing it), and writing 0 clears it.
     e.preset_counter(3, u32::MAX);
     e.process(&[0x8]);
+    assert_eq!(e.counter_value(3), 0, "wrapped");
+    assert_eq!(e.flags().0, 1 << 3, "overflow set by the wrap, DI3 only");
     e.clear_overflow(3);
-    assert!(!e.take_overflow(3), "cleared by writing 0");
+    assert_eq!(e.flags().0, 0, "cleared by writing 0");
+    assert!(!e.take_overflow(3));
 }
 
 #[test]
@@ -128,7 +132,9 @@ fn latches_set_on_their_edge_only() {
 }
 
 #[test]
-fn frequency_within_1_hz_refreshed_every_second() {
+fn frequency_over_one_second_gates() {
+    // Integer frequencies are exact: a 1 s gate holds a whole number of periods, so exactly
+    // that many rising edges (1 Hz and 2 Hz included). The others are within one edge.
     let hz = [1234.5, 10_000.0, 1.0, 0.0, 3000.0, 7.25, 4999.0, 50.0, 60.0, 999.0, 2.0, 9000.0];
     let mut e = engine(DiMode::Frequency);
     let samples = square_waves(&hz, 3.0);
@@ -138,8 +144,47 @@ fn frequency_within_1_hz_refreshed_every_second() {
     e.process(rest);
     for (ch, hz) in hz.iter().enumerate() {
         let got = f64::from(e.counter_value(ch));
-        assert!((got - hz).abs() <= 1.0, "channel {ch}: {got} Hz for {hz} Hz");
+        if hz.fract() == 0.0 {
+            assert_eq!(got, *hz, "channel {ch}");
+        } else {
+            assert!(got == hz.floor() || got == hz.ceil(), "channel {ch}: {got} Hz for {hz} Hz");
+        }
     }
+}
+
+#[test]
+fn frequency_is_refreshed_once_a_second_and_follows_a_change() {
+    // DI0: 5 Hz for 2 s, then 9 Hz (both start low at a whole period, so the wave is
+    // continuous). The value changes exactly at each gate's last sample, never in between.
+    let mut e = engine(DiMode::Frequency);
+    let rate = RATE as usize;
+    let mut samples = square_waves(&[5.0; CHANNELS], 2.0);
+    samples.extend(square_waves(&[9.0; CHANNELS], 2.0));
+    let mut published = Vec::new();
+    for (i, s) in samples.iter().enumerate() {
+        e.process(&[*s]);
+        if (i + 1) % (rate / 2) == 0 {
+            published.push((i + 1, e.counter_value(0)));
+        }
+    }
+    // Every half second: (samples so far, value).
+    let expected = [
+        (rate / 2, 0),
+        (rate, 5),
+        (3 * rate / 2, 5),
+        (2 * rate, 5),
+        (5 * rate / 2, 5),
+        (3 * rate, 9),
+        (7 * rate / 2, 9),
+        (4 * rate, 9),
+    ];
+    assert_eq!(published, expected);
+    // One sample before a gate ends, the old value still stands.
+    let mut e = engine(DiMode::Frequency);
+    e.process(&samples[..3 * rate - 1]);
+    assert_eq!(e.counter_value(0), 5);
+    e.process(&samples[3 * rate - 1..3 * rate]);
+    assert_eq!(e.counter_value(0), 9);
 }
 
 #[test]
