@@ -263,7 +263,8 @@ fn type_name(t: &InputType) -> (String, &'static str, f64) {
 }
 
 async fn read_analog(m: &mut Module) -> Result<Analog, Error> {
-    let values = m.regs(m8318::REG_VALUE, m8318::CHANNELS as u16 + 1).await?;
+    // Channels 0-7 and the cold junction: 40001-40009 in one request.
+    let values = m.regs(m8318::REG_VALUE, m8318::Reg::Cjc.addr() - m8318::REG_VALUE + 1).await?;
     let code = m.reg(REG_INPUT_TYPE).await?;
     let offset = m.reg(REG_CJC_OFFSET).await? as i16;
     let enabled = m.reg(REG_ENABLE_MASK).await?;
@@ -291,7 +292,7 @@ async fn read_analog(m: &mut Module) -> Result<Analog, Error> {
         input_type: name,
         type_code: format!("{code:02X}"),
         unit,
-        cold_junction_c: f64::from(values[m8318::CHANNELS] as i16) / 100.0,
+        cold_junction_c: f64::from(values[usize::from(m8318::Reg::Cjc.addr() - m8318::REG_VALUE)] as i16) / 100.0,
         cjc_offset_c: f64::from(offset) / 100.0,
         channels,
     })

@@ -11,6 +11,14 @@ use tokio::net::UdpSocket;
 
 use crate::Error;
 
+/// The length of a received datagram; `None` for a receive error, which ends nothing: on
+/// Windows an ICMP "port unreachable" for an earlier datagram (WSAECONNRESET) or an oversized
+/// datagram (WSAEMSGSIZE) surface as errors of the next receive, and other modules may still
+/// answer before the deadline.
+fn datagram(received: std::io::Result<(usize, SocketAddr)>) -> Option<usize> {
+    received.ok().map(|(n, _)| n)
+}
+
 /// A MAC address, written `02:ab:cd:ef:01:23`.
 #[derive(Clone, Copy, PartialEq, Eq)]
 pub struct Mac(pub [u8; 6]);
@@ -90,7 +98,8 @@ pub async fn find(to: SocketAddr, timeout: Duration) -> Result<Vec<Found>, Error
     let deadline = Instant::now() + timeout;
     let mut found: Vec<Found> = Vec::new();
     let mut rx = [0u8; 512];
-    while let Ok(Ok((n, _))) = tokio::time::timeout_at(deadline.into(), socket.recv_from(&mut rx)).await {
+    while let Ok(received) = tokio::time::timeout_at(deadline.into(), socket.recv_from(&mut rx)).await {
+        let Some(n) = datagram(received) else { continue };
         let Some(info) = decode_info(&rx[..n]) else { continue };
         if info.id != id || found.iter().any(|f| f.mac == Mac(info.mac).to_string()) {
             continue;
@@ -213,12 +222,13 @@ pub async fn command(to: SocketAddr, mac: Mac, cmd: Command<'_>, timeout: Durati
     let mut rx = [0u8; 512];
     loop {
         let received = tokio::time::timeout_at(deadline.into(), socket.recv_from(&mut rx)).await;
-        let Ok(Ok((n, _))) = received else {
+        let Ok(received) = received else {
             return Err(Error::Timeout(format!(
                 "module {mac} did not answer at {to} within {:.1} s",
                 timeout.as_secs_f64()
             )));
         };
+        let Some(n) = datagram(received) else { continue };
         let Some((reply_op, reply_id, reply_mac, status)) = decode_result(&rx[..n]) else { continue };
         if reply_op != opcode || reply_id != id || reply_mac != mac.0 {
             continue;

@@ -15,7 +15,7 @@ use embassy_sync::mutex::Mutex;
 use embedded_storage_async::nor_flash::NorFlash;
 use static_cell::StaticCell;
 
-use crate::discovery::Identity;
+use crate::discovery::{Effect, Identity};
 use crate::identity::FIRMWARE_VERSION;
 use crate::modbus::server::{Slots, MAX_CONNECTIONS, SOCKETS};
 use crate::modbus::RegisterMap;
@@ -73,6 +73,15 @@ pub trait Network: 'static {
     async fn serve_discovery<A: SettingsAccess>(&'static self, map: &'static Shared<A>, identity: Identity) -> !;
 }
 
+/// How a board carries out what the discovery service asks, after the reply was sent: blink
+/// the identify LED, restart (new network settings take effect). Each board's [`Network`]
+/// serves discovery with its own.
+#[allow(async_fn_in_trait)]
+pub trait Effects: 'static {
+    /// Carries out `effect`.
+    async fn apply(&self, effect: Effect);
+}
+
 /// What a module is, whatever board it runs on.
 pub trait Module: Sized + 'static {
     /// Module name register value (40211).
@@ -110,7 +119,8 @@ pub trait Runs<Io>: Module {
 pub trait IoFor<M: Module>: Board {
     /// The module's I/O, ready to use.
     type Io;
-    /// Starts the module's I/O from the board's resources (before the network starts).
+    /// Starts the module's I/O from the board's resources (after the settings are loaded,
+    /// before the network starts).
     fn io(resources: Self::Resources) -> Self::Io;
 }
 
@@ -152,7 +162,6 @@ where
     M: Module,
 {
     let (board, flash, resources) = B::init();
-    let io = B::io(resources);
     let mut store = SettingsStore::<B::Flash, M::Settings>::open(
         flash,
         const { SettingsStore::<B::Flash, M::Settings>::config(0..B::SETTINGS_SIZE) },
@@ -168,6 +177,9 @@ where
     let mac = board.mac();
     let state: &'static M::State = statics.state.init(M::state(store.get()));
     let map = Mutex::new(M::map(store, state));
+    // The module's I/O starts once the settings are in force (a factory reset's sector erases
+    // take longer than the STM32's capture ring lasts), just before the network.
+    let io = B::io(resources);
     let (net, running) = board.start_network(spawner, stored);
     let identity = Identity { model: M::MODULE_NAME, name: M::MODEL, version: FIRMWARE_VERSION, mac, running };
     crate::info!("{} running, firmware {:04X}", M::MODEL, FIRMWARE_VERSION);

@@ -6,8 +6,8 @@ use embassy_net::udp::{PacketMetadata, UdpSocket};
 use embassy_net::{IpAddress, IpEndpoint, Stack};
 use embassy_time::{with_timeout, Duration, Timer};
 
-use crate::board::{ModbusSlots, Network, Shared};
-use crate::discovery::{serve, Datagrams, Effect, Identity, MAX_DATAGRAM, PORT};
+use crate::board::{Effects, ModbusSlots, Network, Shared};
+use crate::discovery::{serve, Datagrams, Identity, MAX_DATAGRAM, PORT};
 use crate::modbus::server::serve as serve_modbus;
 use crate::modbus::RegisterMap;
 use crate::module::SettingsAccess;
@@ -15,13 +15,6 @@ use crate::{debug, error, warn};
 
 /// Socket buffer size, each way: two full frames.
 pub const SOCKET_BUF: usize = 2 * crate::modbus::frame::MAX_ADU;
-
-/// How a board carries out what discovery asks (identify, restart).
-#[allow(async_fn_in_trait)]
-pub trait Effects: 'static {
-    /// Carries out `effect`, after its reply was sent.
-    async fn apply(&self, effect: Effect);
-}
 
 /// An embassy-net stack serving Modbus/TCP on `port`, with the board's discovery effects.
 pub struct EmbassyNet<E> {

@@ -175,3 +175,22 @@ fn short_or_long_fixed_requests_are_exception_03() {
     assert_eq!(ask(&mut map, "10 00 00"), "90 03");
     assert_eq!(ask(&mut map, "03"), "83 03");
 }
+
+#[test]
+fn code_15_with_exactly_1968_bits() {
+    // The spec's limit for code 15 is 1968 bits (246 bytes): accepted and applied whole, bit
+    // by bit LSB first; 1969 is exception 03.
+    let mut map = TestMap::default();
+    let bytes: Vec<u8> = (0..246u32).map(|i| (i * 37 + 11) as u8).collect();
+    let data: String = bytes.iter().map(|b| format!("{b:02X} ")).collect();
+    assert_eq!(ask(&mut map, &format!("0F 10 00 07 B0 F6 {data}")), "0F 10 00 07 B0");
+    assert_eq!(map.applied, 1);
+    for i in 0..1968 {
+        assert_eq!(map.block[i], bytes[i / 8] >> (i % 8) & 1 == 1, "bit {i}");
+    }
+    assert!(!map.block[1968], "nothing past the last bit");
+    assert_eq!(ask(&mut map, &format!("0F 10 00 07 B1 F7 {data}00")), "8F 03");
+    // And read back in one request of 1968 bits (code 01, limit 2000).
+    let r = ask(&mut map, "01 10 00 07 B0");
+    assert_eq!(r, format!("01 F6 {}", data.trim_end()));
+}

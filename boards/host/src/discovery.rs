@@ -5,7 +5,7 @@
 use std::net::{SocketAddr, SocketAddrV4, UdpSocket};
 
 use async_io::Async;
-use remodaq_shared::board::Shared;
+use remodaq_shared::board::{Effects, Shared};
 use remodaq_shared::discovery::{serve, Datagrams, Effect, Identity};
 use remodaq_shared::module::SettingsAccess;
 
@@ -37,15 +37,29 @@ impl Datagrams for &HostDatagrams {
     }
 }
 
+/// The simulated module's identify (a log line: there is no LED) and restart (the same
+/// program with the same arguments).
+pub struct HostEffects;
+
+impl Effects for HostEffects {
+    async fn apply(&self, effect: Effect) {
+        match effect {
+            Effect::None => {}
+            Effect::Identify => log::info!("identify: the module's LED would blink for 10 s"),
+            Effect::Restart => restart(),
+        }
+    }
+}
+
 /// Serves the protocol forever.
-pub async fn run<A: SettingsAccess>(socket: &HostDatagrams, map: &Shared<A>, identity: Identity) -> ! {
+pub async fn run<A: SettingsAccess>(
+    socket: &HostDatagrams,
+    map: &Shared<A>,
+    identity: Identity,
+    effects: &impl Effects,
+) -> ! {
     let mut socket = socket;
-    serve(&mut socket, map, identity, async |effect| match effect {
-        Effect::None => {}
-        Effect::Identify => log::info!("identify: the module's LED would blink for 10 s"),
-        Effect::Restart => restart(),
-    })
-    .await
+    serve(&mut socket, map, identity, async |effect| effects.apply(effect).await).await
 }
 
 /// Restarts the simulated module: the same program with the same arguments.

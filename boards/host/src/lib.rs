@@ -34,6 +34,20 @@ pub fn fail(message: &str) -> ! {
     std::process::exit(2)
 }
 
+/// Binds with `bind`, trying again for up to 5 s while the address is in use: after a restart
+/// (spawn-and-exit on Windows) the old process may not have let go of it yet.
+fn retry<T>(mut bind: impl FnMut() -> std::io::Result<T>) -> std::io::Result<T> {
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(5);
+    loop {
+        match bind() {
+            Err(e) if e.kind() == std::io::ErrorKind::AddrInUse && std::time::Instant::now() < deadline => {
+                std::thread::sleep(std::time::Duration::from_millis(100));
+            }
+            result => return result,
+        }
+    }
+}
+
 /// The PC as a board.
 pub struct HostBoard {
     options: cli::Options,
@@ -86,10 +100,10 @@ impl Board for HostBoard {
     /// are the stored ones with the address actually listened on.
     fn start_network(self, _spawner: Spawner, stored: NetConfig) -> (HostNet, NetConfig) {
         let addr = self.options.listen_addr(stored.port);
-        let listener = modbus::bind(addr).unwrap_or_else(|e| fail(&format!("cannot listen on {addr}: {e}")));
+        let listener = retry(|| modbus::bind(addr)).unwrap_or_else(|e| fail(&format!("cannot listen on {addr}: {e}")));
         let local: SocketAddr = listener.get_ref().local_addr().unwrap_or(addr);
         log::info!("modbus: listening on {local}");
-        let discovery = discovery::HostDatagrams::bind(self.options.discovery)
+        let discovery = retry(|| discovery::HostDatagrams::bind(self.options.discovery))
             .unwrap_or_else(|e| fail(&format!("cannot listen on {}: {e}", self.options.discovery)));
         let running = match local.ip() {
             std::net::IpAddr::V4(ip) if !ip.is_unspecified() => {
@@ -115,6 +129,6 @@ impl Network for HostNet {
     }
 
     async fn serve_discovery<A: SettingsAccess>(&'static self, map: &'static Shared<A>, identity: Identity) -> ! {
-        discovery::run(&self.discovery, map, identity).await
+        discovery::run(&self.discovery, map, identity, &discovery::HostEffects).await
     }
 }

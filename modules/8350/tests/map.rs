@@ -163,3 +163,97 @@ fn pulse_settings_persist_and_extra_pulses_add() {
     assert_eq!(m.ask("01 03 00 30 00 02"), "01 03 04 00 04 00 00");
     assert_eq!(m.ask("01 01 00 10 00 06"), "01 01 01 00");
 }
+
+/// DO0 in pulse mode with `count` pulses of high 3 / low 2 ticks, started.
+fn started_train(m: &mut Module, count: u16) {
+    assert_eq!(m.ask("01 06 01 10 00 01"), "01 06 01 10 00 01");
+    m.ask("01 10 00 18 00 02 04 00 02 00 00");
+    m.ask("01 10 00 24 00 02 04 00 03 00 00");
+    m.ask(&format!("01 10 00 30 00 02 04 {:02X} {:02X} 00 00", count >> 8, count & 0xFF));
+    assert_eq!(m.ask("01 05 00 10 FF 00"), "01 05 00 10 FF 00");
+}
+
+/// Pulses DO0 plays before its train ends (at most `limit`), ticking the engine.
+fn pulses_left(m: &Module, limit: u32) -> u32 {
+    let (mut pulses, mut last) = (0, 0);
+    for _ in 0..limit * 5 + 10 {
+        let level = io::with(m.io, |s| s.pulse.tick()) & 1;
+        pulses += u32::from(level == 1 && last == 0);
+        last = level;
+    }
+    pulses
+}
+
+#[test]
+fn extra_pulses_are_added_once_per_request_that_writes_the_low_word() {
+    // Spec §3.4. Each case: a train of 4 pulses, then the writes, then count what is played.
+    // One code-16 write of both words (low 2, high 0): 4 + 2.
+    let mut m = Module::new();
+    started_train(&mut m, 4);
+    assert_eq!(m.ask("01 10 00 3C 00 02 04 00 02 00 00"), "01 10 00 3C 00 02");
+    assert_eq!(pulses_left(&m, 100), 6);
+    // Two code-06 writes, high word first (0), then the low word (3): added once, 4 + 3.
+    let mut m = Module::new();
+    started_train(&mut m, 4);
+    assert_eq!(m.ask("01 06 00 3D 00 00"), "01 06 00 3D 00 00");
+    assert_eq!(m.ask("01 06 00 3C 00 03"), "01 06 00 3C 00 03");
+    assert_eq!(pulses_left(&m, 100), 7);
+    // Low word first (3), then the high word (0): the low word's request adds 3, the high
+    // word's only stores: 4 + 3, not 4 + 3 + 3.
+    let mut m = Module::new();
+    started_train(&mut m, 4);
+    assert_eq!(m.ask("01 06 00 3C 00 03"), "01 06 00 3C 00 03");
+    assert_eq!(m.ask("01 06 00 3D 00 00"), "01 06 00 3D 00 00");
+    assert_eq!(m.ask("01 03 00 3C 00 02"), "01 03 04 00 03 00 00", "reads back as written");
+    assert_eq!(pulses_left(&m, 100), 7);
+    // The high word alone adds nothing, even when it makes the value large.
+    let mut m = Module::new();
+    started_train(&mut m, 4);
+    assert_eq!(m.ask("01 06 00 3D 00 01"), "01 06 00 3D 00 01");
+    assert_eq!(pulses_left(&m, 100), 4);
+    // A 32-bit value through one request: 65536 + 1 extra pulses.
+    let mut m = Module::new();
+    started_train(&mut m, 4);
+    assert_eq!(m.ask("01 10 00 3C 00 02 04 00 01 00 01"), "01 10 00 3C 00 02");
+    assert_eq!(pulses_left(&m, 70_000), 4 + 65_537);
+}
+
+#[test]
+fn extra_pulses_while_continuous_or_stopped_only_store() {
+    // Continuous (count 0): still continuous, never ends.
+    let mut m = Module::new();
+    started_train(&mut m, 0);
+    assert_eq!(m.ask("01 10 00 3C 00 02 04 00 05 00 00"), "01 10 00 3C 00 02");
+    // The window is 50 x 5 + 10 = 260 ticks: 52 pulses begin in it; the train runs on.
+    assert_eq!(pulses_left(&m, 50), 52);
+    assert_eq!(m.ask("01 01 00 10 00 01"), "01 01 01 01");
+    // Stopped: nothing starts, and a later start plays its own count only.
+    let mut m = Module::new();
+    started_train(&mut m, 4);
+    assert_eq!(m.ask("01 05 00 10 00 00"), "01 05 00 10 00 00");
+    assert_eq!(m.ask("01 10 00 3C 00 02 04 00 05 00 00"), "01 10 00 3C 00 02");
+    assert_eq!(pulses_left(&m, 20), 0);
+    assert_eq!(m.ask("01 03 00 3C 00 02"), "01 03 04 00 05 00 00");
+    assert_eq!(m.ask("01 05 00 10 FF 00"), "01 05 00 10 FF 00");
+    assert_eq!(pulses_left(&m, 20), 4);
+}
+
+#[test]
+fn overflow_at_2_pow_32_and_falling_latch_through_modbus() {
+    let mut m = Module::new();
+    // DI4 counter at FFFFFFFFh: one rising edge wraps it to 0 and sets its overflow flag
+    // (0X 00035 + 4 x 4 = bit 32h), read with code 01 and again with code 02.
+    assert_eq!(m.ask("01 06 01 04 00 01"), "01 06 01 04 00 01");
+    io::with(m.io, |s| s.di.preset_counter(4, u32::MAX));
+    m.inputs(&[0, 1 << 4]);
+    assert_eq!(m.ask("01 04 00 08 00 02"), "01 04 04 00 00 00 00", "wrapped to 0");
+    assert_eq!(m.ask("01 02 00 32 00 01"), "01 02 01 01", "overflow flag");
+    assert_eq!(m.ask("01 01 00 32 00 01"), "01 01 01 00", "cleared by the read");
+    // DI2 high-to-low latch (0X 00036 + 4 x 2 = bit 2Bh): a rise does not set it, a fall does.
+    assert_eq!(m.ask("01 06 01 02 00 03"), "01 06 01 02 00 03");
+    m.inputs(&[0, 1 << 2]);
+    assert_eq!(m.ask("01 02 00 2B 00 01"), "01 02 01 00", "rising edge");
+    m.inputs(&[0]);
+    assert_eq!(m.ask("01 01 00 2B 00 01"), "01 01 01 01", "falling edge");
+    assert_eq!(m.ask("01 02 00 2B 00 01"), "01 02 01 00", "cleared by the read");
+}

@@ -6,11 +6,13 @@ use std::vec::Vec;
 
 use remodaq_shared::modbus::{Access, Exception, RegisterMap, Table, WriteValues};
 
-/// Bits 0x00..0x20 readable, 0x10..0x16 writable; registers 0x00..0x80 read/write, 0x100 read
-/// only, 0x101 write only. A register value of 0xBAD fails validation (03); `fail_apply` makes
+/// Bits 0x00..0x20 readable, 0x10..0x16 writable, 0x1000..0x1800 read/write (a block large
+/// enough for the longest writes); registers 0x00..0x80 read/write, 0x100 read only, 0x101
+/// write only. A register value of 0xBAD fails validation (03); `fail_apply` makes
 /// the commit fail (04).
 pub struct TestMap {
     pub bits: [bool; 0x20],
+    pub block: Vec<bool>,
     pub regs: [u16; 0x80],
     pub fail_apply: bool,
     pub applied: usize,
@@ -18,7 +20,7 @@ pub struct TestMap {
 
 impl Default for TestMap {
     fn default() -> Self {
-        Self { bits: [false; 0x20], regs: [0; 0x80], fail_apply: false, applied: 0 }
+        Self { bits: [false; 0x20], block: vec![false; 0x800], regs: [0; 0x80], fail_apply: false, applied: 0 }
     }
 }
 
@@ -27,6 +29,7 @@ impl RegisterMap for TestMap {
         match (table, addr) {
             (Table::Bits, 0x10..=0x15) => Access::ReadWrite,
             (Table::Bits, 0x00..=0x1F) => Access::Read,
+            (Table::Bits, 0x1000..=0x17FF) => Access::ReadWrite,
             (Table::Registers, 0x00..=0x7F) => Access::ReadWrite,
             (Table::Registers, 0x100) => Access::Read,
             (Table::Registers, 0x101) => Access::Write,
@@ -36,6 +39,7 @@ impl RegisterMap for TestMap {
 
     fn read(&mut self, table: Table, addr: u16) -> u16 {
         match table {
+            Table::Bits if addr >= 0x1000 => u16::from(self.block[usize::from(addr - 0x1000)]),
             Table::Bits => u16::from(self.bits[usize::from(addr)]),
             Table::Registers if addr == 0x100 => 0x8318,
             Table::Registers => self.regs[usize::from(addr)],
@@ -57,6 +61,7 @@ impl RegisterMap for TestMap {
         for (i, v) in values.iter().enumerate() {
             let addr = usize::from(start) + i;
             match values.table() {
+                Table::Bits if addr >= 0x1000 => self.block[addr - 0x1000] = v != 0,
                 Table::Bits => self.bits[addr] = v != 0,
                 Table::Registers if addr < 0x80 => self.regs[addr] = v,
                 Table::Registers => {}

@@ -3,14 +3,15 @@
 //! values, a setting written and read back, 8 clients at once. Every wait is bounded; QEMU is
 //! killed by its PID at the end. Prints one `qemu-<model>: N passed, N failed` line.
 //!
-//! `qemu-e2e 8318 IMAGE` or `qemu-e2e 8350 IMAGE` (scripts/qemu-test builds the images).
+//! `qemu-e2e 8318 IMAGE` or `qemu-e2e 8350 IMAGE` (`scripts/qemu build` builds the images).
 
 use std::net::{SocketAddr, TcpListener};
 use std::process::{Child, Command, ExitCode, Stdio};
 use std::time::{Duration, Instant};
 
-use remodaq_protocol::m8318::{REG_CJC, REG_INPUT_TYPE};
-use remodaq_protocol::m8350::{REG_ALL_DI, REG_DI_MODE};
+use remodaq_protocol::identity::{FIRMWARE_VERSION, REG_NAME, REG_VERSION};
+use remodaq_protocol::m8318::{REG_CJC, REG_INPUT_TYPE, REG_VALUE};
+use remodaq_protocol::m8350::{Point, PulseField, Word, REG_ALL_DI, REG_DI_MODE};
 use tokio::time::{sleep, timeout};
 use tokio_modbus::client::{tcp, Context, Reader, Writer};
 
@@ -62,7 +63,7 @@ async fn wait_ready(addr: SocketAddr) -> Result<Context, String> {
     let deadline = Instant::now() + BOOT;
     loop {
         if let Ok(mut ctx) = connect(addr).await {
-            if timeout(Duration::from_secs(2), ctx.read_holding_registers(0xD2, 1))
+            if timeout(Duration::from_secs(2), ctx.read_holding_registers(REG_NAME, 1))
                 .await
                 .is_ok_and(|r| r.is_ok_and(|r| r.is_ok()))
             {
@@ -125,25 +126,25 @@ async fn live_values_8318(ctx: &mut Context) -> Result<(), String> {
     // Type K (factory, -250 .. 1400 °C): ch0 at 100 °C by the NIST table (4.096 mV, less the
     // cold junction's 1.000 mV at 25 °C): (100 + 250) / 1650 * 65535 = 13901.4; the table's
     // 3 decimals are worth 0.02 °C (one count): allow 2. 40009 = 25.00 °C; ch3 open = FFFFh.
-    let v = regs(ctx, 0, 9).await?;
+    let v = regs(ctx, REG_VALUE, 9).await?;
     near("ch0 (type K, 100 °C)", v[0], 13901.4, 2.0)?;
     if v[REG_CJC as usize] != 2500 || v[3] != 0xFFFF {
         return Err(format!("40009 reads {:04x}, ch3 {:04x}: expected 09c4 and ffff", v[8], v[3]));
     }
     // ±50 mV (code 01): ch1 at 20 mV: (20 + 50) / 100 * 65535 = 45874.5.
     write(ctx, REG_INPUT_TYPE, &[0x01]).await?;
-    let v = regs_until(ctx, 0, 9, |v| v[3] != 0xFFFF).await?;
+    let v = regs_until(ctx, REG_VALUE, 9, |v| v[3] != 0xFFFF).await?;
     near("ch1 (±50 mV, 20 mV)", v[1], 45874.5, 1.0)?;
     // ±20 mA (code 06): ch2 at 12 mA: (12 + 20) / 40 * 65535 = 52428.0.
     write(ctx, REG_INPUT_TYPE, &[0x06]).await?;
-    let v = regs_until(ctx, 0, 9, |v| v[2].abs_diff(52428) <= 1).await?;
+    let v = regs_until(ctx, REG_VALUE, 9, |v| v[2].abs_diff(52428) <= 1).await?;
     near("ch2 (±20 mA, 12 mA)", v[2], 52428.0, 1.0)?;
     // ±15 mV (code 00): ch4 ramps over 0 .. 10 mV, so reads within (0 + 15) / 30 * 65535 =
     // 32767.5 and (10 + 15) / 30 * 65535 = 54612.5, and moves.
     write(ctx, REG_INPUT_TYPE, &[0x00]).await?;
-    let before = regs_until(ctx, 4, 1, |v| v[0] >= 32767).await?[0];
+    let before = regs_until(ctx, REG_VALUE + 4, 1, |v| v[0] >= 32767).await?[0];
     sleep(Duration::from_millis(1500)).await;
-    let after = regs(ctx, 4, 1).await?[0];
+    let after = regs(ctx, REG_VALUE + 4, 1).await?[0];
     for raw in [before, after] {
         if !(32767..=54613).contains(&raw) {
             return Err(format!("ch4 (0 .. 10 mV ramp on ±15 mV) reads {raw}, outside 32767 ..= 54613"));
@@ -165,7 +166,7 @@ async fn live_values_8350(ctx: &mut Context) -> Result<(), String> {
     }
     write(ctx, REG_DI_MODE, &[4]).await?;
     sleep(Duration::from_millis(2500)).await;
-    let hz = regs(ctx, 0, 2).await?;
+    let hz = regs(ctx, Point::Counter(0, Word::Low).addr().1, 2).await?;
     if hz[0].abs_diff(1000) > 1 || hz[1] != 0 {
         return Err(format!("DI0 frequency reads {hz:?}, expected [1000, 0] (± 1 Hz)"));
     }
@@ -181,7 +182,8 @@ async fn live_values(model: u16, ctx: &mut Context) -> Result<(), String> {
 }
 
 async fn setting_round_trip(model: u16, ctx: &mut Context) -> Result<(), String> {
-    let (addr, values): (u16, &[u16]) = if model == 0x8318 { (0xC8, &[0x0E]) } else { (0x18, &[25, 0]) };
+    let pulse_low = Point::Pulse(PulseField::Low, 0, Word::Low).addr().1;
+    let (addr, values): (u16, &[u16]) = if model == 0x8318 { (REG_INPUT_TYPE, &[0x0E]) } else { (pulse_low, &[25, 0]) };
     write(ctx, addr, values).await?;
     let back = regs(ctx, addr, values.len() as u16).await?;
     if back != values {
@@ -196,7 +198,7 @@ async fn eight_clients(addr: SocketAddr, model: u16) -> Result<(), String> {
         tasks.push(tokio::spawn(async move {
             let mut ctx = connect(addr).await?;
             for _ in 0..20 {
-                let v = regs(&mut ctx, 0xD2, 1).await?;
+                let v = regs(&mut ctx, REG_NAME, 1).await?;
                 if v != [model] {
                     return Err(format!("client {client}: {v:x?}"));
                 }
@@ -234,8 +236,8 @@ async fn run(model: &str, image: &str) -> Report {
     };
     report.check("boot", Ok(()));
     let identity = async {
-        let (n, v) = (regs(&mut ctx, 0xD2, 1).await?, regs(&mut ctx, 0xD4, 1).await?);
-        if n == [name] && v == [0xA100] {
+        let (n, v) = (regs(&mut ctx, REG_NAME, 1).await?, regs(&mut ctx, REG_VERSION, 1).await?);
+        if n == [name] && v == [FIRMWARE_VERSION] {
             Ok(())
         } else {
             Err(format!("40211 read {n:04x?}, 40213 {v:04x?}"))
