@@ -101,10 +101,27 @@ fn network_settings_password_and_restart() {
     let mut module = SimModule::start_with(&firmware("8318"), &flash, &["--listen", "127.0.0.1"]);
     assert_eq!(module.addr.port(), p1);
     let to = module.discovery.to_string();
-    // A new port and a restart: the restart applies it.
+    // A new port, address, mask and gateway, and a restart: the restart applies them. (The
+    // simulated module listens where `--listen` says; it shows and keeps the stored address.)
     let p2 = free_port();
-    let (code, _, _) =
-        remodaq(&["net", "set", "--mac", &mac, "--to", &to, "--password", "remodaq", "--port", &p2.to_string()]);
+    let (code, _, _) = remodaq(&[
+        "net",
+        "set",
+        "--mac",
+        &mac,
+        "--to",
+        &to,
+        "--password",
+        "remodaq",
+        "--port",
+        &p2.to_string(),
+        "--ip",
+        "10.0.0.50",
+        "--mask",
+        "255.255.0.0",
+        "--gateway",
+        "10.0.0.1",
+    ]);
     assert_eq!(code, 0);
     let (code, out, _) = remodaq(&["restart", "--mac", &mac, "--to", &to, "--password", "remodaq"]);
     assert_eq!(code, 0, "{out}");
@@ -112,6 +129,13 @@ fn network_settings_password_and_restart() {
     assert_eq!(module.addr.port(), p2, "the restarted module listens on the new port");
     let running = search(&module);
     assert_eq!(running["running"]["port"].as_u64(), Some(u64::from(p2)));
+    let stored = &running["stored"];
+    assert_eq!(
+        (stored["ip"].as_str(), stored["mask"].as_str(), stored["gateway"].as_str(), stored["port"].as_u64()),
+        (Some("10.0.0.50"), Some("255.255.0.0"), Some("10.0.0.1"), Some(u64::from(p2))),
+        "{running}"
+    );
+    assert_eq!(running["running"]["ip"].as_str(), Some("127.0.0.1"));
     let read = json(&["read", &module.addr.to_string()]);
     assert_eq!(read["model"].as_str(), Some("RemoDAQ-8318"));
 

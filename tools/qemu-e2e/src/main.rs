@@ -1,6 +1,7 @@
 //! Boots a firmware image in QEMU (mps2-an386, LAN9118 on QEMU's user network with the Modbus
 //! port forwarded to a local port) and checks it through tokio-modbus: identity registers, live
-//! values, a setting written and read back, 8 clients at once. Every wait is bounded; QEMU is
+//! values, a setting written and read back, 8 clients at once, and discovery (search, network
+//! settings, restart) through the forwarded UDP port. Every wait is bounded; QEMU is
 //! killed by its PID at the end. Prints one `qemu-<model>: N passed, N failed` line.
 //!
 //! `qemu-e2e 8318 IMAGE` or `qemu-e2e 8350 IMAGE` (`scripts/qemu build` builds the images).
@@ -9,11 +10,13 @@ use std::net::{SocketAddr, TcpListener};
 use std::process::{Child, Command, ExitCode, Stdio};
 use std::time::{Duration, Instant};
 
+use remodaq_protocol::discovery::{decode_info, decode_result, op, Status, Writer, MAX_DATAGRAM};
 use remodaq_protocol::identity::{FIRMWARE_VERSION, REG_NAME, REG_VERSION};
 use remodaq_protocol::m8318::{REG_CJC, REG_INPUT_TYPE, REG_VALUE};
 use remodaq_protocol::m8350::{Point, PulseField, Word, REG_ALL_DI, REG_DI_MODE};
+use remodaq_protocol::net::NetConfig;
 use tokio::time::{sleep, timeout};
-use tokio_modbus::client::{tcp, Context, Reader, Writer};
+use tokio_modbus::client::{tcp, Context, Reader, Writer as _};
 
 const STEP: Duration = Duration::from_secs(5);
 const BOOT: Duration = Duration::from_secs(90);
@@ -27,12 +30,15 @@ impl Drop for Qemu {
     }
 }
 
-fn start_qemu(image: &str, port: u16) -> Result<Qemu, String> {
+fn start_qemu(image: &str, port: u16, udp: u16) -> Result<Qemu, String> {
     let log = std::fs::File::create(format!("{image}.qemu.log")).map_err(|e| e.to_string())?;
     let child = Command::new("qemu-system-arm")
         .args(["-M", "mps2-an386", "-nographic", "-monitor", "none", "-serial", "null"])
         .args(["-semihosting-config", "enable=on,target=native"])
-        .args(["-nic", &format!("user,model=lan9118,hostfwd=tcp:127.0.0.1:{port}-:8000")])
+        .args([
+            "-nic",
+            &format!("user,model=lan9118,hostfwd=tcp:127.0.0.1:{port}-:8000,hostfwd=udp:127.0.0.1:{udp}-:8300"),
+        ])
         .args(["-kernel", image])
         .stdin(Stdio::null())
         .stdout(log.try_clone().map_err(|e| e.to_string())?)
@@ -192,6 +198,63 @@ async fn setting_round_trip(model: u16, ctx: &mut Context) -> Result<(), String>
     Ok(())
 }
 
+/// One discovery request (UDP) and its reply, at most 3 tries of 2 s.
+async fn discover(to: SocketAddr, request: &[u8]) -> Result<Vec<u8>, String> {
+    let socket = tokio::net::UdpSocket::bind("127.0.0.1:0").await.map_err(|e| e.to_string())?;
+    let mut rx = [0u8; 512];
+    for _ in 0..3 {
+        socket.send_to(request, to).await.map_err(|e| e.to_string())?;
+        if let Ok(Ok((n, _))) = timeout(Duration::from_secs(2), socket.recv_from(&mut rx)).await {
+            return Ok(rx[..n].to_vec());
+        }
+    }
+    Err(format!("no discovery reply from {to}"))
+}
+
+/// The embassy-net discovery path end to end: search, store new network settings with the
+/// password, restart (a system reset of the guest), then the module answers again with the
+/// stored settings and the input type written before (the settings region survives a reset).
+async fn discovery_and_restart(to: SocketAddr, modbus: SocketAddr, model: u16) -> Result<(), String> {
+    let mut buf = [0u8; MAX_DATAGRAM];
+    let n = Writer::new(&mut buf, op::SEARCH, 7).finish().ok_or("search")?;
+    let reply = discover(to, &buf[..n]).await?;
+    let info = decode_info(&reply).ok_or("search: not an INFO reply")?;
+    if info.model != model || info.id != 7 || info.running.ip != [10, 0, 2, 15] {
+        return Err(format!("search: {info:?}"));
+    }
+    let mac = info.mac;
+    let net = NetConfig { ip: [10, 0, 0, 50], mask: [255, 255, 0, 0], gateway: [10, 0, 0, 1], port: 8000 };
+    let mut w = Writer::new(&mut buf, op::SET_NETWORK, 8);
+    w.bytes(&mac).string(b"remodaq").net(&net);
+    let n = w.finish().ok_or("set")?;
+    let status = decode_result(&discover(to, &buf[..n]).await?).map(|r| r.3);
+    if status != Some(Status::Ok) {
+        return Err(format!("set network: {status:?}"));
+    }
+    let mut w = Writer::new(&mut buf, op::RESTART, 9);
+    w.bytes(&mac).string(b"remodaq");
+    let n = w.finish().ok_or("restart")?;
+    let status = decode_result(&discover(to, &buf[..n]).await?).map(|r| r.3);
+    if status != Some(Status::Ok) {
+        return Err(format!("restart: {status:?}"));
+    }
+    sleep(Duration::from_secs(1)).await;
+    let mut ctx = wait_ready(modbus).await?;
+    let n = Writer::new(&mut buf, op::SEARCH, 10).finish().ok_or("search")?;
+    let reply = discover(to, &buf[..n]).await?;
+    let info = decode_info(&reply).ok_or("search after restart")?;
+    if info.stored != net || info.uptime_s > 30 {
+        return Err(format!("after the restart: stored {:?}, up {} s", info.stored, info.uptime_s));
+    }
+    if model == 0x8318 {
+        let t = regs(&mut ctx, REG_INPUT_TYPE, 1).await?;
+        if t != [0x0E] {
+            return Err(format!("input type after the restart: {t:x?}, written 0e before"));
+        }
+    }
+    Ok(())
+}
+
 async fn eight_clients(addr: SocketAddr, model: u16) -> Result<(), String> {
     let mut tasks = Vec::new();
     for client in 0..8 {
@@ -219,8 +282,9 @@ async fn run(model: &str, image: &str) -> Report {
     let mut report = Report { model: model.to_string(), passed: 0, failed: 0 };
     let name = u16::from_str_radix(model, 16).unwrap_or(0);
     let port = TcpListener::bind("127.0.0.1:0").and_then(|l| l.local_addr()).map(|a| a.port()).unwrap_or(18000);
+    let udp = std::net::UdpSocket::bind("127.0.0.1:0").and_then(|s| s.local_addr()).map(|a| a.port()).unwrap_or(18300);
     let addr = SocketAddr::from(([127, 0, 0, 1], port));
-    let qemu = match start_qemu(image, port) {
+    let qemu = match start_qemu(image, port, udp) {
         Ok(q) => q,
         Err(e) => {
             report.check("boot", Err(e));
@@ -249,6 +313,8 @@ async fn run(model: &str, image: &str) -> Report {
     report.check("setting written and read back", setting_round_trip(name, &mut ctx).await);
     drop(ctx);
     report.check("8 clients at once", eight_clients(addr, name).await);
+    let discovery = SocketAddr::from(([127, 0, 0, 1], udp));
+    report.check("discovery: search, network settings, restart", discovery_and_restart(discovery, addr, name).await);
     drop(qemu);
     report
 }
