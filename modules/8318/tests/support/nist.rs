@@ -54,4 +54,3 @@ pub fn table_points() -> Vec<(TcType, i32, f64)> {
     }
     points
 }
-
