@@ -7,6 +7,10 @@
 #![no_std]
 #![warn(missing_docs)]
 
+#[cfg(test)]
+extern crate std;
+
+pub mod diag;
 pub mod discovery;
 pub mod m8318;
 pub mod m8350;
@@ -56,6 +60,51 @@ pub mod identity {
     pub const REG_VERSION: u16 = 0x00D4;
     /// Firmware version reported in 40213.
     pub const FIRMWARE_VERSION: u16 = 0xA100;
+}
+
+/// One word of a 32-bit value: the low word comes first.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Word {
+    /// Bits 0-15.
+    Low,
+    /// Bits 16-31.
+    High,
+}
+
+impl Word {
+    /// The word at `offset` (0 or 1, or any even / odd offset) from a value's first register.
+    pub fn of(offset: u16) -> Self {
+        if offset.is_multiple_of(2) {
+            Word::Low
+        } else {
+            Word::High
+        }
+    }
+
+    /// The word's offset from the value's first register.
+    pub fn offset(self) -> u16 {
+        match self {
+            Word::Low => 0,
+            Word::High => 1,
+        }
+    }
+
+    /// This word of `value`.
+    pub fn get(self, value: u32) -> u16 {
+        match self {
+            Word::Low => value as u16,
+            Word::High => (value >> 16) as u16,
+        }
+    }
+
+    /// `value` with this word replaced by `word`.
+    pub fn set(self, value: u32, word: u16) -> u32 {
+        match self {
+            Word::Low => (value & 0xFFFF_0000) | u32::from(word),
+            Word::High => (value & 0xFFFF) | u32::from(word) << 16,
+        }
+    }
 }
 
 /// The Modbus/TCP port of a module with factory settings.

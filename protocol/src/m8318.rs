@@ -1,6 +1,7 @@
 //! The RemoDAQ-8318's Modbus view (spec §2): registers, input types (§2.2) and the
 //! 0000h..FFFFh data format (§2.3), the CJC offset encoding (§2.4).
 
+use crate::diag::{self, Diag};
 use crate::identity::{REG_NAME, REG_VERSION};
 use crate::{Access, Table};
 
@@ -40,6 +41,8 @@ pub enum Reg {
     Name,
     /// Firmware version.
     Version,
+    /// A diagnostics register (extensions §1).
+    Diag(Diag),
 }
 
 /// The register at `addr` of `table`; `None` where nothing is mapped (the 8318 has no bits).
@@ -55,7 +58,7 @@ pub fn decode(table: Table, addr: u16) -> Option<Reg> {
         REG_ENABLE_MASK => Reg::EnableMask,
         REG_NAME => Reg::Name,
         REG_VERSION => Reg::Version,
-        _ => return None,
+        a => Reg::Diag(diag::decode(a)?),
     })
 }
 
@@ -70,6 +73,7 @@ impl Reg {
             Reg::EnableMask => REG_ENABLE_MASK,
             Reg::Name => REG_NAME,
             Reg::Version => REG_VERSION,
+            Reg::Diag(d) => d.addr(),
         }
     }
 

@@ -1,7 +1,9 @@
 //! The RemoDAQ-8350's Modbus view (spec §3.1-3.2): bits, registers and their typed decoding,
 //! and the DI / DO mode values.
 
+use crate::diag::{self, Diag};
 use crate::identity::{REG_NAME, REG_VERSION};
+pub use crate::Word;
 use crate::{Access, Table};
 
 /// Module name register value (40211).
@@ -49,49 +51,6 @@ pub enum PulseField {
     Extra = 3,
 }
 
-/// One word of a 32-bit value: the low word comes first.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Word {
-    /// Bits 0-15.
-    Low,
-    /// Bits 16-31.
-    High,
-}
-
-impl Word {
-    fn of(offset: u16) -> Self {
-        if offset.is_multiple_of(2) {
-            Word::Low
-        } else {
-            Word::High
-        }
-    }
-
-    fn offset(self) -> u16 {
-        match self {
-            Word::Low => 0,
-            Word::High => 1,
-        }
-    }
-
-    /// This word of `value`.
-    pub fn get(self, value: u32) -> u16 {
-        match self {
-            Word::Low => value as u16,
-            Word::High => (value >> 16) as u16,
-        }
-    }
-
-    /// `value` with this word replaced by `word`.
-    pub fn set(self, value: u32, word: u16) -> u32 {
-        match self {
-            Word::Low => (value & 0xFFFF_0000) | u32::from(word),
-            Word::High => (value & 0xFFFF) | u32::from(word) << 16,
-        }
-    }
-}
-
 /// One address of the 8350 (channel numbers are in range by construction of [`decode`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -124,6 +83,8 @@ pub enum Point {
     Name,
     /// Register: firmware version.
     Version,
+    /// Register: a diagnostics register (extensions §1).
+    Diag(Diag),
 }
 
 /// The point at `addr` of `table`; `None` where nothing is mapped.
@@ -164,7 +125,7 @@ pub fn decode(table: Table, addr: u16) -> Option<Point> {
             REG_ALL_DO => Point::AllDo,
             REG_NAME => Point::Name,
             REG_VERSION => Point::Version,
-            _ => return None,
+            a => Point::Diag(diag::decode(a)?),
         },
     })
 }
@@ -188,13 +149,16 @@ impl Point {
             Point::AllDo => (Table::Registers, REG_ALL_DO),
             Point::Name => (Table::Registers, REG_NAME),
             Point::Version => (Table::Registers, REG_VERSION),
+            Point::Diag(d) => (Table::Registers, d.addr()),
         }
     }
 
     /// What the point allows.
     pub fn access(self) -> Access {
         match self {
-            Point::DiState(_) | Point::Counter(..) | Point::AllDi | Point::Name | Point::Version => Access::Read,
+            Point::DiState(_) | Point::Counter(..) | Point::AllDi | Point::Name | Point::Version | Point::Diag(_) => {
+                Access::Read
+            }
             _ => Access::ReadWrite,
         }
     }

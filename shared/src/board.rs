@@ -44,7 +44,10 @@ pub trait Board: Sized + 'static {
 
     /// Brings up the board (clocks, pins, peripherals; on the host: command line, logging):
     /// the board, its settings flash and the modules' I/O resources.
-    fn init() -> (Self, Self::Flash, Self::Resources);
+    /// The watchdog, where the board has one, starts here (tasks may be spawned).
+    fn init(spawner: Spawner) -> (Self, Self::Flash, Self::Resources);
+    /// Why this run started (diagnostics register 00F3h).
+    fn reset_cause(&self) -> crate::diagnostics::ResetCause;
     /// Every setting must return to its factory default (the USER button held at power-up,
     /// `--factory-reset` on the host).
     fn factory_reset_requested(&self) -> bool;
@@ -161,7 +164,9 @@ where
     B: IoFor<M>,
     M: Module,
 {
-    let (board, flash, resources) = B::init();
+    let (board, flash, resources) = B::init(spawner);
+    let reset_cause = board.reset_cause();
+    crate::diagnostics::DIAGNOSTICS.start(reset_cause);
     let mut store = SettingsStore::<B::Flash, M::Settings>::open(
         flash,
         const { SettingsStore::<B::Flash, M::Settings>::config(0..B::SETTINGS_SIZE) },
@@ -173,6 +178,7 @@ where
             crate::error!("factory reset: the settings could not be written");
         }
     }
+    crate::info!("self-test: reset cause {:?}; settings store open", reset_cause);
     let stored = store.get().net();
     let mac = board.mac();
     let state: &'static M::State = statics.state.init(M::state(store.get()));

@@ -9,6 +9,7 @@ extern crate std;
 pub mod fmt;
 
 pub mod board;
+pub mod diagnostics;
 pub mod discovery;
 #[cfg(feature = "embassy-net")]
 pub mod embassy_net;

@@ -1,8 +1,6 @@
 //! The 8318's terminals on the host board: the scenario file's voltages, currents and open
 //! inputs, through the module's own acquisition cycle.
 
-use std::convert::Infallible;
-
 use remodaq_8318::acquisition::{AnalogFrontEnd, Measurement};
 use remodaq_8318::input::SHUNT_OHMS;
 use remodaq_8318::M8318;
@@ -29,9 +27,12 @@ impl IoFor<M8318> for HostBoard {
 }
 
 impl AnalogFrontEnd for ScenarioFrontEnd {
-    type Error = Infallible;
+    type Error = &'static str;
 
     async fn measure(&mut self, channel: u8, _span_mv: f64, _detect_open: bool) -> Result<Measurement, Self::Error> {
+        if self.current.frontend_fault {
+            return Err("front-end fault injected by the scenario");
+        }
         Ok(match self.current.channels[usize::from(channel) % 8] {
             Terminal::Millivolts(mv) => Measurement::Millivolts(mv),
             Terminal::Volts(v) => Measurement::Millivolts(v * 1000.0),
@@ -44,6 +45,9 @@ impl AnalogFrontEnd for ScenarioFrontEnd {
     async fn cold_junction_c(&mut self) -> Result<f64, Self::Error> {
         if let Some(watched) = self.scenario.as_mut() {
             self.current = watched.refresh().clone();
+        }
+        if self.current.cjc_fault {
+            return Err("cold-junction fault injected by the scenario");
         }
         Ok(self.current.cjc_celsius)
     }

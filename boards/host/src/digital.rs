@@ -11,7 +11,7 @@ use crate::scenario::{parse_digital, Digital, Watched};
 use crate::{fail, HostBoard, Scenario};
 
 /// The simulated input capture: sample `index` of the scenario's signals.
-pub type Capture = SimulatedCapture<Box<dyn FnMut(u64) -> u16>>;
+pub type Capture = SimulatedCapture<Box<dyn FnMut(u64) -> Option<u16>>>;
 /// The simulated output pattern: logs every change of the output levels.
 pub type Pattern = SimulatedPattern<Box<dyn FnMut(&[u8])>>;
 
@@ -25,15 +25,16 @@ impl IoFor<M8350> for HostBoard {
             scenario.0.as_deref().map(|path| Watched::load(path, parse_digital).unwrap_or_else(|e| fail(&e)));
         let mut current = Digital::default();
         let rate = f64::from(SAMPLE_RATE_HZ);
+        let mut next_refresh = 0;
         let sample_at = move |index: u64| {
-            // Once per drained batch of a 2 ms pass is plenty: refresh on the first sample of
-            // each 10 ms.
-            if index.is_multiple_of(u64::from(SAMPLE_RATE_HZ) / 100) {
+            // The file is checked every 10 ms of samples.
+            if index >= next_refresh {
+                next_refresh = index + u64::from(SAMPLE_RATE_HZ) / 100;
                 if let Some(watched) = scenario.as_mut() {
                     current = watched.refresh().clone();
                 }
             }
-            current.sample_at(index as f64 / rate)
+            (!current.lose_samples).then(|| current.sample_at(index as f64 / rate))
         };
         let mut last = 0u8;
         let played = move |ticks: &[u8]| {

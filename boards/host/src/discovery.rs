@@ -62,6 +62,9 @@ pub async fn run<A: SettingsAccess>(
     serve(&mut socket, map, identity, async |effect| effects.apply(effect).await).await
 }
 
+/// Set in the environment of a simulated module started by a restart (its reset cause).
+pub const RESTARTED: &str = "REMODAQ_RESTARTED";
+
 /// Restarts the simulated module: the same program with the same arguments.
 fn restart() {
     log::info!("restart requested: restarting");
@@ -73,12 +76,12 @@ fn restart() {
     #[cfg(unix)]
     {
         use std::os::unix::process::CommandExt;
-        let e = std::process::Command::new(exe).args(&args[1..]).exec();
+        let e = std::process::Command::new(exe).args(&args[1..]).env(RESTARTED, "1").exec();
         log::error!("restart failed: {e}");
     }
     #[cfg(not(unix))]
     {
-        match std::process::Command::new(exe).args(&args[1..]).spawn() {
+        match std::process::Command::new(exe).args(&args[1..]).env(RESTARTED, "1").spawn() {
             Ok(_) => std::process::exit(0),
             Err(e) => log::error!("restart failed: {e}"),
         }

@@ -71,7 +71,7 @@ impl Board for HostBoard {
 
     /// Logging, the command line and the flash image; a flash image that cannot be used ends
     /// the process with status 2.
-    fn init() -> (Self, flash::FileFlash, Scenario) {
+    fn init(_spawner: Spawner) -> (Self, flash::FileFlash, Scenario) {
         init_logging();
         let options = cli::Options::parse();
         let path = options.flash_path();
@@ -116,6 +116,15 @@ impl Board for HostBoard {
 
     /// The PC has no watchdog.
     fn app_alive() {}
+
+    /// Power-on, or a software restart when this process was started by a restart.
+    fn reset_cause(&self) -> remodaq_shared::diagnostics::ResetCause {
+        if std::env::var_os(discovery::RESTARTED).is_some() {
+            remodaq_shared::diagnostics::ResetCause::Software
+        } else {
+            remodaq_shared::diagnostics::ResetCause::PowerOn
+        }
+    }
 }
 
 impl Network for HostNet {

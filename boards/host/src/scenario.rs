@@ -79,19 +79,32 @@ pub struct Analog {
     pub cjc_celsius: f64,
     /// Channels 0-7.
     pub channels: [Terminal; 8],
+    /// `[cjc] fault = true`: the cold-junction sensor cannot be read.
+    pub cjc_fault: bool,
+    /// `[frontend] fault = true`: the ADC does not answer (every conversion fails).
+    pub frontend_fault: bool,
 }
 
 impl Default for Analog {
     /// Without a scenario: 25 °C terminals, 0 mV on every channel.
     fn default() -> Self {
-        Self { cjc_celsius: 25.0, channels: [Terminal::Millivolts(0.0); 8] }
+        Self { cjc_celsius: 25.0, channels: [Terminal::Millivolts(0.0); 8], cjc_fault: false, frontend_fault: false }
     }
+}
+
+/// `[cjc]` or `[frontend]`: an injected fault.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawFault {
+    fault: bool,
 }
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawAnalog {
     cjc_celsius: Option<f64>,
+    cjc: Option<RawFault>,
+    frontend: Option<RawFault>,
     ch0: Option<Spanned<RawChannel>>,
     ch1: Option<Spanned<RawChannel>>,
     ch2: Option<Spanned<RawChannel>>,
@@ -114,7 +127,12 @@ struct RawChannel {
 /// Parses an 8318 scenario.
 pub fn parse_analog(text: &str) -> Result<Analog, String> {
     let raw: RawAnalog = toml::from_str(text).map_err(|e| toml_error(e, text))?;
-    let mut analog = Analog { cjc_celsius: raw.cjc_celsius.unwrap_or(25.0), ..Analog::default() };
+    let mut analog = Analog {
+        cjc_celsius: raw.cjc_celsius.unwrap_or(25.0),
+        cjc_fault: raw.cjc.is_some_and(|f| f.fault),
+        frontend_fault: raw.frontend.is_some_and(|f| f.fault),
+        ..Analog::default()
+    };
     if !analog.cjc_celsius.is_finite() {
         return Err("cjc_celsius must be a finite number".into());
     }
@@ -230,13 +248,22 @@ impl Signal {
 pub struct Digital {
     /// DI0-DI11.
     pub inputs: [Signal; 12],
+    /// `[capture] lose_samples = true`: the capture loses samples (its ring overruns) while
+    /// set.
+    pub lose_samples: bool,
 }
 
 impl Default for Digital {
     /// Without a scenario: every input steady low.
     fn default() -> Self {
-        Self { inputs: [Signal::Level(false); 12] }
+        Self { inputs: [Signal::Level(false); 12], lose_samples: false }
     }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCapture {
+    lose_samples: bool,
 }
 
 impl Digital {
@@ -253,19 +280,28 @@ struct RawInput {
     level: Option<bool>,
 }
 
-/// Parses an 8350 scenario: `[diN]` tables with exactly one of `square_hz` or `level`.
+/// Parses an 8350 scenario: `[diN]` tables with exactly one of `square_hz` or `level`, and
+/// `[capture] lose_samples = true|false`.
 pub fn parse_digital(text: &str) -> Result<Digital, String> {
-    let raw: std::collections::BTreeMap<String, Spanned<RawInput>> =
+    let raw: std::collections::BTreeMap<String, Spanned<toml::Value>> =
         toml::from_str(text).map_err(|e| toml_error(e, text))?;
     let mut digital = Digital::default();
-    for (key, input) in raw {
-        let line = line_of(text, input.span().start);
+    for (key, value) in raw {
+        let line = line_of(text, value.span().start);
+        let value = value.into_inner();
+        if key == "capture" {
+            let capture: RawCapture =
+                value.try_into().map_err(|e: toml::de::Error| format!("line {line}: [capture] {}", e.message()))?;
+            digital.lose_samples = capture.lose_samples;
+            continue;
+        }
+        let input: RawInput =
+            value.try_into().map_err(|e: toml::de::Error| format!("line {line}: [{key}] {}", e.message()))?;
         let n: usize = key
             .strip_prefix("di")
             .and_then(|n| n.parse().ok())
             .filter(|n| *n < 12)
             .ok_or_else(|| format!("line {line}: unknown table [{key}]; inputs are [di0] to [di11]"))?;
-        let input = input.into_inner();
         digital.inputs[n] = match (input.square_hz, input.level) {
             (Some(hz), None) if hz.is_finite() && hz > 0.0 && hz <= 25_000.0 => Signal::Square(hz),
             (Some(_), None) => return Err(format!("line {line}: [di{n}] square_hz must be in 0 < f <= 25000")),

@@ -53,7 +53,7 @@ pub struct SimModule {
 
 impl SimModule {
     /// Starts `binary` on ephemeral loopback ports (Modbus and discovery) with the flash image
-    /// `flash`, and waits (at most 20 s) for its "listening on" log lines.
+    /// `flash`, and waits (at most 60 s) for its "listening on" log lines.
     pub fn start(binary: &str, flash: &Path) -> Self {
         Self::start_with(binary, flash, &["--listen", "127.0.0.1:0"])
     }
@@ -89,17 +89,17 @@ impl SimModule {
         module
     }
 
-    /// Waits (at most 20 s) for the module to report both addresses again (after a start or
+    /// Waits (at most 60 s) for the module to report both addresses again (after a start or
     /// a restart) and records them.
     pub fn wait_listening(&mut self) {
         let (mut modbus, mut discovery) = (None, None);
         while modbus.is_none() || discovery.is_none() {
-            match self.lines.recv_timeout(Duration::from_secs(20)) {
+            match self.lines.recv_timeout(Duration::from_secs(60)) {
                 Ok(("modbus", addr)) => modbus = Some(addr),
                 Ok((_, addr)) => discovery = Some(addr),
                 Err(_) => {
                     let _ = self.child.kill();
-                    panic!("the simulated module did not report its addresses within 20 s");
+                    panic!("the simulated module did not report its addresses within 60 s");
                 }
             }
         }

@@ -1,9 +1,9 @@
 //! The 8318's terminals on the QEMU board, fixed so that the test command can check them
 //! against the spec: ch0 a type K thermocouple at 100 °C (4.096 mV by the NIST table, less the
 //! cold junction's 1.000 mV at 25 °C), ch1 20 mV, ch2 12 mA, ch3 open, ch4 a 0..10 mV ramp over
-//! 10 s (so values move), the rest 0 mV; terminals at 25 °C.
-
-use core::convert::Infallible;
+//! 10 s (so values move), the rest 0 mV; terminals at 25 °C. From 10 s to 13 s after the start
+//! every conversion fails (an injected front-end fault, for the diagnostics registers'
+//! end-to-end test).
 
 use embassy_time::Instant;
 use remodaq_8318::acquisition::{AnalogFrontEnd, Measurement};
@@ -24,10 +24,16 @@ impl IoFor<M8318> for QemuBoard {
     }
 }
 
-impl AnalogFrontEnd for Simulated {
-    type Error = Infallible;
+/// Seconds after the start during which the front end fails.
+pub const FAULT_S: core::ops::Range<u64> = 10..13;
 
-    async fn measure(&mut self, channel: u8, _span_mv: f64, _detect_open: bool) -> Result<Measurement, Infallible> {
+impl AnalogFrontEnd for Simulated {
+    type Error = &'static str;
+
+    async fn measure(&mut self, channel: u8, _span_mv: f64, _detect_open: bool) -> Result<Measurement, Self::Error> {
+        if FAULT_S.contains(&Instant::now().as_secs()) {
+            return Err("injected front-end fault");
+        }
         Ok(match channel {
             0 => Measurement::Millivolts(4.096 - 1.000),
             1 => Measurement::Millivolts(20.0),
@@ -38,7 +44,7 @@ impl AnalogFrontEnd for Simulated {
         })
     }
 
-    async fn cold_junction_c(&mut self) -> Result<f64, Infallible> {
+    async fn cold_junction_c(&mut self) -> Result<f64, Self::Error> {
         Ok(25.0)
     }
 }

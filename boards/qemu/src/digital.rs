@@ -1,6 +1,7 @@
 //! The 8350's terminals on the QEMU board: a simulated capture (a 1 kHz square wave on DI0, DI3
-//! steady high) sampled at the module's rate in simulated time, and the outputs played at its
-//! tick rate, through the same engines and I/O loop as on the STM32.
+//! steady high; samples lost from 10 s to 13 s after the start) sampled at the module's rate
+//! in simulated time, and the outputs played at its tick rate, through the same engines and
+//! I/O loop as on the STM32.
 
 use remodaq_8350::di::SAMPLE_RATE_HZ;
 use remodaq_8350::io::{SimulatedCapture, SimulatedPattern};
@@ -12,18 +13,25 @@ use crate::QemuBoard;
 /// Square wave on DI0, Hz.
 pub const DI0_HZ: u64 = 1000;
 
-/// DI0 high in the second half of each period; DI3 steady high.
-fn sample_at(index: u64) -> u16 {
+/// The capture loses its samples from 10 s to 13 s after the start (an injected front-end
+/// fault, for the diagnostics registers' end-to-end test).
+pub const LOST_SAMPLES_S: core::ops::Range<u64> = 10..13;
+
+/// DI0 high in the second half of each period; DI3 steady high; nothing in the loss window.
+fn sample_at(index: u64) -> Option<u16> {
+    if LOST_SAMPLES_S.contains(&(index / u64::from(SAMPLE_RATE_HZ))) {
+        return None;
+    }
     let di0 = (index * DI0_HZ * 2 / u64::from(SAMPLE_RATE_HZ)) % 2 == 1;
-    u16::from(di0) | 0b1000
+    Some(u16::from(di0) | 0b1000)
 }
 
 fn played(_: &[u8]) {}
 
 impl IoFor<M8350> for QemuBoard {
-    type Io = (SimulatedCapture<fn(u64) -> u16>, SimulatedPattern<fn(&[u8])>);
+    type Io = (SimulatedCapture<fn(u64) -> Option<u16>>, SimulatedPattern<fn(&[u8])>);
 
     fn io((): ()) -> Self::Io {
-        (SimulatedCapture::new(sample_at as fn(u64) -> u16), SimulatedPattern::new(played as fn(&[u8])))
+        (SimulatedCapture::new(sample_at as fn(u64) -> Option<u16>), SimulatedPattern::new(played as fn(&[u8])))
     }
 }

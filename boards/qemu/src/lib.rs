@@ -97,10 +97,27 @@ impl Board for QemuBoard {
     type Resources = ();
 
     /// Starts the time driver.
-    fn init() -> (Self, flash::SettingsFlash, ()) {
+    fn init(_spawner: Spawner) -> (Self, flash::SettingsFlash, ()) {
         let Some(mut core) = cortex_m::Peripherals::take() else { panic!("init twice") };
         time::start(&mut core.SYST);
         (QemuBoard { mac: mac_from_uid(b"qemu-mps2-an") }, flash::SettingsFlash::take(), ())
+    }
+
+    /// The machine has no reset-cause register: a restart leaves a mark in RAM that a system
+    /// reset keeps (QEMU reloads the image's sections, not the uninitialised RAM).
+    fn reset_cause(&self) -> remodaq_shared::diagnostics::ResetCause {
+        // SAFETY: read and cleared once, here, before anything else uses it; a volatile access
+        // to a static the linker places in .uninit (not zeroed at start-up).
+        let marked = unsafe {
+            let marked = core::ptr::read_volatile(core::ptr::addr_of!(RESTART_MARK)) == RESTART_MAGIC;
+            core::ptr::write_volatile(core::ptr::addr_of_mut!(RESTART_MARK), 0);
+            marked
+        };
+        if marked {
+            remodaq_shared::diagnostics::ResetCause::Software
+        } else {
+            remodaq_shared::diagnostics::ResetCause::PowerOn
+        }
     }
 
     /// No button on this board.
@@ -138,6 +155,11 @@ impl Board for QemuBoard {
     fn app_alive() {}
 }
 
+/// Left in RAM by a restart, for the next start's reset cause.
+#[unsafe(link_section = ".uninit.RESTART_MARK")]
+static mut RESTART_MARK: u32 = 0;
+const RESTART_MAGIC: u32 = 0x5245_5354;
+
 /// Discovery's effects here: identify is a log line, restart a system reset.
 pub struct QemuEffects;
 
@@ -148,6 +170,8 @@ impl Effects for QemuEffects {
             Effect::Identify => info!("identify"),
             Effect::Restart => {
                 embassy_time::Timer::after_millis(300).await;
+                // SAFETY: a volatile write to a static only this and `reset_cause` touch.
+                unsafe { core::ptr::write_volatile(core::ptr::addr_of_mut!(RESTART_MARK), RESTART_MAGIC) };
                 cortex_m::peripheral::SCB::sys_reset();
             }
         }

@@ -1,4 +1,4 @@
-//! The 8318's analog front end on this board: an AD7124-8 on SPI1 (mode 3, 4 MHz, DMA) with
+//! The 8318's analog front end on this board: an AD7124-8 on SPI1 (mode 3, 2.8 MHz, DMA) with
 //! its chip select on PD14, and the cold-junction NTC divider (10 kohm from VDDA, NTC to
 //! ground) on ADC1 at PA3, read ratiometrically against VDDA. On the Nucleo-F429ZI: SCK PB3,
 //! MISO PB4, MOSI PB5 (SPI1's alternate pins: PA7 is the Ethernet's CRS_DV), CS PD14 (D10),
@@ -69,7 +69,11 @@ impl AnalogPeripherals {
     fn start(self) -> (AdcSpi, NtcInput) {
         let mut config = spi::Config::default();
         config.mode = MODE_3;
-        config.frequency = Hertz(4_000_000);
+        // SCLK at most 5 MHz (AD7124-8 datasheet, timing characteristics, t3/t4 >= 100 ns).
+        // SPI1 runs from APB2 (90 MHz) through a power-of-two divider that embassy picks from
+        // 90 MHz / f (spi/mod.rs, compute_baud_rate): 4 MHz gave /16 = 5.625 MHz, too fast.
+        // 90 MHz / 32 = 2.8125 MHz.
+        config.frequency = Hertz(2_812_500);
         let bus = Spi::new(self.spi, self.sck, self.mosi, self.miso, self.tx_dma, self.rx_dma, Irqs, config);
         let cs = Output::new(self.cs, Level::High, Speed::High);
         let Ok(device) = ExclusiveDevice::new(bus, cs, Delay);

@@ -6,15 +6,16 @@
 
 pub mod analog;
 pub mod digital;
+pub mod phy;
 
 use defmt_rtt as _;
 use panic_probe as _;
 
 use embassy_executor::Spawner;
 use embassy_net::{Ipv4Address, Ipv4Cidr, StackResources, StaticConfigV4};
-use embassy_stm32::eth::{Ethernet, GenericPhy, PacketQueue, Sma};
+use embassy_stm32::eth::{Ethernet, PacketQueue, Sma};
 use embassy_stm32::flash::{Async, Bank2Region1, Flash};
-use embassy_stm32::gpio::{Input, Level, Output, Pull, Speed};
+use embassy_stm32::gpio::{Flex, Input, Level, Output, Pull, Speed};
 use embassy_stm32::peripherals::{ETH, ETH_SMA, IWDG};
 use embassy_stm32::rng::Rng;
 use embassy_stm32::time::Hertz;
@@ -22,14 +23,14 @@ use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, eth, flash, peripherals, rng, Config};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
-use embassy_time::{Duration, Timer};
+use embassy_time::{Duration, Instant, Timer};
 use remodaq_shared::board::{spawn, Board, Effects};
 use remodaq_shared::discovery::Effect;
 use remodaq_shared::embassy_net::EmbassyNet;
 use remodaq_shared::health::{self, Heartbeat};
 use remodaq_shared::net::{mac_from_uid, NetConfig};
 use remodaq_shared::{error, info};
-use static_cell::StaticCell;
+use static_cell::{ConstStaticCell, StaticCell};
 
 bind_interrupts!(struct Irqs {
     ETH => eth::InterruptHandler;
@@ -38,15 +39,27 @@ bind_interrupts!(struct Irqs {
 });
 
 /// The Ethernet device of this board.
-pub type Device = Ethernet<'static, ETH, GenericPhy<Sma<'static, ETH_SMA>>>;
+pub type Device = Ethernet<'static, ETH, phy::Lan8742a<Sma<'static, ETH_SMA>>>;
 /// The settings flash: bank 2, sectors 12-15 (16 KiB each, 0x0810_0000), see `memory.x`.
 pub type SettingsFlash = Bank2Region1<'static, Async>;
 
 /// Sockets: Modbus connection tasks plus the discovery socket, plus slack.
 const STACK_SOCKETS: usize = remodaq_shared::modbus::server::SOCKETS + 3;
-/// Independent watchdog period; fed every [`FEED_EVERY`] while all watched tasks beat.
-const WATCHDOG_TIMEOUT_US: u32 = 4_000_000;
-const FEED_EVERY: Duration = Duration::from_millis(1000);
+/// Independent watchdog period, nominal. The IWDG runs from the LSI, 17 to 47 kHz on the
+/// F429 (datasheet DS9405, LSI oscillator characteristics) against the 32 kHz embassy computes
+/// the reload with: 8 s nominal is 5.4 s to 15 s real. Fed every [`FEED_EVERY`] while every
+/// watched task beat within [`ALIVE_WINDOW`]; the worst case before a feed is then the window
+/// plus one feed interval, 3.5 s, under the 5.4 s minimum.
+const WATCHDOG_TIMEOUT_US: u32 = 8_000_000;
+const FEED_EVERY: Duration = Duration::from_millis(500);
+/// How late a watched task may be. A settings commit holds the register map (which the 8318's
+/// acquisition cycle takes) for its sector erases: up to 800 ms per 16 KiB sector at the x8
+/// parallelism embassy-stm32 0.6 erases with (datasheet, Flash memory programming, tERASE16KB
+/// max), and sequential-storage erases at most one sector per commit here.
+const ALIVE_WINDOW: Duration = Duration::from_millis(3000);
+/// Fed unconditionally this long after start-up while the tasks start (opening the settings
+/// store may repair it, erasing a sector).
+const START_GRACE: Duration = Duration::from_secs(20);
 
 /// Liveness of the watched tasks (network, application), read by the watchdog task.
 pub static HEARTBEAT: Heartbeat = Heartbeat::new(health::NET | health::APP);
@@ -61,8 +74,12 @@ pub struct Stm32Board {
     factory_reset: bool,
     eth: Device,
     seed: u64,
-    iwdg: embassy_stm32::Peri<'static, IWDG>,
     led: Output<'static>,
+    reset_cause: remodaq_shared::diagnostics::ResetCause,
+    /// PA12 held as an output, pulled down, low: embassy-stm32 0.6 refuses (panics on) flash
+    /// reads on silicon before revision 3 (REV_ID < 0x2001, errata ES0206 2.2.11) unless it
+    /// finds PA12 so (`flash/f4.rs`). PA12 is the Nucleo's USB OTG FS D+, unused here.
+    _pa12: Flex<'static>,
 }
 
 /// The peripherals reserved for the modules' I/O; each module's image starts its own part
@@ -74,8 +91,9 @@ pub struct Io {
     pub digital: digital::DigitalPeripherals,
 }
 
-/// Clocks at 180 MHz from the ST-LINK's 8 MHz MCO (HSE bypass), then the peripherals.
-fn init() -> (Stm32Board, SettingsFlash, Io) {
+/// Clocks at 180 MHz from the ST-LINK's 8 MHz MCO (HSE bypass), the flash caches, the
+/// watchdog, then the peripherals.
+fn init(spawner: Spawner) -> (Stm32Board, SettingsFlash, Io) {
     let mut config = Config::default();
     {
         use embassy_stm32::rcc::*;
@@ -85,7 +103,10 @@ fn init() -> (Stm32Board, SettingsFlash, Io) {
             prediv: PllPreDiv::DIV4,
             mul: PllMul::MUL180,
             divp: Some(PllPDiv::DIV2), // 180 MHz
-            divq: None,
+            // PLL48CLK, the RNG's clock (RM0090 §6.3.2: PLLQ 0 and 1 are invalid; §24.3.1).
+            // 360 MHz VCO / 8 = 45 MHz; 48 MHz would need SYSCLK 168 MHz, and only USB needs
+            // exactly 48. The RNG wants it above HCLK / 16 (11.25 MHz) and at most 48 MHz.
+            divq: Some(PllQDiv::DIV8),
             divr: None,
         });
         config.rcc.ahb_pre = AHBPrescaler::DIV1;
@@ -94,6 +115,31 @@ fn init() -> (Stm32Board, SettingsFlash, Io) {
         config.rcc.sys = Sysclk::PLL1_P;
     }
     let p = embassy_stm32::init(config);
+    // Why the MCU started (RM0090 §7.3.21 RCC_CSR), before anything clears the flags.
+    let reset_cause = reset_cause();
+    // Freeze the IWDG while the debugger halts the core (RM0090 §38.16.4, DBG_IWDG_STOP), so
+    // stepping through code with probe-rs does not reset the board.
+    embassy_stm32::pac::DBGMCU.apb1fzr().modify(|w| w.set_iwdg(true));
+    // The watchdog runs from here, before the settings store opens and the network starts.
+    let wdg = IndependentWatchdog::new(p.IWDG, WATCHDOG_TIMEOUT_US);
+    spawn(spawner, watchdog_task(wdg), "watchdog");
+    // The flash accelerator (RM0090 §3.5.2, FLASH_ACR): embassy's clock set-up writes ACR with
+    // the wait states only, leaving prefetch and both caches off. Reset the caches, then
+    // enable them with prefetch: code runs from flash at 5 wait states otherwise.
+    embassy_stm32::pac::FLASH.acr().modify(|w| {
+        w.set_icrst(true);
+        w.set_dcrst(true);
+    });
+    embassy_stm32::pac::FLASH.acr().modify(|w| {
+        w.set_icrst(false);
+        w.set_dcrst(false);
+        w.set_prften(true);
+        w.set_icen(true);
+        w.set_dcen(true);
+    });
+    let mut pa12 = Flex::new(p.PA12);
+    pa12.set_low();
+    pa12.set_as_input_output_pull(Speed::Low, Pull::Down);
 
     let mut rng = Rng::new(p.RNG, Irqs);
     let mut seed = [0u8; 8];
@@ -101,11 +147,13 @@ fn init() -> (Stm32Board, SettingsFlash, Io) {
 
     let mac = mac_from_uid(&embassy_stm32::uid::uid());
 
-    static PACKETS: StaticCell<PacketQueue<4, 4>> = StaticCell::new();
+    // Built in place (a ConstStaticCell: no 12-18 KB copy through the stack). 8 receive
+    // descriptors: 8 Modbus clients and broadcasts may arrive at once.
+    static PACKETS: ConstStaticCell<PacketQueue<4, 8>> = ConstStaticCell::new(PacketQueue::new());
     // Nucleo-F429ZI RMII: REF_CLK PA1, MDIO PA2, MDC PC1, CRS_DV PA7, RXD0 PC4, RXD1 PC5,
     // TX_EN PG11, TXD0 PG13, TXD1 PB13.
-    let eth = Ethernet::new(
-        PACKETS.init(PacketQueue::<4, 4>::new()),
+    let eth = Ethernet::new_with_phy(
+        PACKETS.take(),
         p.ETH,
         Irqs,
         p.PA1,
@@ -116,9 +164,7 @@ fn init() -> (Stm32Board, SettingsFlash, Io) {
         p.PB13,
         p.PG11,
         mac,
-        p.ETH_SMA,
-        p.PA2,
-        p.PC1,
+        phy::Lan8742a::new(Sma::new(p.ETH_SMA, p.PA2, p.PC1)),
     );
 
     let settings_flash = Flash::new(p.FLASH, Irqs).into_regions().bank2_region1;
@@ -160,8 +206,32 @@ fn init() -> (Stm32Board, SettingsFlash, Io) {
             outputs: [p.PF12.into(), p.PF13.into(), p.PF14.into(), p.PF15.into(), p.PF3.into(), p.PF5.into()],
         },
     };
-    let board = Stm32Board { mac, factory_reset, eth, seed: u64::from_le_bytes(seed), iwdg: p.IWDG, led };
+    let board = Stm32Board { mac, factory_reset, eth, seed: u64::from_le_bytes(seed), led, reset_cause, _pa12: pa12 };
     (board, settings_flash, io)
+}
+
+/// The reset cause from RCC_CSR's flags (RM0090 §7.3.21), which are then cleared (RMVF) so
+/// the next start tells its own. A power-on also sets the pin flag: it is checked first. (The
+/// PAC names IWDGRSTF `wdgrstf` and PINRSTF `padrstf`.)
+fn reset_cause() -> remodaq_shared::diagnostics::ResetCause {
+    use remodaq_shared::diagnostics::ResetCause;
+    let rcc = embassy_stm32::pac::RCC;
+    let csr = rcc.csr().read();
+    let cause = if csr.porrstf() {
+        ResetCause::PowerOn
+    } else if csr.borrstf() {
+        ResetCause::BrownOut
+    } else if csr.wdgrstf() || csr.wwdgrstf() {
+        ResetCause::Watchdog
+    } else if csr.sftrstf() {
+        ResetCause::Software
+    } else if csr.padrstf() {
+        ResetCause::Pin
+    } else {
+        ResetCause::Unknown
+    };
+    rcc.csr().modify(|w| w.set_rmvf(true));
+    cause
 }
 
 impl Board for Stm32Board {
@@ -170,8 +240,12 @@ impl Board for Stm32Board {
     type Net = EmbassyNet<Stm32Effects>;
     type Resources = Io;
 
-    fn init() -> (Self, SettingsFlash, Io) {
-        init()
+    fn init(spawner: Spawner) -> (Self, SettingsFlash, Io) {
+        init(spawner)
+    }
+
+    fn reset_cause(&self) -> remodaq_shared::diagnostics::ResetCause {
+        self.reset_cause
     }
 
     fn factory_reset_requested(&self) -> bool {
@@ -185,7 +259,7 @@ impl Board for Stm32Board {
     /// Starts the network with the stored settings (static IPv4), the watchdog and the
     /// identify LED.
     fn start_network(self, spawner: Spawner, net: NetConfig) -> (EmbassyNet<Stm32Effects>, NetConfig) {
-        let Stm32Board { eth, seed, iwdg, led, .. } = self;
+        let Stm32Board { eth, seed, led, .. } = self;
         let prefix = net.prefix_len().unwrap_or(24);
         let gateway = (net.gateway != [0; 4]).then(|| Ipv4Address::from(net.gateway));
         let config = embassy_net::Config::ipv4_static(StaticConfigV4 {
@@ -196,14 +270,13 @@ impl Board for Stm32Board {
         static RESOURCES: StaticCell<StackResources<STACK_SOCKETS>> = StaticCell::new();
         let (stack, runner) = embassy_net::new(eth, config, RESOURCES.init(StackResources::new()), seed);
         spawn(spawner, net_task(runner), "net");
-        spawn(spawner, watchdog_task(IndependentWatchdog::new(iwdg, WATCHDOG_TIMEOUT_US)), "watchdog");
         spawn(spawner, identify_task(led), "identify");
         info!("network: {}.{}.{}.{}/{} port {}", net.ip[0], net.ip[1], net.ip[2], net.ip[3], prefix, net.port);
         (EmbassyNet { stack, port: net.port, effects: Stm32Effects }, net)
     }
 
     fn app_alive() {
-        HEARTBEAT.beat(health::APP);
+        HEARTBEAT.beat(health::APP, Instant::now().as_millis());
     }
 }
 
@@ -227,9 +300,16 @@ impl Effects for Stm32Effects {
 
 #[embassy_executor::task]
 async fn net_task(mut runner: embassy_net::Runner<'static, Device>) -> ! {
+    // The network beats while its task runs and the Ethernet DMA has not stopped on a fatal
+    // bus error (ETH_DMASR FBES, RM0090 §33.8.2: the DMA then stops until reset), so a wedged
+    // MAC ends in a watchdog reset instead of a module that never answers again.
     let beat = async {
         loop {
-            HEARTBEAT.beat(health::NET);
+            if !embassy_stm32::pac::ETH.ethernet_dma().dmasr().read().fbes() {
+                HEARTBEAT.beat(health::NET, Instant::now().as_millis());
+            } else {
+                error!("ethernet: DMA fatal bus error");
+            }
             Timer::after(FEED_EVERY / 2).await;
         }
     };
@@ -257,7 +337,9 @@ async fn watchdog_task(mut wdg: IndependentWatchdog<'static, IWDG>) -> ! {
     wdg.unleash();
     loop {
         Timer::after(FEED_EVERY).await;
-        if HEARTBEAT.all_alive() {
+        let now = Instant::now();
+        let starting = now.as_millis() < START_GRACE.as_millis() && !HEARTBEAT.all_started();
+        if starting || HEARTBEAT.all_alive(now.as_millis(), ALIVE_WINDOW.as_millis() as u32) {
             wdg.pet();
         } else {
             error!("watchdog: a task stopped beating, not feeding");

@@ -51,11 +51,15 @@ pub struct Snapshot {
     pub values: [u16; CHANNELS],
     /// Register 40009: corrected CJC temperature, 0.01 °C.
     pub cjc: i16,
+    /// A conversion of this cycle failed (the front end did not answer, or timed out).
+    pub front_end_fault: bool,
+    /// The cold-junction sensor could not be read this cycle.
+    pub cjc_fault: bool,
 }
 
 impl Default for Snapshot {
     fn default() -> Self {
-        Self { values: [0; CHANNELS], cjc: 0 }
+        Self { values: [0; CHANNELS], cjc: 0, front_end_fault: false, cjc_fault: false }
     }
 }
 
@@ -87,6 +91,25 @@ pub fn cjc_register(celsius: f64) -> i16 {
     }
 }
 
+/// The cycle's faults in the diagnostics registers (extensions §1), logged when they change;
+/// the inputs are valid from the first cycle on.
+fn report(snapshot: &Snapshot) {
+    use remodaq_shared::diagnostics::{status, DIAGNOSTICS};
+    DIAGNOSTICS.set(status::INPUTS_PENDING, false);
+    if DIAGNOSTICS.set(status::FRONT_END_FAULT, snapshot.front_end_fault) {
+        match snapshot.front_end_fault {
+            true => remodaq_shared::error!("self-test: front-end fault (conversions fail)"),
+            false => remodaq_shared::info!("self-test: front end ok"),
+        }
+    }
+    if DIAGNOSTICS.set(status::CJC_FAULT, snapshot.cjc_fault) {
+        match snapshot.cjc_fault {
+            true => remodaq_shared::error!("self-test: cold-junction sensor fault"),
+            false => remodaq_shared::info!("self-test: cold-junction sensor ok"),
+        }
+    }
+}
+
 /// Runs one acquisition cycle.
 pub async fn acquire<A: AnalogFrontEnd>(fe: &mut A, settings: &Settings) -> Snapshot {
     let mut snapshot = Snapshot::default();
@@ -96,6 +119,7 @@ pub async fn acquire<A: AnalogFrontEnd>(fe: &mut A, settings: &Settings) -> Snap
         Ok(t) => Some(t + offset),
         Err(e) => {
             warn!("8318: cold junction not read: {:?}", e);
+            snapshot.cjc_fault = true;
             None
         }
     };
@@ -113,6 +137,7 @@ pub async fn acquire<A: AnalogFrontEnd>(fe: &mut A, settings: &Settings) -> Snap
             Ok(m) => channel_value(&input, m, cj_emf),
             Err(e) => {
                 warn!("8318: channel {} not converted: {:?}", ch, e);
+                snapshot.front_end_fault = true;
                 0xFFFF
             }
         };
@@ -133,6 +158,7 @@ pub async fn run<R: RawMutex, F: NorFlash, A: AnalogFrontEnd>(
         let settings = *map.lock().await.settings();
         let snapshot = acquire(fe, &settings).await;
         map.lock().await.publish(snapshot);
+        report(&snapshot);
         alive();
     }
 }

@@ -2,6 +2,7 @@
 
 use embedded_storage_async::nor_flash::NorFlash;
 use remodaq_protocol::m8318::{decode, Reg};
+use remodaq_shared::diagnostics::DIAGNOSTICS;
 use remodaq_shared::identity::FIRMWARE_VERSION;
 use remodaq_shared::modbus::{Access, Exception, RegisterMap, Table, WriteValues};
 use remodaq_shared::module::SettingsAccess;
@@ -48,6 +49,7 @@ impl<F: NorFlash> RegisterMap for Map8318<F> {
             Some(Reg::EnableMask) => u16::from(s.enable_mask),
             Some(Reg::Name) => MODULE_NAME,
             Some(Reg::Version) => FIRMWARE_VERSION,
+            Some(Reg::Diag(d)) => DIAGNOSTICS.read(d, 0),
             None => 0,
         }
     }
@@ -80,6 +82,7 @@ impl<F: NorFlash> RegisterMap for Map8318<F> {
                 }
             })
             .await;
+        DIAGNOSTICS.committed(&result);
         result.map_err(|e| {
             warn!("8318: settings commit failed: {:?}", e);
             Exception::ServerDeviceFailure
@@ -93,6 +96,8 @@ impl<F: NorFlash> SettingsAccess for Map8318<F> {
         self.store.get()
     }
     async fn commit(&mut self, settings: Settings) -> Result<(), StoreError> {
-        self.store.commit(settings).await
+        let result = self.store.commit(settings).await;
+        DIAGNOSTICS.committed(&result);
+        result
     }
 }

@@ -160,7 +160,7 @@ fn map_publishes_a_whole_cycle() {
         let mut resp = [0u8; MAX_PDU];
         let n = handle_pdu(&mut map, &[0x04, 0x00, 0x00, 0x00, 0x09], &mut resp).await;
         assert_eq!(&resp[..n], &[0x04, 18, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]);
-        map.publish(Snapshot { values: [1, 2, 3, 4, 5, 6, 7, 0xFFFF], cjc: -1234 });
+        map.publish(Snapshot { values: [1, 2, 3, 4, 5, 6, 7, 0xFFFF], cjc: -1234, ..Snapshot::default() });
         let n = handle_pdu(&mut map, &[0x03, 0x00, 0x00, 0x00, 0x09], &mut resp).await;
         assert_eq!(&resp[..n], &[0x03, 18, 0, 1, 0, 2, 0, 3, 0, 4, 0, 5, 0, 6, 0, 7, 0xFF, 0xFF, 0xFB, 0x2E]);
         // 40010 is not mapped.

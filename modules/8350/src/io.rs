@@ -9,6 +9,8 @@ use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_time::{Duration, Instant, Ticker, Timer};
 
+use remodaq_shared::diagnostics::{status, DIAGNOSTICS};
+
 use crate::di::DiEngine;
 use crate::pulse::{self, PulseEngine};
 use crate::settings::Settings;
@@ -104,9 +106,14 @@ pub async fn run<R: RawMutex>(
                     Ok(n) => with(cell, |s| s.di.process(&samples[..n])),
                     Err(e) => {
                         remodaq_shared::error!("inputs: {:?}: samples were lost", e);
+                        // Until the next read of the module status (extensions §1).
+                        DIAGNOSTICS.set(status::FRONT_END_FAULT, true);
                         break;
                     }
                 }
+            }
+            if DIAGNOSTICS.set(status::INPUTS_PENDING, false) {
+                remodaq_shared::info!("self-test: input capture running");
             }
             alive();
         }
@@ -126,26 +133,34 @@ pub async fn run<R: RawMutex>(
 }
 
 /// A capture in simulated time (the host and QEMU boards): sample `index` since the start is
-/// `sample_at(index)`; the samples due by now are handed out as the hardware ring would.
+/// `sample_at(index)`; the samples due by now are handed out as the hardware ring would. A
+/// sample given as `None` is lost (a fault the board injects): the read that meets it skips
+/// every sample due and reports [`SamplesLost`], as the STM32's ring does when it overruns.
 pub struct SimulatedCapture<F> {
     start: Instant,
     done: u64,
     sample_at: F,
 }
 
-impl<F: FnMut(u64) -> u16> SimulatedCapture<F> {
+impl<F: FnMut(u64) -> Option<u16>> SimulatedCapture<F> {
     /// A capture starting now.
     pub fn new(sample_at: F) -> Self {
         Self { start: Instant::now(), done: 0, sample_at }
     }
 }
 
-impl<F: FnMut(u64) -> u16> InputCapture for SimulatedCapture<F> {
+impl<F: FnMut(u64) -> Option<u16>> InputCapture for SimulatedCapture<F> {
     fn read(&mut self, out: &mut [u16]) -> Result<usize, SamplesLost> {
         let due = self.start.elapsed().as_micros() * u64::from(crate::di::SAMPLE_RATE_HZ) / 1_000_000;
         let n = (due.saturating_sub(self.done)).min(out.len() as u64) as usize;
         for (i, s) in out[..n].iter_mut().enumerate() {
-            *s = (self.sample_at)(self.done + i as u64);
+            match (self.sample_at)(self.done + i as u64) {
+                Some(sample) => *s = sample,
+                None => {
+                    self.done = due;
+                    return Err(SamplesLost);
+                }
+            }
         }
         self.done += n as u64;
         Ok(n)

@@ -8,6 +8,7 @@
 use embassy_sync::blocking_mutex::raw::RawMutex;
 use embedded_storage_async::nor_flash::NorFlash;
 use remodaq_protocol::m8350::{decode, Point, PulseField, Word, DO_CHANNELS};
+use remodaq_shared::diagnostics::{status, DIAGNOSTICS};
 use remodaq_shared::identity::FIRMWARE_VERSION;
 use remodaq_shared::modbus::{Access, Exception, RegisterMap, Table, WriteValues};
 use remodaq_shared::module::SettingsAccess;
@@ -117,6 +118,8 @@ impl<'a, F: NorFlash, R: RawMutex> Map8350<'a, F, R> {
             Point::AllDo => (0..pulse::CHANNELS).filter(|n| s.pulse.do_bit(*n)).fold(0, |acc, n| acc | 1 << n),
             Point::Name => MODULE_NAME,
             Point::Version => FIRMWARE_VERSION,
+            // "Samples lost since the last read of this register": cleared by the read.
+            Point::Diag(d) => DIAGNOSTICS.read(d, status::FRONT_END_FAULT),
         })
     }
 
@@ -161,7 +164,9 @@ impl<F: NorFlash, R: RawMutex> RegisterMap for Map8350<'_, F, R> {
         }
         let plan = self.plan(start, values)?;
         if plan.settings != *self.store.get() {
-            self.store.commit(plan.settings).await.map_err(|e| {
+            let result = self.store.commit(plan.settings).await;
+            DIAGNOSTICS.committed(&result);
+            result.map_err(|e| {
                 warn!("8350: settings commit failed: {:?}", e);
                 Exception::ServerDeviceFailure
             })?;
@@ -190,6 +195,8 @@ impl<F: NorFlash, R: RawMutex> SettingsAccess for Map8350<'_, F, R> {
         self.store.get()
     }
     async fn commit(&mut self, settings: Settings) -> Result<(), StoreError> {
-        self.store.commit(settings).await
+        let result = self.store.commit(settings).await;
+        DIAGNOSTICS.committed(&result);
+        result
     }
 }

@@ -114,11 +114,13 @@ pub async fn serve<R: RawMutex, M: RegisterMap, T: Read + Write, const N: usize>
     slots: &Slots<R, N>,
     slot: usize,
 ) -> Ended {
+    crate::diagnostics::DIAGNOSTICS.connection(true);
     if let Some(victim) = slots.open(slot) {
         crate::info!("modbus: connection limit reached, closing idle connection {}", victim);
     }
     let ended = serve_frames(io, map, slots, slot).await;
     slots.close(slot);
+    crate::diagnostics::DIAGNOSTICS.connection(false);
     ended
 }
 
@@ -146,6 +148,7 @@ async fn serve_frames<R: RawMutex, M: RegisterMap, T: Read + Write, const N: usi
                         let mut map = map.lock().await;
                         handle_pdu(&mut *map, request, &mut pdu).await
                     };
+                    crate::diagnostics::DIAGNOSTICS.answered(pdu[0] & 0x80 != 0);
                     write_header(&mut tx, header, pdu_len);
                     tx[MBAP_LEN..MBAP_LEN + pdu_len].copy_from_slice(&pdu[..pdu_len]);
                     if io.write_all(&tx[..MBAP_LEN + pdu_len]).await.is_err() || io.flush().await.is_err() {
