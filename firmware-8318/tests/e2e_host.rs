@@ -186,9 +186,9 @@ async fn scenario_values_over_modbus() {
     // ±20 mA: channel 2 at 12 mA.
     write(&mut ctx, 0xC8, 0x06).await;
     let v = read_until(&mut ctx, 0, 9, |v| v[2] == 52428).await;
-    // (12 + 20) / 40 * 65535 = 52428.0; 1.2 V on the 125 ohm shunt is 9.6 mA: 48495.9.
+    // (12 + 20) / 40 * 65535 = 52428.0; 1.2 V on the 100 ohm shunt is 12 mA too.
     assert_eq!(v[2], 52428, "current channel");
-    assert_eq!(v[1], 48496, "1.2 V on the 125 ohm shunt reads 9.6 mA");
+    assert_eq!(v[1], 52428, "1.2 V on the 100 ohm shunt reads 12 mA");
 
     // Disabling channels reads 0000h; a CJC offset of -2.00 °C shows in 40009.
     write(&mut ctx, 0xDC, 0x00F0).await;

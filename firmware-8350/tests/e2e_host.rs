@@ -129,11 +129,11 @@ async fn square_wave_counter_frequency_latch_pulses_and_restart() {
         sleep(Duration::from_millis(20)).await;
     }
     // The train is 5000 ticks (500 ms) of the module's clock. The engine computes the output
-    // 128 to 256 ticks ahead of what is played (the output ring), so its DO bit drops 474.4
-    // to 500 ms after the start; we poll every 20 ms and allow 100 ms for a loaded machine.
+    // 64 to 128 ticks ahead of what is played (the output ring), so its DO bit drops 487.2 to
+    // 500 ms after the start; we poll every 20 ms and allow 100 ms for a loaded machine.
     let took = started.elapsed();
     assert!(
-        took >= Duration::from_micros(474_400) && took <= Duration::from_millis(500 + 20 + 100),
+        took >= Duration::from_micros(487_200) && took <= Duration::from_millis(500 + 20 + 100),
         "train took {took:?}"
     );
     assert_eq!(regs(&mut ctx, 0x12E, 1).await, vec![0], "output off after the last pulse");

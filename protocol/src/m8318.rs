@@ -168,9 +168,6 @@ impl TcType {
     }
 }
 
-/// The current input's shunt: ±20 mA gives ±2.5 V at the ADC.
-pub const SHUNT_OHMS: f64 = 125.0;
-
 /// What an input type measures.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Kind {

@@ -7,7 +7,7 @@
 //!   task falls 82 ms behind, and that is detected and logged (overrun).
 //! - Outputs DO0-DO5 on PF12, PF13, PF14, PF15, PF3, PF5. TIM8's update event, 10 000 times a
 //!   second (the pulse engine's 0.1 ms tick), triggers DMA2 stream 1 (channel 7) to copy one
-//!   word per tick from a 256-tick circular pattern into GPIOF's set/reset register; the output
+//!   word per tick from a 128-tick circular pattern into GPIOF's set/reset register; the output
 //!   task refills each half as it is played. A 5 kHz train is exact however busy the CPU is.
 
 use embassy_stm32::dma::{Channel, ReadableRingBuffer, TransferOptions, WritableRingBuffer};

@@ -40,6 +40,17 @@ pub mod reg {
     }
 }
 
+/// IO_CONTROL_2: VBIAS enables, bit n = AINn (datasheet, IO_CONTROL_2 register).
+const IO_CONTROL_2: u8 = 0x04;
+/// VBIAS on every pair's negative input (AIN1, AIN3, ... AIN15): a floating thermocouple then
+/// sits at AVDD/2, inside the buffered inputs' common-mode range (datasheet, "Bias voltage
+/// generator"; thermocouple application notes bias the negative lead).
+const VBIAS_NEGATIVE_INPUTS: u32 = 0xAAAA;
+/// STATUS: POR_FLAG, set by a power-on or software reset until the reset is complete.
+const STATUS_POR: u8 = 1 << 4;
+/// After a reset, wait this long before the first register access: the datasheet allows
+/// about 2 ms for the internal reset; ADI's own no-OS driver waits 4 ms.
+const RESET_WAIT: Duration = Duration::from_millis(4);
 /// ADC_CONTROL: internal reference on, full power, and the mode.
 const ADC_CONTROL_BASE: u16 = 1 << 8 | 0b10 << 6;
 const MODE_SINGLE: u16 = 1 << 2;
@@ -55,8 +66,21 @@ const FILTER_MEASURE: u32 = 30;
 const FILTER_OPEN_CHECK: u32 = 4;
 /// Reference voltage, mV.
 pub const VREF_MV: f64 = 2500.0;
-/// A conversion takes at most ~7 ms at FS = 30; give up after this.
-const CONVERSION_TIMEOUT: Duration = Duration::from_millis(50);
+/// The modulator clock at full power, Hz (datasheet: 614.4 kHz).
+const MCLK_FULL_POWER_HZ: u64 = 614_400;
+
+/// The time a single conversion takes with the sinc4 filter at FS, µs: four output periods
+/// (zero-latency single conversion: the filter settles in 4 / ODR, ODR = fCLK / (32 x FS);
+/// datasheet, "Sinc4 filter", settling time).
+pub const fn sinc4_settling_us(fs: u32) -> u64 {
+    4 * 32 * fs as u64 * 1_000_000 / MCLK_FULL_POWER_HZ
+}
+
+/// How long to wait for a conversion with the filter at FS: twice its settling time and 2 ms
+/// more (the measurement filter: 6.25 ms settling, 14.5 ms timeout).
+pub const fn conversion_timeout(fs: u32) -> Duration {
+    Duration::from_micros(2 * sinc4_settling_us(fs) + 2_000)
+}
 /// An open-check reading at or above this code is an open input (positive full scale).
 const OPEN_CODE: u32 = 0xFF_F000;
 /// Known AD7124-8 ids (silicon revisions).
@@ -71,6 +95,10 @@ pub enum Error<E> {
     Id(u8),
     /// No conversion result in time.
     Timeout,
+    /// The chip stayed in reset (POR_FLAG set) after the reset wait.
+    StillInReset,
+    /// A register read back other than what was written: (register, written, read).
+    Readback(u8, u32, u32),
 }
 
 /// The PGA setting (log2 of the gain) whose full scale covers ±`span_mv`.
@@ -88,12 +116,14 @@ pub struct Ad7124<S> {
     spi: S,
     /// Last CONFIG written per setup, to skip rewriting it.
     config: [Option<u16>; 2],
+    /// Last IO_CONTROL_2 (VBIAS) written.
+    vbias: Option<u32>,
 }
 
 impl<S: SpiDevice> Ad7124<S> {
     /// Wraps the SPI device; call [`Self::init`] before converting.
     pub fn new(spi: S) -> Self {
-        Self { spi, config: [None; 2] }
+        Self { spi, config: [None; 2], vbias: None }
     }
 
     /// Gives the SPI device back.
@@ -101,19 +131,44 @@ impl<S: SpiDevice> Ad7124<S> {
         self.spi
     }
 
-    /// Resets the chip, checks its id and sets up reference, power and filters.
+    /// Resets the chip, waits for the reset to complete, checks its id and sets up reference,
+    /// power and filters, reading each back.
     pub async fn init(&mut self) -> Result<(), Error<S::Error>> {
+        // 64 ones on DIN reset the chip; writes during the internal reset are lost (and left
+        // FILTER_0 at its reset value, whose conversions outlast the timeout).
         self.spi.write(&[0xFF; 8]).await.map_err(Error::Spi)?;
-        Timer::after_micros(200).await;
+        Timer::after(RESET_WAIT).await;
+        // POR_FLAG reads 1 until the reset is complete (the read clears it).
+        let mut reset_done = false;
+        for _ in 0..10 {
+            if self.read(reg::STATUS).await? as u8 & STATUS_POR == 0 {
+                reset_done = true;
+                break;
+            }
+            Timer::after_millis(1).await;
+        }
+        if !reset_done {
+            return Err(Error::StillInReset);
+        }
         let id = self.read(reg::ID).await? as u8;
         if !IDS.contains(&id) {
             return Err(Error::Id(id));
         }
-        self.write(reg::ADC_CONTROL, u32::from(ADC_CONTROL_BASE | MODE_STANDBY)).await?;
-        self.write(reg::FILTER_0, FILTER_MEASURE).await?;
-        self.write(reg::FILTER_0 + 1, FILTER_OPEN_CHECK).await?;
+        self.write_checked(reg::ADC_CONTROL, u32::from(ADC_CONTROL_BASE | MODE_STANDBY)).await?;
+        self.write_checked(reg::FILTER_0, FILTER_MEASURE).await?;
+        self.write_checked(reg::FILTER_0 + 1, FILTER_OPEN_CHECK).await?;
         self.config = [None; 2];
+        self.vbias = None;
         Ok(())
+    }
+
+    /// Writes a register and reads it back.
+    async fn write_checked(&mut self, addr: u8, value: u32) -> Result<(), Error<S::Error>> {
+        self.write(addr, value).await?;
+        match self.read(addr).await? {
+            read if read == value => Ok(()),
+            read => Err(Error::Readback(addr, value, read)),
+        }
     }
 
     /// Reads a register.
@@ -143,13 +198,14 @@ impl<S: SpiDevice> Ad7124<S> {
         let burnout = if setup == 1 { CONFIG_BURNOUT_4UA } else { 0 };
         let config = CONFIG_BASE | burnout | u16::from(gain_log2 & 7);
         if self.config[usize::from(setup)] != Some(config) {
-            self.write(reg::CONFIG_0 + setup, u32::from(config)).await?;
+            self.write_checked(reg::CONFIG_0 + setup, u32::from(config)).await?;
             self.config[usize::from(setup)] = Some(config);
         }
         let channel = 1 << 15 | u16::from(setup) << 12 | u16::from(2 * pair) << 5 | u16::from(2 * pair + 1);
         self.write(reg::CHANNEL_0, u32::from(channel)).await?;
         self.write(reg::ADC_CONTROL, u32::from(ADC_CONTROL_BASE | MODE_SINGLE)).await?;
-        let deadline = Instant::now() + CONVERSION_TIMEOUT;
+        let fs = if setup == 1 { FILTER_OPEN_CHECK } else { FILTER_MEASURE };
+        let deadline = Instant::now() + conversion_timeout(fs);
         let status = loop {
             let status = self.read(reg::STATUS).await? as u8;
             if status & STATUS_NOT_READY == 0 {
@@ -165,8 +221,15 @@ impl<S: SpiDevice> Ad7124<S> {
     }
 
     /// Measures pair `pair` over ±`span_mv`: `None` when `detect_open` finds it open, else mV.
+    /// Thermocouples (`detect_open`) get VBIAS on their negative inputs; other inputs none
+    /// (a grounded voltage source must not be pulled).
     pub async fn measure(&mut self, pair: u8, span_mv: f64, detect_open: bool) -> Result<Option<f64>, Error<S::Error>> {
         let gain = gain_for_span(span_mv);
+        let vbias = if detect_open { VBIAS_NEGATIVE_INPUTS } else { 0 };
+        if self.vbias != Some(vbias) {
+            self.write_checked(IO_CONTROL_2, vbias).await?;
+            self.vbias = Some(vbias);
+        }
         if detect_open {
             let (code, error) = self.convert(pair, 1, gain).await?;
             if code >= OPEN_CODE || error {

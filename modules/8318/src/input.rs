@@ -1,7 +1,13 @@
 //! Input types (spec §2.2) and the 0000h..FFFFh data format (spec §2.3), from the protocol
 //! crate, and what the front end needs to know of them.
 
-pub use remodaq_protocol::m8318::{scale, unscale, InputType, Kind, INPUT_TYPES, SHUNT_OHMS};
+pub use remodaq_protocol::m8318::{scale, unscale, InputType, Kind, INPUT_TYPES};
+
+/// The current input's shunt, ohm: ±20 mA gives ±2.0 V at the ADC, 80 % of the AD7124-8's
+/// ±2.5 V range at gain 1, so 20 mA is not at the converter's saturation and over-range
+/// currents up to 25 mA are still measured (and read FFFFh, above the range). A 125 ohm shunt
+/// would put 20 mA exactly at full scale (review of the STM32 board).
+pub const SHUNT_OHMS: f64 = 100.0;
 
 /// Span the front end must cover for thermocouples, mV (the largest emf of any type over its
 /// module range is under 70 mV, minus a cold junction below 0 °C).
@@ -42,7 +48,7 @@ mod tests {
         assert!(InputType::from_code(0x07).is_none());
         assert!(InputType::from_code(0x0D).is_none());
         assert!(InputType::from_code(0x19).is_none());
-        assert_eq!(span_mv(&InputType::from_code(0x06).unwrap()), 2500.0);
+        assert_eq!(span_mv(&InputType::from_code(0x06).unwrap()), 2000.0, "20 mA through 100 ohm");
         let codes: [u8; 18] = INPUT_TYPES.map(|t| t.code);
         assert_eq!(codes, [0, 1, 2, 3, 4, 5, 6, 0x0E, 0x0F, 0x10, 0x11, 0x12, 0x13, 0x14, 0x15, 0x16, 0x17, 0x18]);
     }

@@ -96,10 +96,10 @@ fn voltage_and_current_channels_and_edges() {
     assert_eq!(snap.values[5], 0x8000);
     assert_eq!(snap.values[6], 0xFFFF, "open input");
     assert!(fe.spans.iter().all(|&(_, span, open)| span == 2500.0 && !open));
-    // 12 mA through 125 ohm = 1500 mV.
+    // 12 mA through 100 ohm = 1200 mV.
     let mut fe = Fake::new(25.0);
-    fe.mv[0] = Some(12.0 * 125.0);
-    fe.mv[1] = Some(-20.0 * 125.0);
+    fe.mv[0] = Some(12.0 * 100.0);
+    fe.mv[1] = Some(-20.0 * 100.0);
     let snap = block_on(acquire(&mut fe, &settings(0x06, 0x03, 0)));
     assert_eq!(snap.values[0], expected(0x06, 12.0));
     assert_eq!(snap.values[0], 52428);

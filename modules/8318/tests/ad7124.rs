@@ -23,6 +23,11 @@ struct FakeChip {
     stuck: bool,
     /// The next this many conversions never finish, then the chip works again.
     stuck_for: usize,
+    /// When the last reset began: for 2 ms the chip is in reset (POR_FLAG reads 1 and
+    /// writes are lost), as the datasheet describes.
+    reset_at: Option<std::time::Instant>,
+    /// A register that does not keep what is written to it (a faulty bus or chip).
+    deaf: Option<u8>,
     id: u8,
 }
 
@@ -31,9 +36,14 @@ impl FakeChip {
         Self { id: 0x14, ..Self::default() }
     }
 
+    fn in_reset(&self) -> bool {
+        self.reset_at.is_some_and(|t| t.elapsed() < std::time::Duration::from_millis(2))
+    }
+
     fn reg(&self, addr: u8) -> u32 {
         match addr {
             reg::ID => u32::from(self.id),
+            reg::STATUS if self.in_reset() => 0x90,
             reg::STATUS => *self.regs.get(&addr).unwrap_or(&0x80),
             _ => *self.regs.get(&addr).unwrap_or(&0),
         }
@@ -75,6 +85,11 @@ impl SpiDevice for FakeChip {
             [Operation::Write(bytes)] if bytes.iter().all(|b| *b == 0xFF) && bytes.len() == 8 => {
                 self.resets += 1;
                 self.regs.clear();
+                // Reset values (datasheet register map): FILTER_n 060180h.
+                for f in 0..8 {
+                    self.regs.insert(reg::FILTER_0 + f, 0x06_0180);
+                }
+                self.reset_at = Some(std::time::Instant::now());
             }
             [Operation::Write(bytes)] => {
                 let addr = bytes[0] & 0x3F;
@@ -82,6 +97,9 @@ impl SpiDevice for FakeChip {
                 assert_eq!(bytes.len() - 1, reg::size(addr), "register {addr:#x} size");
                 let value = bytes[1..].iter().fold(0u32, |a, b| a << 8 | u32::from(*b));
                 self.writes.push((addr, value));
+                if self.in_reset() || self.deaf == Some(addr) {
+                    return Ok(()); // lost
+                }
                 self.regs.insert(addr, value);
                 if addr == reg::ADC_CONTROL && (value >> 2) & 0xF == 1 {
                     if self.stuck_for > 0 {
@@ -242,4 +260,49 @@ fn front_end_keeps_trying_a_chip_that_does_not_answer() {
     });
     assert_eq!(fe.failures(), 3);
     assert_eq!(fe.into_inner().0.resets, 3, "a reset before every attempt");
+}
+
+#[test]
+fn configuration_waits_for_the_reset_to_complete() {
+    // The fake loses writes for 2 ms after a reset, as the chip does: the filter settings
+    // stick only if init waited, and init reads them back.
+    let mut adc = Ad7124::new(FakeChip::new());
+    block_on(adc.init()).unwrap();
+    let chip = adc.into_inner();
+    assert_eq!(chip.regs.get(&reg::FILTER_0), Some(&30), "FILTER_0 kept, not its reset value 060180h");
+    assert_eq!(chip.regs.get(&(reg::FILTER_0 + 1)), Some(&4));
+}
+
+#[test]
+fn a_register_that_does_not_keep_its_value_is_an_error() {
+    let mut adc = Ad7124::new(FakeChip { deaf: Some(reg::FILTER_0), ..FakeChip::new() });
+    assert_eq!(block_on(adc.init()), Err(Error::Readback(reg::FILTER_0, 30, 0x06_0180)));
+}
+
+#[test]
+fn vbias_on_the_negative_inputs_for_thermocouples_only() {
+    let mut chip = FakeChip::new();
+    chip.inputs = [Some(1.0); 8];
+    let mut adc = Ad7124::new(chip);
+    block_on(async {
+        adc.init().await.unwrap();
+        adc.measure(0, 100.0, true).await.unwrap();
+        adc.measure(1, 100.0, true).await.unwrap();
+        adc.measure(0, 2500.0, false).await.unwrap();
+    });
+    let chip = adc.into_inner();
+    let vbias: Vec<u32> = chip.writes.iter().filter(|w| w.0 == 0x04).map(|w| w.1).collect();
+    assert_eq!(vbias, vec![0xAAAA, 0x0000], "AIN1, 3, ... 15 biased while thermocouples are read, once");
+}
+
+#[test]
+fn conversion_timeout_from_the_filter() {
+    use remodaq_8318::ad7124::{conversion_timeout, sinc4_settling_us};
+    // Sinc4 single conversion: 4 / ODR, ODR = 614.4 kHz / (32 x FS).
+    assert_eq!(sinc4_settling_us(30), 6_250);
+    assert_eq!(sinc4_settling_us(4), 833);
+    assert_eq!(conversion_timeout(30).as_micros(), 14_500);
+    // FILTER_0's reset value (FS = 384) would take 80 ms: beyond the measurement's timeout,
+    // which is why init must not lose its write.
+    assert_eq!(sinc4_settling_us(384), 80_000);
 }

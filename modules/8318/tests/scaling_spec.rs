@@ -64,10 +64,10 @@ fn every_code_has_the_range_of_the_spec_table() {
 
 #[test]
 fn voltage_and_current_codes_scale_as_the_spec_says() {
-    // (code, mV at the terminals per engineering unit): the current flows through the 125 ohm
-    // shunt, so 1 mA is 125 mV.
+    // (code, mV at the terminals per engineering unit): the current flows through the 100 ohm
+    // shunt, so 1 mA is 100 mV.
     for (code, lo, hi) in SPEC.iter().copied().filter(|s| s.0 <= 0x06) {
-        let per_unit = if code == 0x06 { 125.0 } else { 1.0 };
+        let per_unit = if code == 0x06 { 100.0 } else { 1.0 };
         let span = hi - lo;
         let cases = [
             (lo, 0x0000),
