@@ -232,3 +232,51 @@ fn bad_scenario_is_a_clear_error() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("line 1") && stderr.contains("exactly one"), "{stderr}");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn diagnostics_registers_with_faults_injected_and_cleared() {
+    // Extensions §1: 40241 module status, 40242-3 uptime, 40244 reset cause, 40245
+    // connections, 40246-7 requests, 40248 exceptions.
+    let dir = flash_file("diag").with_extension("d");
+    std::fs::create_dir_all(&dir).unwrap();
+    let scenario = dir.join("scenario.toml");
+    std::fs::write(&scenario, "[ch0]\nmillivolts = 1.0\n").unwrap();
+    let module = SimModule::start_with(
+        BIN,
+        &flash_file("diag.flash"),
+        &["--listen", "127.0.0.1:0", "--scenario", scenario.to_str().unwrap()],
+    );
+    let mut ctx = connect(module.addr).await;
+    // After the first cycle: no fault; started by power-on; this client connected.
+    let d = read_until(&mut ctx, 0xF0, 8, |d| d[0] == 0).await;
+    assert_eq!((d[3], d[4]), (0, 1), "reset cause power-on, one client");
+    let requests = u32::from(d[5]) | u32::from(d[6]) << 16;
+    assert!(requests >= 1, "{d:?}");
+    // An exception counts.
+    assert_eq!(read(&mut ctx, 0x1000, 1).await, Err(ExceptionCode::IllegalDataAddress));
+    let d = read(&mut ctx, 0xF0, 8).await.unwrap();
+    assert_eq!(d[7], 1, "one exception so far");
+    assert!(u32::from(d[5]) | u32::from(d[6]) << 16 >= requests + 2);
+    // Writes to a diagnostics register: exception 02 (read only).
+    assert_eq!(
+        timeout(Duration::from_secs(5), ctx.write_single_register(0xF0, 0)).await.unwrap().unwrap(),
+        Err(ExceptionCode::IllegalDataAddress)
+    );
+    // The front end and the cold-junction sensor fail: bits 0 and 1; thermocouples FFFFh.
+    std::fs::write(&scenario, "[frontend]\nfault = true\n[cjc]\nfault = true\n").unwrap();
+    let d = read_until(&mut ctx, 0xF0, 1, |d| d[0] == 0b11).await;
+    assert_eq!(d, vec![0b11]);
+    assert_eq!(read(&mut ctx, 0, 9).await.unwrap()[8], 0x7FFF, "40009 without a cold junction");
+    // Cleared: the next good cycle clears both.
+    std::fs::write(&scenario, "[ch0]\nmillivolts = 1.0\n").unwrap();
+    read_until(&mut ctx, 0xF0, 1, |d| d[0] == 0).await;
+    // Only the cold junction: bit 1 alone.
+    std::fs::write(&scenario, "[cjc]\nfault = true\n").unwrap();
+    read_until(&mut ctx, 0xF0, 1, |d| d[0] == 0b10).await;
+    // Uptime counts seconds.
+    let up = |d: &[u16]| u32::from(d[1]) | u32::from(d[2]) << 16;
+    let before = up(&read(&mut ctx, 0xF0, 3).await.unwrap());
+    tokio::time::sleep(Duration::from_millis(2100)).await;
+    let after = up(&read(&mut ctx, 0xF0, 3).await.unwrap());
+    assert!((2..=3).contains(&(after - before)), "{before} -> {after}");
+}

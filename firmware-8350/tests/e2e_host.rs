@@ -164,3 +164,42 @@ async fn identity_and_exceptions() {
     let w = timeout(LIMIT, ctx.write_single_register(0x100, 9)).await.unwrap().unwrap();
     assert_eq!(w, Err(ExceptionCode::IllegalDataValue));
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn diagnostics_samples_lost_injected_and_cleared() {
+    // Extensions §1, 8350: module status bit 0 = input samples lost since the last read of
+    // the module status register.
+    let scenario = temp("diag-scenario.toml");
+    std::fs::write(&scenario, "[di0]\nlevel = true\n").unwrap();
+    let flash = temp("diag.flash");
+    let _ = std::fs::remove_file(&flash);
+    let module =
+        SimModule::start_with(BIN, &flash, &["--listen", "127.0.0.1:0", "--scenario", scenario.to_str().unwrap()]);
+    let mut ctx = connect(&module).await;
+    let status = async |ctx: &mut Context| regs(ctx, 0xF0, 1).await[0];
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while status(&mut ctx).await != 0 {
+        assert!(Instant::now() < deadline, "inputs never became valid");
+        sleep(Duration::from_millis(50)).await;
+    }
+    assert_eq!(regs(&mut ctx, 0xF3, 1).await, vec![0], "reset cause power-on");
+    // The capture loses samples: bit 0, and it stays set while they are lost.
+    std::fs::write(&scenario, "[di0]\nlevel = true\n[capture]\nlose_samples = true\n").unwrap();
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while status(&mut ctx).await & 1 == 0 {
+        assert!(Instant::now() < deadline, "lost samples never reported");
+        sleep(Duration::from_millis(50)).await;
+    }
+    sleep(Duration::from_millis(100)).await;
+    assert_eq!(status(&mut ctx).await & 1, 1, "set again by the next loss");
+    // The capture recovers (the scenario is re-read within 10 ms of samples): the bit is
+    // cleared by the first read after the last loss, and stays clear.
+    std::fs::write(&scenario, "[di0]\nlevel = true\n").unwrap();
+    sleep(Duration::from_millis(300)).await;
+    let _ = status(&mut ctx).await;
+    for _ in 0..5 {
+        sleep(Duration::from_millis(50)).await;
+        assert_eq!(status(&mut ctx).await, 0, "no loss after the capture recovered");
+    }
+    assert_eq!(regs(&mut ctx, 0x12C, 1).await[0] & 1, 1, "DI0 still seen");
+}

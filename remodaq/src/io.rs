@@ -6,7 +6,7 @@ use std::time::Duration;
 use clap::{Subcommand, ValueEnum};
 use remodaq_protocol::m8318::{self, InputType, Kind, REG_CJC_OFFSET, REG_ENABLE_MASK, REG_INPUT_TYPE};
 use remodaq_protocol::m8350::{self, DiMode as Mode, Point, PulseField, Word};
-use remodaq_protocol::{identity, words_low_first};
+use remodaq_protocol::{diag, identity, words_low_first};
 use serde::Serialize;
 use tokio::time::timeout as within;
 use tokio_modbus::client::{tcp, Client, Context};
@@ -239,9 +239,47 @@ struct Analog {
     input_type: String,
     type_code: String,
     unit: &'static str,
-    cold_junction_c: f64,
+    cold_junction_c: Option<f64>,
     cjc_offset_c: f64,
     channels: Vec<AnalogChannel>,
+    diagnostics: Diagnostics,
+}
+
+/// The diagnostics registers (extensions §1).
+#[derive(Serialize)]
+struct Diagnostics {
+    /// Module status: the names of the bits set.
+    status: Vec<&'static str>,
+    status_raw: u16,
+    uptime_s: u32,
+    reset_cause: &'static str,
+    connections: u16,
+    requests: u32,
+    exceptions: u16,
+}
+
+async fn read_diagnostics(m: &mut Module) -> Result<Diagnostics, Error> {
+    let base = diag::REG_MODULE_STATUS;
+    let r = m.regs(base, diag::REG_EXCEPTIONS - base + 1).await?;
+    let at = |reg: u16| r[usize::from(reg - base)];
+    let status = at(diag::REG_MODULE_STATUS);
+    Ok(Diagnostics {
+        status: diag::status::NAMES.iter().filter(|(bit, _)| status & bit != 0).map(|(_, name)| *name).collect(),
+        status_raw: status,
+        uptime_s: remodaq_protocol::u32_low_first(at(diag::REG_UPTIME), at(diag::REG_UPTIME + 1)),
+        reset_cause: diag::reset_cause::name(at(diag::REG_RESET_CAUSE)),
+        connections: at(diag::REG_CONNECTIONS),
+        requests: remodaq_protocol::u32_low_first(at(diag::REG_REQUESTS), at(diag::REG_REQUESTS + 1)),
+        exceptions: at(diag::REG_EXCEPTIONS),
+    })
+}
+
+fn print_diagnostics(d: &Diagnostics) {
+    let status = if d.status.is_empty() { "ok".to_string() } else { d.status.join(", ") };
+    println!(
+        "  module: {status}; up {} s, reset cause {}; {} client(s), {} requests, {} exceptions",
+        d.uptime_s, d.reset_cause, d.connections, d.requests, d.exceptions
+    );
 }
 
 #[derive(Serialize)]
@@ -292,9 +330,14 @@ async fn read_analog(m: &mut Module) -> Result<Analog, Error> {
         input_type: name,
         type_code: format!("{code:02X}"),
         unit,
-        cold_junction_c: f64::from(values[usize::from(m8318::Reg::Cjc.addr() - m8318::REG_VALUE)] as i16) / 100.0,
+        // 7FFFh: the cold junction could not be read.
+        cold_junction_c: match values[usize::from(m8318::Reg::Cjc.addr() - m8318::REG_VALUE)] {
+            0x7FFF => None,
+            raw => Some(f64::from(raw as i16) / 100.0),
+        },
         cjc_offset_c: f64::from(offset) / 100.0,
         channels,
+        diagnostics: read_diagnostics(m).await?,
     })
 }
 
@@ -304,6 +347,7 @@ struct Digital {
     model: &'static str,
     inputs: Vec<Input>,
     outputs: Vec<Output>,
+    diagnostics: Diagnostics,
 }
 
 #[derive(Serialize)]
@@ -364,7 +408,7 @@ async fn read_digital(m: &mut Module) -> Result<Digital, Error> {
             count: pulses[12 + n],
         })
         .collect();
-    Ok(Digital { model: m8350::MODEL, inputs, outputs })
+    Ok(Digital { model: m8350::MODEL, inputs, outputs, diagnostics: read_diagnostics(m).await? })
 }
 
 async fn read_once(m: &mut Module, json: bool) -> Result<(), Error> {
@@ -374,10 +418,12 @@ async fn read_once(m: &mut Module, json: bool) -> Result<(), Error> {
             println!("{}", serde_json::to_string(&a).unwrap_or_default());
             return Ok(());
         }
+        let cj = a.cold_junction_c.map_or("unknown".to_string(), |t| format!("{t:.2} °C"));
         println!(
-            "{} at {}: {} (type {}), cold junction {:.2} °C (offset {:+.2})",
-            a.model, m.addr, a.input_type, a.type_code, a.cold_junction_c, a.cjc_offset_c
+            "{} at {}: {} (type {}), cold junction {cj} (offset {:+.2})",
+            a.model, m.addr, a.input_type, a.type_code, a.cjc_offset_c
         );
+        print_diagnostics(&a.diagnostics);
         for c in &a.channels {
             match c.value {
                 Some(v) => println!("  ch{}  {:>10.3} {:<3}  ({:04X})", c.channel, v, a.unit, c.raw),
@@ -391,6 +437,7 @@ async fn read_once(m: &mut Module, json: bool) -> Result<(), Error> {
             return Ok(());
         }
         println!("{} at {}", d.model, m.addr);
+        print_diagnostics(&d.diagnostics);
         println!(
             "  {:<5} {:<5} {:<13} {:>12} {:<8} {:<8} {:<5}",
             "input", "state", "mode", "value", "counter", "overflow", "latch"

@@ -138,6 +138,7 @@ fn network_settings_password_and_restart() {
     assert_eq!(running["running"]["ip"].as_str(), Some("127.0.0.1"));
     let read = json(&["read", &module.addr.to_string()]);
     assert_eq!(read["model"].as_str(), Some("RemoDAQ-8318"));
+    assert_eq!(read["diagnostics"]["reset_cause"].as_str(), Some("software restart"), "{read}");
 
     // Identify; a password change; a MAC that is not there.
     let to = module.discovery.to_string();

@@ -1,7 +1,7 @@
 //! The 8318's terminals on the QEMU board, fixed so that the test command can check them
 //! against the spec: ch0 a type K thermocouple at 100 °C (4.096 mV by the NIST table, less the
 //! cold junction's 1.000 mV at 25 °C), ch1 20 mV, ch2 12 mA, ch3 open, ch4 a 0..10 mV ramp over
-//! 10 s (so values move), the rest 0 mV; terminals at 25 °C. From 10 s to 13 s after the start
+//! 10 s (so values move), the rest 0 mV; terminals at 25 °C. From 20 s to 23 s after the start
 //! every conversion fails (an injected front-end fault, for the diagnostics registers'
 //! end-to-end test).
 
@@ -25,7 +25,7 @@ impl IoFor<M8318> for QemuBoard {
 }
 
 /// Seconds after the start during which the front end fails.
-pub const FAULT_S: core::ops::Range<u64> = 10..13;
+pub const FAULT_S: core::ops::Range<u64> = 20..23;
 
 impl AnalogFrontEnd for Simulated {
     type Error = &'static str;

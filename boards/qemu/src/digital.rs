@@ -1,5 +1,5 @@
 //! The 8350's terminals on the QEMU board: a simulated capture (a 1 kHz square wave on DI0, DI3
-//! steady high; samples lost from 10 s to 13 s after the start) sampled at the module's rate
+//! steady high; samples lost from 20 s to 23 s after the start) sampled at the module's rate
 //! in simulated time, and the outputs played at its tick rate, through the same engines and
 //! I/O loop as on the STM32.
 
@@ -13,9 +13,9 @@ use crate::QemuBoard;
 /// Square wave on DI0, Hz.
 pub const DI0_HZ: u64 = 1000;
 
-/// The capture loses its samples from 10 s to 13 s after the start (an injected front-end
+/// The capture loses its samples from 20 s to 23 s after the start (an injected front-end
 /// fault, for the diagnostics registers' end-to-end test).
-pub const LOST_SAMPLES_S: core::ops::Range<u64> = 10..13;
+pub const LOST_SAMPLES_S: core::ops::Range<u64> = 20..23;
 
 /// DI0 high in the second half of each period; DI3 steady high; nothing in the loss window.
 fn sample_at(index: u64) -> Option<u16> {

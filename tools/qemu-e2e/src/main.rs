@@ -10,6 +10,7 @@ use std::net::{SocketAddr, TcpListener};
 use std::process::{Child, Command, ExitCode, Stdio};
 use std::time::{Duration, Instant};
 
+use remodaq_protocol::diag;
 use remodaq_protocol::discovery::{decode_info, decode_result, op, Status, Writer, MAX_DATAGRAM};
 use remodaq_protocol::identity::{FIRMWARE_VERSION, REG_NAME, REG_VERSION};
 use remodaq_protocol::m8318::{REG_CJC, REG_INPUT_TYPE, REG_VALUE};
@@ -198,6 +199,40 @@ async fn setting_round_trip(model: u16, ctx: &mut Context) -> Result<(), String>
     Ok(())
 }
 
+/// Extensions §1 through the emulated NIC: the QEMU board injects a front-end fault from 20 s
+/// to 23 s after its start (after the other checks) (8318: conversions fail; 8350: input samples lost); module status
+/// bit 0 shows it, then clears. The reset cause of this first start is power-on (0).
+async fn diagnostics(addr: SocketAddr) -> Result<(), String> {
+    let mut ctx = connect(addr).await?;
+    let d = regs(&mut ctx, diag::REG_MODULE_STATUS, 8).await?;
+    if d[3] != diag::reset_cause::POWER_ON || d[4] == 0 {
+        return Err(format!("diagnostics {d:04x?}: reset cause 0 and this client expected"));
+    }
+    let status = async |ctx: &mut Context| regs(ctx, diag::REG_MODULE_STATUS, 1).await.map(|v| v[0]);
+    let deadline = Instant::now() + Duration::from_secs(40);
+    while status(&mut ctx).await? & diag::status::FRONT_END_FAULT == 0 {
+        if Instant::now() > deadline {
+            return Err("the injected fault never showed in 40241".into());
+        }
+        sleep(Duration::from_millis(200)).await;
+    }
+    let up = regs(&mut ctx, diag::REG_UPTIME, 2).await?;
+    if !(20..24).contains(&up[0]) || up[1] != 0 {
+        return Err(format!("fault seen at uptime {up:?}, injected from 20 to 23 s"));
+    }
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        // Two clean reads in a row: the 8350's bit is cleared by a read after the last loss.
+        if status(&mut ctx).await? == 0 && status(&mut ctx).await? == 0 {
+            return Ok(());
+        }
+        if Instant::now() > deadline {
+            return Err("the fault never cleared".into());
+        }
+        sleep(Duration::from_millis(200)).await;
+    }
+}
+
 /// One discovery request (UDP) and its reply, at most 3 tries of 2 s.
 async fn discover(to: SocketAddr, request: &[u8]) -> Result<Vec<u8>, String> {
     let socket = tokio::net::UdpSocket::bind("127.0.0.1:0").await.map_err(|e| e.to_string())?;
@@ -245,6 +280,10 @@ async fn discovery_and_restart(to: SocketAddr, modbus: SocketAddr, model: u16) -
     let info = decode_info(&reply).ok_or("search after restart")?;
     if info.stored != net || info.uptime_s > 30 {
         return Err(format!("after the restart: stored {:?}, up {} s", info.stored, info.uptime_s));
+    }
+    let cause = regs(&mut ctx, diag::REG_RESET_CAUSE, 1).await?;
+    if cause != [diag::reset_cause::SOFTWARE] {
+        return Err(format!("reset cause after the restart: {cause:?}, expected 2 (software)"));
     }
     if model == 0x8318 {
         let t = regs(&mut ctx, REG_INPUT_TYPE, 1).await?;
@@ -313,6 +352,7 @@ async fn run(model: &str, image: &str) -> Report {
     report.check("setting written and read back", setting_round_trip(name, &mut ctx).await);
     drop(ctx);
     report.check("8 clients at once", eight_clients(addr, name).await);
+    report.check("diagnostics: injected front-end fault, set and cleared", diagnostics(addr).await);
     let discovery = SocketAddr::from(([127, 0, 0, 1], udp));
     report.check("discovery: search, network settings, restart", discovery_and_restart(discovery, addr, name).await);
     drop(qemu);
