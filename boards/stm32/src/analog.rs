@@ -66,7 +66,7 @@ impl IoFor<M8318> for Stm32Board {
 
 impl AnalogPeripherals {
     /// Brings up the SPI bus and the ADC: the AD7124-8 device and the NTC input.
-    fn start(self) -> (AdcSpi, NtcInput) {
+    pub fn start(self) -> (AdcSpi, NtcInput) {
         let mut config = spi::Config::default();
         config.mode = MODE_3;
         // SCLK at most 5 MHz (AD7124-8 datasheet, timing characteristics, t3/t4 >= 100 ns).

@@ -123,7 +123,7 @@ impl IoFor<M8350> for Stm32Board {
 
 impl DigitalPeripherals {
     /// Starts capture and output; the pattern starts with every output off (spec §3.4).
-    fn start(self) -> (Capture, Pattern) {
+    pub fn start(self) -> (Capture, Pattern) {
         let pins = self.di.map(|pin| Input::new(pin, Pull::Down));
         static CAPTURE: StaticCell<[u16; CAPTURE_LEN]> = StaticCell::new();
         let buffer = CAPTURE.init([0; CAPTURE_LEN]);

@@ -1,0 +1,280 @@
+//! The checks, and how they report.
+
+use core::sync::atomic::{AtomicU32, Ordering};
+
+use embassy_executor::Spawner;
+use embassy_time::{Duration, Instant, Timer};
+use embedded_storage_async::nor_flash::NorFlash;
+use remodaq_8318::settings::Settings;
+use remodaq_shared::board::{spawn, Board};
+use remodaq_shared::settings::SettingsStore;
+
+use crate::Board as B;
+
+/// Prints a line: over RTT (defmt) on the STM32, over semihosting under QEMU.
+macro_rules! say {
+    ($($arg:tt)*) => {{
+        #[cfg(feature = "board-qemu")]
+        cortex_m_semihosting::hprintln!($($arg)*);
+        #[cfg(not(feature = "board-qemu"))]
+        defmt::println!($($arg)*);
+    }};
+}
+
+/// Passed and failed checks.
+struct Report {
+    passed: u32,
+    failed: u32,
+}
+
+impl Report {
+    fn check(&mut self, name: &str, result: Result<(), &'static str>) {
+        match result {
+            Ok(()) => {
+                self.passed += 1;
+                say!("on-target {} ... ok", name);
+            }
+            Err(why) => {
+                self.failed += 1;
+                say!("on-target {} ... FAILED: {}", name, why);
+            }
+        }
+    }
+}
+
+/// The longest gap between two ticks of the ticker task, ms, since the last reset.
+static MAX_GAP_MS: AtomicU32 = AtomicU32::new(0);
+/// The ticker task's period.
+const TICK: Duration = Duration::from_millis(50);
+/// The watchdog's window on the STM32 board (a task may be this late before the watchdog
+/// stops being fed).
+const ALIVE_WINDOW_MS: u32 = 3000;
+/// The datasheet's longest 16 KiB sector erase at x8 parallelism.
+const ERASE_MAX_MS: u64 = 800;
+
+/// Ticks, records the longest gap, and beats the application's heartbeat (so the board's own
+/// watchdog, where there is one, runs its real policy through the tests).
+#[embassy_executor::task]
+async fn ticker() -> ! {
+    let mut last = Instant::now();
+    loop {
+        Timer::after(TICK).await;
+        let now = Instant::now();
+        MAX_GAP_MS.fetch_max((now - last).as_millis() as u32, Ordering::Relaxed);
+        last = now;
+        B::app_alive();
+    }
+}
+
+/// Runs every check, prints the summary and exits with its status.
+pub async fn run(spawner: Spawner) {
+    let mut report = Report { passed: 0, failed: 0 };
+    let (board, flash, resources) = B::init(spawner);
+    spawn(spawner, ticker(), "ticker");
+    say!("on-target: reset cause {}", board.reset_cause() as u16);
+
+    let (mut flash, original) = open_store(flash).await;
+    report.check("erase: every settings sector, the executor keeps running", erase(&mut flash).await);
+    report.check(
+        "settings store: the saved settings written back, and a change, reload",
+        settings_store(flash, original).await,
+    );
+    report.check("time base: a 1 s timer", time_base().await);
+    board_checks(&mut report, spawner, board, resources).await;
+
+    say!("on-target: {} passed, {} failed", report.passed, report.failed);
+    exit(report.failed == 0);
+}
+
+/// The settings region of the board.
+type Flash = <B as Board>::Flash;
+
+const fn config() -> sequential_storage::map::MapConfig<Flash> {
+    SettingsStore::<Flash, Settings>::config(0..<B as Board>::SETTINGS_SIZE)
+}
+
+/// Opens the store to save the settings in force.
+async fn open_store(flash: Flash) -> (Flash, Settings) {
+    let store = SettingsStore::<Flash, Settings>::open(flash, const { config() }).await;
+    let original = *store.get();
+    (store.into_flash(), original)
+}
+
+/// Erases every sector of the settings region, timing each, while the ticker runs.
+async fn erase(flash: &mut Flash) -> Result<(), &'static str> {
+    MAX_GAP_MS.store(0, Ordering::Relaxed);
+    let sector = Flash::ERASE_SIZE as u32;
+    let mut longest = 0;
+    for from in (0..<B as Board>::SETTINGS_SIZE).step_by(sector as usize) {
+        let start = Instant::now();
+        flash.erase(from, from + sector).await.map_err(|_| "an erase failed")?;
+        longest = longest.max(start.elapsed().as_millis());
+    }
+    Timer::after(TICK * 2).await;
+    let gap = MAX_GAP_MS.load(Ordering::Relaxed);
+    say!("on-target: longest sector erase {} ms, longest gap between ticks {} ms", longest, gap);
+    if longest > ERASE_MAX_MS {
+        return Err("a sector erase took longer than the datasheet's maximum");
+    }
+    if gap >= ALIVE_WINDOW_MS {
+        return Err("the executor stalled for the watchdog's window during an erase");
+    }
+    Ok(())
+}
+
+/// Writes the saved settings back to the blank store, then a change, reopening after each.
+async fn settings_store(flash: Flash, original: Settings) -> Result<(), &'static str> {
+    let mut store = SettingsStore::<Flash, Settings>::open(flash, const { config() }).await;
+    store.commit(original).await.map_err(|_| "writing the saved settings back failed")?;
+    let mut store = SettingsStore::<Flash, Settings>::open(store.into_flash(), const { config() }).await;
+    if *store.get() != original {
+        return Err("the saved settings did not load back");
+    }
+    let changed = Settings {
+        input_type: if original.input_type == 0x0E { 0x0F } else { 0x0E },
+        enable_mask: original.enable_mask ^ 0x5A,
+        ..original
+    };
+    store.commit(changed).await.map_err(|_| "a commit failed")?;
+    let mut store = SettingsStore::<Flash, Settings>::open(store.into_flash(), const { config() }).await;
+    if *store.get() != changed {
+        return Err("a committed change did not load back");
+    }
+    store.commit(original).await.map_err(|_| "restoring the settings failed")?;
+    let store = SettingsStore::<Flash, Settings>::open(store.into_flash(), const { config() }).await;
+    if *store.get() != original {
+        return Err("the restored settings did not load back");
+    }
+    Ok(())
+}
+
+/// A 1 s timer lasts 1 s of the time base, and (STM32) of the core clock: the DWT cycle counter
+/// at 180 MHz from the HSE.
+async fn time_base() -> Result<(), &'static str> {
+    #[cfg(not(feature = "board-qemu"))]
+    let cycles_before = {
+        // SAFETY: the DCB and DWT are used by this check only (the board takes no core
+        // peripheral but through embassy, which leaves these alone); enabling the cycle counter
+        // has no other effect.
+        let mut core = unsafe { cortex_m::Peripherals::steal() };
+        core.DCB.enable_trace();
+        core.DWT.enable_cycle_counter();
+        cortex_m::peripheral::DWT::cycle_count()
+    };
+    let start = Instant::now();
+    Timer::after(Duration::from_secs(1)).await;
+    let elapsed = start.elapsed();
+    if elapsed < Duration::from_secs(1) || elapsed > Duration::from_millis(1050) {
+        return Err("a 1 s timer did not last 1 s of the time base");
+    }
+    #[cfg(not(feature = "board-qemu"))]
+    {
+        let cycles = cortex_m::peripheral::DWT::cycle_count().wrapping_sub(cycles_before);
+        let expected = 180_000_000.0 * elapsed.as_micros() as f64 / 1e6;
+        let ppm = (f64::from(cycles) - expected) / expected * 1e6;
+        say!("on-target: time base against the core clock: {} ppm", ppm as i32);
+        if !(-50.0..=50.0).contains(&ppm) {
+            return Err("the time base drifts from the core clock by more than 50 ppm");
+        }
+    }
+    Ok(())
+}
+
+/// Waits up to 5 s for the network stack's link.
+async fn link_up(stack: embassy_net::Stack<'static>) -> Result<(), &'static str> {
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while !stack.is_link_up() {
+        if Instant::now() > deadline {
+            return Err("no link within 5 s");
+        }
+        Timer::after_millis(100).await;
+    }
+    Ok(())
+}
+
+#[cfg(feature = "board-qemu")]
+async fn board_checks(report: &mut Report, spawner: Spawner, board: B, (): ()) {
+    let (net, _) = board.start_network(spawner, remodaq_shared::net::NetConfig::FACTORY);
+    report.check("LAN9118: the driver brings the link up", link_up(net.stack).await);
+}
+
+#[cfg(not(feature = "board-qemu"))]
+async fn board_checks(report: &mut Report, spawner: Spawner, board: B, io: remodaq_board_stm32::Io) {
+    let (net, _) = board.start_network(spawner, remodaq_shared::net::NetConfig::FACTORY);
+    report.check("PHY: link up (Ethernet cable to a switch)", link_up(net.stack).await);
+    let (spi, ntc) = io.analog.start();
+    report.check("AD7124-8: reset, id and set-up over SPI1", ad7124(spi, ntc).await);
+    report.check("capture and outputs: DO0 -> DI0 jumper, 1000 pulses counted", loopback(io.digital).await);
+}
+
+#[cfg(not(feature = "board-qemu"))]
+async fn ad7124(
+    spi: remodaq_board_stm32::analog::AdcSpi,
+    ntc: remodaq_board_stm32::analog::NtcInput,
+) -> Result<(), &'static str> {
+    use remodaq_8318::acquisition::AnalogFrontEnd;
+    let mut fe = remodaq_8318::ad7124::Ad7124FrontEnd::new(spi, ntc);
+    fe.measure(0, 100.0, true).await.map(|_| ()).map_err(|_| "the AD7124-8 does not answer as expected")
+}
+
+/// DO0 plays a train of exactly 1000 pulses (0.5 ms high, 0.5 ms low) through the timer-DMA
+/// output pattern; the jumper brings it to DI0, captured by timer-DMA at 50 kHz and counted by
+/// the DI engine: 1000 rising edges, no samples lost.
+#[cfg(not(feature = "board-qemu"))]
+async fn loopback(digital: remodaq_board_stm32::digital::DigitalPeripherals) -> Result<(), &'static str> {
+    use core::cell::RefCell;
+
+    use embassy_futures::select::select;
+    use remodaq_8350::di::{DiMode, SAMPLE_RATE_HZ};
+    use remodaq_8350::io::{self, Io, IoCell};
+    use remodaq_8350::pulse::{DoMode, PulseConfig};
+    use remodaq_shared::diagnostics::{status, DIAGNOSTICS};
+    use remodaq_shared::settings::Schema;
+
+    let mut settings = remodaq_8350::settings::Settings::defaults();
+    settings.di_modes[0] = DiMode::Counter;
+    settings.do_modes[0] = DoMode::Pulse;
+    settings.pulses[0] = PulseConfig { low: 5, high: 5, count: 1000 };
+    static CELL: static_cell::StaticCell<IoCell<embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex>> =
+        static_cell::StaticCell::new();
+    let cell = CELL.init(IoCell::new(RefCell::new(Io::new(SAMPLE_RATE_HZ, &settings))));
+    io::with(cell, |s| s.di.set_run(0, true));
+    let (capture, pattern) = digital.start();
+    let run = io::run(capture, pattern, cell, || {});
+    let test = async {
+        Timer::after_millis(100).await;
+        io::with(cell, |s| s.pulse.set_do(0, true));
+        // 1000 pulses of 1 ms, and the output ring's lead.
+        Timer::after_millis(1300).await;
+    };
+    select(run, test).await;
+    let counted = io::with(cell, |s| s.di.counter_value(0));
+    say!("on-target: DI0 counted {} rising edges", counted);
+    if DIAGNOSTICS.status() & status::FRONT_END_FAULT != 0 {
+        return Err("input samples were lost");
+    }
+    if counted != 1000 {
+        return Err("DI0 did not count the 1000 pulses of DO0 (is the jumper in place?)");
+    }
+    Ok(())
+}
+
+fn exit(ok: bool) -> ! {
+    #[cfg(feature = "board-qemu")]
+    cortex_m_semihosting::debug::exit(if ok {
+        cortex_m_semihosting::debug::EXIT_SUCCESS
+    } else {
+        cortex_m_semihosting::debug::EXIT_FAILURE
+    });
+    #[cfg(not(feature = "board-qemu"))]
+    {
+        // probe-rs ends the run at a breakpoint; a failure is a panic (panic-probe: exit 1).
+        if !ok {
+            defmt::panic!("on-target checks failed");
+        }
+        cortex_m::asm::bkpt();
+    }
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
