@@ -3,8 +3,8 @@
 //! - STM32 board (default), on a Nucleo-F429ZI through probe-rs:
 //!   `cargo run --release --target thumbv7em-none-eabihf -p on-target`. Needs, besides the
 //!   ST-LINK USB cable: an Ethernet cable to a switch (PHY link), an AD7124-8 wired as in the
-//!   README (AD7124 id over SPI), and a jumper from DO0 (PF12, CN12 pin 59) to DI0 (PE2, CN11
-//!   pin 46), so the outputs and the inputs test each other. The live settings are kept: the
+//!   README (AD7124 id over SPI), and a jumper from DO0 (PF12) to DI0 (PE2) (header pins: the
+//!   Nucleo-144 user manual, UM1974), so the outputs and the inputs test each other. The live settings are kept: the
 //!   test saves them, exercises the store, and writes them back.
 //! - QEMU board: `scripts/qemu on-target` (the test command runs it); the checks that need
 //!   hardware the machine does not have are not built.
