@@ -260,12 +260,6 @@ impl Default for Digital {
     }
 }
 
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct RawCapture {
-    lose_samples: bool,
-}
-
 impl Digital {
     /// The port snapshot (bit n = DIn) at `t` seconds.
     pub fn sample_at(&self, t: f64) -> u16 {
@@ -273,11 +267,13 @@ impl Digital {
     }
 }
 
+/// A `[diN]` table, or `[capture]` (`lose_samples`).
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawInput {
     square_hz: Option<f64>,
     level: Option<bool>,
+    lose_samples: Option<bool>,
 }
 
 /// Parses an 8350 scenario: `[diN]` tables with exactly one of `square_hz` or `level`, and
@@ -332,5 +328,23 @@ mod digital_tests {
         assert!(e.contains("square_hz"), "{e}");
         let e = parse_digital("[di3]\nlevle = true\n").unwrap_err();
         assert!(e.starts_with("line 2:"), "{e}");
+    }
+}
+
+#[cfg(test)]
+mod fault_tests {
+    use super::*;
+
+    #[test]
+    fn injected_faults() {
+        let a = parse_analog("[frontend]\nfault = true\n[cjc]\nfault = false\n").unwrap();
+        assert!(a.frontend_fault && !a.cjc_fault);
+        assert!(parse_analog("[cjc]\nfault = 1\n").is_err());
+        let d = parse_digital("[capture]\nlose_samples = true\n[di0]\nlevel = true\n").unwrap();
+        assert!(d.lose_samples);
+        let e = parse_digital("[di0]\nlose_samples = true\n").unwrap_err();
+        assert!(e.contains("[capture]"), "{e}");
+        let e = parse_digital("[capture]\nlevel = true\n").unwrap_err();
+        assert!(e.starts_with("line 1:"), "{e}");
     }
 }
