@@ -279,20 +279,22 @@ struct RawInput {
 /// Parses an 8350 scenario: `[diN]` tables with exactly one of `square_hz` or `level`, and
 /// `[capture] lose_samples = true|false`.
 pub fn parse_digital(text: &str) -> Result<Digital, String> {
-    let raw: std::collections::BTreeMap<String, Spanned<toml::Value>> =
+    let raw: std::collections::BTreeMap<String, Spanned<RawInput>> =
         toml::from_str(text).map_err(|e| toml_error(e, text))?;
     let mut digital = Digital::default();
-    for (key, value) in raw {
-        let line = line_of(text, value.span().start);
-        let value = value.into_inner();
+    for (key, input) in raw {
+        let line = line_of(text, input.span().start);
+        let input = input.into_inner();
         if key == "capture" {
-            let capture: RawCapture =
-                value.try_into().map_err(|e: toml::de::Error| format!("line {line}: [capture] {}", e.message()))?;
-            digital.lose_samples = capture.lose_samples;
+            match (input.lose_samples, input.square_hz, input.level) {
+                (Some(lose), None, None) => digital.lose_samples = lose,
+                _ => return Err(format!("line {line}: [capture] takes lose_samples = true|false only")),
+            }
             continue;
         }
-        let input: RawInput =
-            value.try_into().map_err(|e: toml::de::Error| format!("line {line}: [{key}] {}", e.message()))?;
+        if input.lose_samples.is_some() {
+            return Err(format!("line {line}: lose_samples belongs in [capture]"));
+        }
         let n: usize = key
             .strip_prefix("di")
             .and_then(|n| n.parse().ok())
