@@ -16,7 +16,9 @@ use embassy_sync::signal::Signal;
 use embassy_time::{with_timeout, Duration, Instant};
 use embedded_io_async::{Read, Write};
 
-use super::frame::{classify, write_header, Frame, MAX_ADU, MBAP_LEN};
+use core::future::Future;
+
+use super::frame::{classify, write_header, Frame, Header, MAX_ADU, MBAP_LEN};
 use super::pdu::{handle_pdu, MAX_PDU};
 use super::RegisterMap;
 
@@ -124,6 +126,10 @@ pub async fn serve<R: RawMutex, M: RegisterMap, T: Read + Write, const N: usize>
     ended
 }
 
+/// Transmit buffer: answers to every request already received are sent together, one flush
+/// for all of them (pipelining); when the next answer might not fit, what is there goes first.
+const TX_BUF: usize = 2 * MAX_ADU;
+
 async fn serve_frames<R: RawMutex, M: RegisterMap, T: Read + Write, const N: usize>(
     io: &mut T,
     map: &Mutex<R, M>,
@@ -132,31 +138,43 @@ async fn serve_frames<R: RawMutex, M: RegisterMap, T: Read + Write, const N: usi
 ) -> Ended {
     let mut rx = [0u8; RX_BUF];
     let mut filled = 0usize;
-    let mut tx = [0u8; MAX_ADU];
-    let mut pdu = [0u8; MAX_PDU];
+    let mut tx = [0u8; TX_BUF];
     loop {
-        // Answer every complete frame already buffered, in order.
+        // Answer every complete frame already buffered, in order, then send the answers with
+        // one flush.
         let mut consumed = 0usize;
+        let mut queued = 0usize;
+        let mut desync = false;
         loop {
             match classify(&rx[consumed..filled]) {
                 Frame::Incomplete => break,
-                Frame::Desync => return Ended::Desync,
+                Frame::Desync => {
+                    desync = true;
+                    break;
+                }
                 Frame::Discard { len } => consumed += len,
                 Frame::Request { header, len } => {
-                    let request = &rx[consumed + MBAP_LEN..consumed + len];
-                    let pdu_len = {
-                        let mut map = map.lock().await;
-                        handle_pdu(&mut *map, request, &mut pdu).await
-                    };
-                    crate::diagnostics::DIAGNOSTICS.answered(pdu[0] & 0x80 != 0);
-                    write_header(&mut tx, header, pdu_len);
-                    tx[MBAP_LEN..MBAP_LEN + pdu_len].copy_from_slice(&pdu[..pdu_len]);
-                    if io.write_all(&tx[..MBAP_LEN + pdu_len]).await.is_err() || io.flush().await.is_err() {
-                        return Ended::Io;
+                    if queued + MAX_ADU > TX_BUF {
+                        if io.write_all(&tx[..queued]).await.is_err() {
+                            return Ended::Io;
+                        }
+                        queued = 0;
                     }
+                    let pdu = &rx[consumed + MBAP_LEN..consumed + len];
+                    let Some(out) = tx[queued..].first_chunk_mut::<MAX_ADU>() else { return Ended::Io };
+                    queued += {
+                        let mut map = map.lock().await;
+                        answer_request(&mut *map, header, pdu, out).await
+                    };
                     consumed += len;
                 }
             }
+        }
+        if queued > 0 && (io.write_all(&tx[..queued]).await.is_err() || io.flush().await.is_err()) {
+            return Ended::Io;
+        }
+        if desync {
+            return Ended::Desync;
         }
         rx.copy_within(consumed..filled, 0);
         filled -= consumed;
@@ -173,5 +191,29 @@ async fn serve_frames<R: RawMutex, M: RegisterMap, T: Read + Write, const N: usi
             Either::First(Err(_)) => return Ended::Idle,
             Either::Second(()) => return Ended::Evicted,
         }
+    }
+}
+
+/// Answers one request (its header and PDU) into `out`: the answer's header and PDU, and its
+/// length. Counted in the diagnostics.
+pub async fn answer_request<M: RegisterMap>(map: &mut M, header: Header, pdu: &[u8], out: &mut [u8; MAX_ADU]) -> usize {
+    let (head, body) = out.split_at_mut(MBAP_LEN);
+    let Some(body) = body.first_chunk_mut::<MAX_PDU>() else { return 0 };
+    let n = handle_pdu(map, pdu, body).await;
+    write_header(head, header, n);
+    crate::diagnostics::DIAGNOSTICS.answered(body[0] & 0x80 != 0);
+    MBAP_LEN + n
+}
+
+/// The answer to one whole request frame, computed at once: for maps whose `apply` never
+/// waits (a plain memory map; the request-cost benchmark). `None` for anything but one
+/// complete request, or if the map would wait.
+pub fn answer_now<M: RegisterMap>(map: &mut M, frame: &[u8], out: &mut [u8; MAX_ADU]) -> Option<usize> {
+    let Frame::Request { header, len } = classify(frame) else { return None };
+    let pdu = frame.get(MBAP_LEN..len)?;
+    let mut answer = core::pin::pin!(answer_request(map, header, pdu, out));
+    match answer.as_mut().poll(&mut core::task::Context::from_waker(core::task::Waker::noop())) {
+        core::task::Poll::Ready(n) => Some(n),
+        core::task::Poll::Pending => None,
     }
 }
