@@ -44,29 +44,26 @@ pub enum Frame {
 }
 
 /// Classifies the bytes at the front of `buf`.
+#[inline]
 pub fn classify(buf: &[u8]) -> Frame {
-    if buf.len() < 6 {
-        return Frame::Incomplete;
-    }
-    let protocol = u16::from_be_bytes([buf[2], buf[3]]);
-    let length = usize::from(u16::from_be_bytes([buf[4], buf[5]]));
+    let Some(&[t0, t1, p0, p1, l0, l1]) = buf.first_chunk::<6>() else { return Frame::Incomplete };
+    let length = usize::from(u16::from_be_bytes([l0, l1]));
     if !(2..=MAX_PDU + 1).contains(&length) {
         return Frame::Desync;
     }
     let len = 6 + length;
-    if buf.len() < len {
-        return Frame::Incomplete;
-    }
-    if protocol != 0 {
+    // A complete frame has at least 8 bytes (length >= 2), so the unit id is there.
+    let (Some(&unit), true) = (buf.get(6), buf.len() >= len) else { return Frame::Incomplete };
+    if p0 | p1 != 0 {
         return Frame::Discard { len };
     }
-    Frame::Request { header: Header { transaction: u16::from_be_bytes([buf[0], buf[1]]), unit: buf[6] }, len }
+    Frame::Request { header: Header { transaction: u16::from_be_bytes([t0, t1]), unit }, len }
 }
 
-/// Writes the response header for a PDU of `pdu_len` bytes into `out[..MBAP_LEN]`.
-pub fn write_header(out: &mut [u8], header: Header, pdu_len: usize) {
-    out[0..2].copy_from_slice(&header.transaction.to_be_bytes());
-    out[2..4].copy_from_slice(&[0, 0]);
-    out[4..6].copy_from_slice(&((pdu_len + 1) as u16).to_be_bytes());
-    out[6] = header.unit;
+/// Writes the response header for a PDU of `pdu_len` bytes.
+#[inline]
+pub fn write_header(out: &mut [u8; MBAP_LEN], header: Header, pdu_len: usize) {
+    let [t0, t1] = header.transaction.to_be_bytes();
+    let [l0, l1] = ((pdu_len + 1) as u16).to_be_bytes();
+    *out = [t0, t1, 0, 0, l0, l1, header.unit];
 }

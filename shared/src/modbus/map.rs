@@ -61,6 +61,21 @@ impl<'a> WriteValues<'a> {
         (0..self.len()).map(|i| self.get(i))
     }
 
+    /// The values in their wire form: big-endian words, or bits packed LSB first.
+    pub fn bytes(&self) -> &'a [u8] {
+        self.data
+    }
+
+    /// The registers of a register write, in order (no per-value table check).
+    pub fn words(&self) -> impl Iterator<Item = u16> + '_ {
+        self.data.chunks_exact(2).map(|w| u16::from_be_bytes([w[0], w[1]]))
+    }
+
+    /// The bits of a bit write, in order, as booleans.
+    pub fn flags(&self) -> impl Iterator<Item = bool> + '_ {
+        (0..self.len()).map(|i| self.data.get(i / 8).is_some_and(|b| b >> (i % 8) & 1 != 0))
+    }
+
     /// The 32-bit value whose low word is value `i` and high word value `i + 1`
     /// (the RemoDAQ "low word first" order).
     pub fn get_u32_low_first(&self, i: usize) -> u32 {
@@ -70,11 +85,13 @@ impl<'a> WriteValues<'a> {
 
 /// A module's data model as seen by Modbus.
 ///
-/// The protocol engine calls, for each request: `access` for every address (exception 02 if any
-/// is not mapped for that access), then for reads `read` for each address in order, for writes
-/// `validate` once with the whole request (exception 03 if the values are unacceptable) and
-/// `apply` once (exception 04 if it fails, e.g. the settings store could not commit). `apply`
-/// must either apply all of the values or none of them.
+/// The protocol engine calls, for each request: `allows` once for the whole run of addresses
+/// (exception 02 if any is not mapped for that access), then for reads `read_registers` or
+/// `read_bits` once for the run, for writes `validate` once with the whole request (exception
+/// 03 if the values are unacceptable) and `apply` once (exception 04 if it fails, e.g. the
+/// settings store could not commit). `apply` must either apply all of the values or none of
+/// them. The run methods have defaults built on `access` and `read`, one address at a time; a
+/// map that keeps its values in arrays answers a run in one go.
 #[allow(async_fn_in_trait)]
 pub trait RegisterMap {
     /// Whether `addr` of `table` may be read / written.
@@ -90,4 +107,43 @@ pub trait RegisterMap {
     /// Apply a validated write: all or nothing. Persisted values must be committed to flash
     /// before this returns `Ok` (durable on acknowledgement).
     async fn apply(&mut self, start: u16, values: &WriteValues<'_>) -> Result<(), Exception>;
+
+    /// The lean path for writes that need no waiting (outputs, memory): applies the validated
+    /// write at once and returns its result, or `None` to have `apply` do it (a settings
+    /// commit). The default: `None`.
+    fn apply_now(&mut self, start: u16, values: &WriteValues<'_>) -> Option<Result<(), Exception>> {
+        let _ = (start, values);
+        None
+    }
+
+    /// Whether every address of `start..start + count` (inside the 16-bit space, checked by the
+    /// engine) allows reading, or writing when `write`.
+    fn allows(&self, table: Table, start: u16, count: u16, write: bool) -> bool {
+        (start..start + count).all(|addr| {
+            let access = self.access(table, addr);
+            if write {
+                access.writable()
+            } else {
+                access.readable()
+            }
+        })
+    }
+
+    /// Reads registers `start..` into `out` as big-endian words (`out.len()` is even), after
+    /// `allows` accepted the run.
+    fn read_registers(&mut self, start: u16, out: &mut [u8]) {
+        for (i, word) in out.chunks_exact_mut(2).enumerate() {
+            word.copy_from_slice(&self.read(Table::Registers, start + i as u16).to_be_bytes());
+        }
+    }
+
+    /// Reads `count` bits from `start` into `out`, packed LSB first (`out` is zeroed and holds
+    /// `ceil(count / 8)` bytes), after `allows` accepted the run.
+    fn read_bits(&mut self, start: u16, count: u16, out: &mut [u8]) {
+        for i in 0..count {
+            if self.read(Table::Bits, start + i) != 0 {
+                out[usize::from(i / 8)] |= 1 << (i % 8);
+            }
+        }
+    }
 }

@@ -25,13 +25,56 @@ const MAX_WRITE_REGISTERS: u16 = 123;
 /// Answer one request PDU (function code first) into `resp`; returns the response PDU length.
 /// Never panics: every malformed request gets an exception response.
 pub async fn handle_pdu<M: RegisterMap>(map: &mut M, req: &[u8], resp: &mut [u8; MAX_PDU]) -> usize {
-    let Some(&function) = req.first() else {
+    match prepare(map, req, resp) {
+        Step::Answered(len) => len,
+        Step::Write { start, values } => {
+            let result = match map.apply_now(start, &values) {
+                Some(result) => result,
+                None => map.apply(start, &values).await,
+            };
+            written(req, resp, result)
+        }
+    }
+}
+
+/// The answer to a write once applied: codes 05, 06, 15 and 16 answer with the request's
+/// function and first four data bytes; a failed apply with its exception.
+#[inline]
+pub fn written(req: &[u8], resp: &mut [u8; MAX_PDU], result: Result<(), Exception>) -> usize {
+    match (result, req.get(..5)) {
+        (Ok(()), Some(echo)) => {
+            resp[..5].copy_from_slice(echo);
+            5
+        }
+        (Ok(()), None) => exception(resp, req.first().copied().unwrap_or(0), Exception::ServerDeviceFailure),
+        (Err(e), _) => exception(resp, req.first().copied().unwrap_or(0), e),
+    }
+}
+
+/// What is left to do after the synchronous part of a request.
+pub enum Step<'a> {
+    /// The answer is in the response buffer, this long.
+    Answered(usize),
+    /// A validated write, to apply (all or nothing).
+    Write {
+        /// First address.
+        start: u16,
+        /// The values.
+        values: WriteValues<'a>,
+    },
+}
+
+/// Everything of a request but applying a write: the checks in the order of the Modbus
+/// application protocol, and reads answered in place.
+#[inline]
+pub fn prepare<'a, M: RegisterMap>(map: &mut M, req: &'a [u8], resp: &mut [u8; MAX_PDU]) -> Step<'a> {
+    let Some((&function, data)) = req.split_first() else {
         // An empty PDU has no function code to answer with: treat it as an unknown function 0.
-        return exception(resp, 0, Exception::IllegalFunction);
+        return Step::Answered(exception(resp, 0, Exception::IllegalFunction));
     };
-    match execute(map, function, &req[1..], resp).await {
-        Ok(len) => len,
-        Err(e) => exception(resp, function, e),
+    match execute(map, function, data, resp) {
+        Ok(step) => step,
+        Err(e) => Step::Answered(exception(resp, function, e)),
     }
 }
 
@@ -41,38 +84,23 @@ fn exception(resp: &mut [u8; MAX_PDU], function: u8, e: Exception) -> usize {
     2
 }
 
-fn be16(data: &[u8], at: usize) -> u16 {
-    u16::from_be_bytes([data[at], data[at + 1]])
-}
-
 /// Checks that `start..start + quantity` stays inside the 16-bit address space and that every
 /// address allows the access.
+#[inline]
 fn check_range<M: RegisterMap>(map: &M, table: Table, start: u16, quantity: u16, write: bool) -> Result<(), Exception> {
-    if u32::from(start) + u32::from(quantity) > 0x1_0000 {
+    if u32::from(start) + u32::from(quantity) > 0x1_0000 || !map.allows(table, start, quantity, write) {
         return Err(Exception::IllegalDataAddress);
     }
-    let ok = (0..quantity).all(|i| {
-        let access = map.access(table, start + i);
-        if write {
-            access.writable()
-        } else {
-            access.readable()
-        }
-    });
-    if ok {
-        Ok(())
-    } else {
-        Err(Exception::IllegalDataAddress)
-    }
+    Ok(())
 }
 
-async fn execute<M: RegisterMap>(
+#[inline]
+fn execute<'a, M: RegisterMap>(
     map: &mut M,
     function: u8,
-    data: &[u8],
+    data: &'a [u8],
     resp: &mut [u8; MAX_PDU],
-) -> Result<usize, Exception> {
-    resp[0] = function;
+) -> Result<Step<'a>, Exception> {
     match function {
         READ_COILS | READ_DISCRETE_INPUTS => {
             let (start, quantity) = fixed_request(data)?;
@@ -81,14 +109,12 @@ async fn execute<M: RegisterMap>(
             }
             check_range(map, Table::Bits, start, quantity, false)?;
             let bytes = usize::from(quantity).div_ceil(8);
+            resp[0] = function;
             resp[1] = bytes as u8;
-            resp[2..2 + bytes].fill(0);
-            for i in 0..quantity {
-                if map.read(Table::Bits, start + i) != 0 {
-                    resp[2 + usize::from(i / 8)] |= 1 << (i % 8);
-                }
-            }
-            Ok(2 + bytes)
+            let out = &mut resp[2..2 + bytes];
+            out.fill(0);
+            map.read_bits(start, quantity, out);
+            Ok(Step::Answered(2 + bytes))
         }
         READ_HOLDING_REGISTERS | READ_INPUT_REGISTERS => {
             let (start, quantity) = fixed_request(data)?;
@@ -96,32 +122,30 @@ async fn execute<M: RegisterMap>(
                 return Err(Exception::IllegalDataValue);
             }
             check_range(map, Table::Registers, start, quantity, false)?;
-            resp[1] = (2 * quantity) as u8;
-            for i in 0..quantity {
-                let at = 2 + 2 * usize::from(i);
-                resp[at..at + 2].copy_from_slice(&map.read(Table::Registers, start + i).to_be_bytes());
-            }
-            Ok(2 + 2 * usize::from(quantity))
+            let bytes = 2 * usize::from(quantity);
+            resp[0] = function;
+            resp[1] = bytes as u8;
+            map.read_registers(start, &mut resp[2..2 + bytes]);
+            Ok(Step::Answered(2 + bytes))
         }
         WRITE_SINGLE_COIL => {
             let (addr, value) = fixed_request(data)?;
-            let bit = match value {
-                0xFF00 => 1u8,
-                0x0000 => 0u8,
+            // The value's first byte, FFh or 00h, is also the packed bit (LSB).
+            let values = match value {
+                0xFF00 => WriteValues::bits(&BIT_ON, 1),
+                0x0000 => WriteValues::bits(&BIT_OFF, 1),
                 _ => return Err(Exception::IllegalDataValue),
             };
             check_range(map, Table::Bits, addr, 1, true)?;
-            let packed = [bit];
-            write(map, addr, &WriteValues::bits(&packed, 1)).await?;
-            resp[1..5].copy_from_slice(&data[..4]);
-            Ok(5)
+            map.validate(addr, &values)?;
+            Ok(Step::Write { start: addr, values })
         }
         WRITE_SINGLE_REGISTER => {
             let (addr, _) = fixed_request(data)?;
             check_range(map, Table::Registers, addr, 1, true)?;
-            write(map, addr, &WriteValues::registers(&data[2..4])).await?;
-            resp[1..5].copy_from_slice(&data[..4]);
-            Ok(5)
+            let values = WriteValues::registers(&data[2..4]);
+            map.validate(addr, &values)?;
+            Ok(Step::Write { start: addr, values })
         }
         WRITE_MULTIPLE_COILS | WRITE_MULTIPLE_REGISTERS => {
             // start(2) quantity(2) byte count(1) values(byte count)
@@ -145,23 +169,25 @@ async fn execute<M: RegisterMap>(
                 Table::Bits => WriteValues::bits(values, quantity),
                 Table::Registers => WriteValues::registers(values),
             };
-            write(map, start, &values).await?;
-            resp[1..5].copy_from_slice(&data[..4]);
-            Ok(5)
+            map.validate(start, &values)?;
+            Ok(Step::Write { start, values })
         }
         _ => Err(Exception::IllegalFunction),
     }
 }
 
-/// The four-byte body shared by codes 01-06: two big-endian words, nothing more.
-fn fixed_request(data: &[u8]) -> Result<(u16, u16), Exception> {
-    if data.len() != 4 {
-        return Err(Exception::IllegalDataValue);
-    }
-    Ok((be16(data, 0), be16(data, 2)))
+const BIT_ON: [u8; 1] = [1];
+const BIT_OFF: [u8; 1] = [0];
+
+fn be16(data: &[u8], at: usize) -> u16 {
+    u16::from_be_bytes([data[at], data[at + 1]])
 }
 
-async fn write<M: RegisterMap>(map: &mut M, start: u16, values: &WriteValues<'_>) -> Result<(), Exception> {
-    map.validate(start, values)?;
-    map.apply(start, values).await
+/// The four-byte body shared by codes 01-06: two big-endian words, nothing more.
+#[inline]
+fn fixed_request(data: &[u8]) -> Result<(u16, u16), Exception> {
+    match data {
+        &[a, b, c, d] => Ok((u16::from_be_bytes([a, b]), u16::from_be_bytes([c, d]))),
+        _ => Err(Exception::IllegalDataValue),
+    }
 }

@@ -19,7 +19,7 @@ use embedded_io_async::{Read, Write};
 use core::future::Future;
 
 use super::frame::{classify, write_header, Frame, Header, MAX_ADU, MBAP_LEN};
-use super::pdu::{handle_pdu, MAX_PDU};
+use super::pdu::{handle_pdu, prepare, written, Step, MAX_PDU};
 use super::RegisterMap;
 
 /// Clients served at once.
@@ -197,9 +197,20 @@ async fn serve_frames<R: RawMutex, M: RegisterMap, T: Read + Write, const N: usi
 /// Answers one request (its header and PDU) into `out`: the answer's header and PDU, and its
 /// length. Counted in the diagnostics.
 pub async fn answer_request<M: RegisterMap>(map: &mut M, header: Header, pdu: &[u8], out: &mut [u8; MAX_ADU]) -> usize {
-    let (head, body) = out.split_at_mut(MBAP_LEN);
-    let Some(body) = body.first_chunk_mut::<MAX_PDU>() else { return 0 };
+    let Some((head, body)) = split(out) else { return 0 };
     let n = handle_pdu(map, pdu, body).await;
+    finish(head, header, body, n)
+}
+
+/// The header and PDU parts of a frame buffer (always `Some`: MAX_ADU is MBAP_LEN + MAX_PDU;
+/// the compiler drops the check).
+fn split(out: &mut [u8; MAX_ADU]) -> Option<(&mut [u8; MBAP_LEN], &mut [u8; MAX_PDU])> {
+    let (head, body) = out.split_first_chunk_mut::<MBAP_LEN>()?;
+    Some((head, body.first_chunk_mut::<MAX_PDU>()?))
+}
+
+#[inline]
+fn finish(head: &mut [u8; MBAP_LEN], header: Header, body: &[u8; MAX_PDU], n: usize) -> usize {
     write_header(head, header, n);
     crate::diagnostics::DIAGNOSTICS.answered(body[0] & 0x80 != 0);
     MBAP_LEN + n
@@ -211,9 +222,20 @@ pub async fn answer_request<M: RegisterMap>(map: &mut M, header: Header, pdu: &[
 pub fn answer_now<M: RegisterMap>(map: &mut M, frame: &[u8], out: &mut [u8; MAX_ADU]) -> Option<usize> {
     let Frame::Request { header, len } = classify(frame) else { return None };
     let pdu = frame.get(MBAP_LEN..len)?;
-    let mut answer = core::pin::pin!(answer_request(map, header, pdu, out));
-    match answer.as_mut().poll(&mut core::task::Context::from_waker(core::task::Waker::noop())) {
-        core::task::Poll::Ready(n) => Some(n),
-        core::task::Poll::Pending => None,
-    }
+    let (head, body) = split(out)?;
+    let n = match prepare(map, pdu, body) {
+        Step::Answered(n) => n,
+        Step::Write { start, values } => {
+            if let Some(result) = map.apply_now(start, &values) {
+                let n = written(pdu, body, result);
+                return Some(finish(head, header, body, n));
+            }
+            let mut apply = core::pin::pin!(map.apply(start, &values));
+            match apply.as_mut().poll(&mut core::task::Context::from_waker(core::task::Waker::noop())) {
+                core::task::Poll::Ready(result) => written(pdu, body, result),
+                core::task::Poll::Pending => return None,
+            }
+        }
+    };
+    Some(finish(head, header, body, n))
 }

@@ -58,6 +58,33 @@ impl MemoryMap {
     }
 }
 
+impl MemoryMap {
+    fn write(&mut self, start: u16, values: &WriteValues<'_>) {
+        let start = usize::from(start);
+        if values.len() == 1 {
+            // Codes 05 and 06: one value.
+            match values.table() {
+                Table::Bits => self.coils[start] = values.get(0) != 0,
+                Table::Registers => self.holding[start] = values.get(0),
+            }
+            return;
+        }
+        match values.table() {
+            Table::Bits => {
+                for (i, v) in values.flags().enumerate() {
+                    self.coils[start + i] = v;
+                }
+            }
+            Table::Registers => {
+                let to = &mut self.holding[start..start + values.len()];
+                for (r, w) in to.iter_mut().zip(values.bytes().chunks_exact(2)) {
+                    *r = u16::from_be_bytes([w[0], w[1]]);
+                }
+            }
+        }
+    }
+}
+
 impl RegisterMap for MemoryMap {
     fn access(&self, _: Table, addr: u16) -> Access {
         if usize::from(addr) < SIZE {
@@ -76,14 +103,44 @@ impl RegisterMap for MemoryMap {
         Ok(())
     }
     async fn apply(&mut self, start: u16, values: &WriteValues<'_>) -> Result<(), Exception> {
-        for (i, v) in values.iter().enumerate() {
-            let at = usize::from(start) + i;
-            match values.table() {
-                Table::Bits => self.coils[at] = v != 0,
-                Table::Registers => self.holding[at] = v,
+        self.write(start, values);
+        Ok(())
+    }
+
+    fn apply_now(&mut self, start: u16, values: &WriteValues<'_>) -> Option<Result<(), Exception>> {
+        self.write(start, values);
+        Some(Ok(()))
+    }
+
+    // Runs in one call each: the block access of the RegisterMap trait.
+    fn allows(&self, _: Table, start: u16, count: u16, _: bool) -> bool {
+        usize::from(start) + usize::from(count) <= SIZE
+    }
+
+    fn read_registers(&mut self, start: u16, out: &mut [u8]) {
+        let start = usize::from(start);
+        for (word, value) in out.chunks_exact_mut(2).zip(&self.holding[start..]) {
+            word.copy_from_slice(&value.to_be_bytes());
+        }
+    }
+
+    fn read_bits(&mut self, start: u16, count: u16, out: &mut [u8]) {
+        let bits = &self.coils[usize::from(start)..usize::from(start) + usize::from(count)];
+        let mut chunks = bits.chunks_exact(8);
+        for (byte, chunk) in out.iter_mut().zip(&mut chunks) {
+            // Eight bools (bytes 0 or 1) packed LSB first with one multiply: bit k of byte k
+            // lands at bit 56 + k.
+            let mut word = [0u8; 8];
+            for (w, &b) in word.iter_mut().zip(chunk) {
+                *w = u8::from(b);
+            }
+            *byte = (u64::from_le_bytes(word).wrapping_mul(0x0102_0408_1020_4080) >> 56) as u8;
+        }
+        if let Some(last) = out.get_mut(bits.len() / 8) {
+            for (k, &b) in chunks.remainder().iter().enumerate() {
+                *last |= u8::from(b) << k;
             }
         }
-        Ok(())
     }
 }
 
