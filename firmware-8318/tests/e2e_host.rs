@@ -280,3 +280,24 @@ async fn diagnostics_registers_with_faults_injected_and_cleared() {
     let after = up(&read(&mut ctx, 0xF0, 3).await.unwrap());
     assert!((2..=3).contains(&(after - before)), "{before} -> {after}");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_newcomer_is_answered_during_a_flood_of_64_connections() {
+    // 64 connections open at once and stay silent; then a newcomer asks for 40211. The eviction
+    // rule makes room (the longest idle goes), and the newcomer is answered within 100 ms.
+    let module = SimModule::start(BIN, &flash_file("flood.flash"));
+    let addr = module.addr;
+    let flood: Vec<_> = (0..64).map(|_| tokio::spawn(tokio::net::TcpStream::connect(addr))).collect();
+    let mut open = Vec::new();
+    for c in flood {
+        if let Ok(Ok(stream)) = c.await {
+            open.push(stream);
+        }
+    }
+    let started = std::time::Instant::now();
+    let mut ctx = connect(addr).await;
+    assert_eq!(read(&mut ctx, 0xD2, 1).await, Ok(vec![0x8318]));
+    let took = started.elapsed();
+    eprintln!("newcomer answered {took:?} after {} flood connections were opened", open.len());
+    assert!(took < Duration::from_millis(100), "newcomer answered after {took:?}");
+}

@@ -8,10 +8,13 @@ use embassy_time::{with_timeout, Duration, Timer};
 
 use crate::board::{Effects, ModbusSlots, Network, Shared};
 use crate::discovery::{serve, Datagrams, Identity, MAX_DATAGRAM, PORT};
-use crate::modbus::server::serve as serve_modbus;
+use crate::modbus::server::{serve as serve_modbus, Ended};
 use crate::modbus::RegisterMap;
 use crate::module::SettingsAccess;
 use crate::{debug, error, warn};
+
+/// How long a connection the peer closed may take to finish closing before it is reset.
+const CLOSE_WAIT: Duration = Duration::from_millis(100);
 
 /// Socket buffer size, each way: two full frames.
 pub const SOCKET_BUF: usize = 2 * crate::modbus::frame::MAX_ADU;
@@ -44,10 +47,14 @@ impl<E: Effects> Network for EmbassyNet<E> {
             debug!("modbus: slot {} connected", slot);
             let ended = serve_modbus(&mut socket, map, slots, slot).await;
             debug!("modbus: slot {} closed: {:?}", slot, ended);
-            socket.close();
-            let _ = with_timeout(Duration::from_secs(2), socket.flush()).await;
+            // Back to accepting at once, so that a newcomer finds a listening socket even in a
+            // flood of connections: a peer that closed gets our FIN (every answer was flushed
+            // already), briefly; an evicted, idle or broken connection is reset.
+            if ended == Ended::PeerClosed {
+                socket.close();
+                let _ = with_timeout(CLOSE_WAIT, socket.flush()).await;
+            }
             socket.abort();
-            let _ = with_timeout(Duration::from_secs(1), socket.flush()).await;
         }
     }
 

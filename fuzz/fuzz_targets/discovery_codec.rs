@@ -1,0 +1,87 @@
+//! The discovery protocol's codec: arbitrary datagrams never panic a decoder; a request that
+//! decodes re-encodes to the very same bytes (the format is canonical); and a request built
+//! from arbitrary fields and encoded as the `remodaq` tool does decodes back to those fields.
+//! `cargo +nightly fuzz run discovery_codec` (from the repository root).
+#![no_main]
+
+use libfuzzer_sys::fuzz_target;
+use remodaq_protocol::discovery::{
+    decode_info, decode_request, decode_result, op, Request, Writer, MAX_DATAGRAM, MAX_PASSWORD_LEN,
+};
+use remodaq_protocol::net::NetConfig;
+
+/// Encodes a request as the `remodaq` tool does.
+fn encode(id: u16, request: &Request<'_>) -> Option<Vec<u8>> {
+    let mut buf = [0u8; MAX_DATAGRAM];
+    let n = match *request {
+        Request::Search => Writer::new(&mut buf, op::SEARCH, id).finish(),
+        Request::SetNetwork { mac, password, net } => {
+            let mut w = Writer::new(&mut buf, op::SET_NETWORK, id);
+            w.bytes(&mac).string(password).net(&net);
+            w.finish()
+        }
+        Request::Restart { mac, password } => {
+            let mut w = Writer::new(&mut buf, op::RESTART, id);
+            w.bytes(&mac).string(password);
+            w.finish()
+        }
+        Request::Identify { mac } => {
+            let mut w = Writer::new(&mut buf, op::IDENTIFY, id);
+            w.bytes(&mac);
+            w.finish()
+        }
+        Request::SetPassword { mac, password, new } => {
+            let mut w = Writer::new(&mut buf, op::SET_PASSWORD, id);
+            w.bytes(&mac).string(password).string(new);
+            w.finish()
+        }
+    }?;
+    Some(buf[..n].to_vec())
+}
+
+/// Takes up to `n` bytes off the front.
+fn take<'a>(data: &mut &'a [u8], n: usize) -> &'a [u8] {
+    let n = n.min(data.len());
+    let (head, tail) = data.split_at(n);
+    *data = tail;
+    head
+}
+
+/// `N` bytes off the front (zeros past the end).
+fn array<const N: usize>(data: &mut &[u8]) -> [u8; N] {
+    let mut out = [0u8; N];
+    let bytes = take(data, N);
+    out[..bytes.len()].copy_from_slice(bytes);
+    out
+}
+
+fuzz_target!(|data: &[u8]| {
+    // Arbitrary bytes as a datagram.
+    let _ = decode_info(data);
+    let _ = decode_result(data);
+    if let Some((id, request)) = decode_request(data) {
+        assert_eq!(encode(id, &request).as_deref(), Some(data), "canonical: {request:?}");
+    }
+    // Arbitrary fields as a request.
+    let mut rest = data;
+    let [kind, pw_len, new_len] = array::<3>(&mut rest);
+    let id = u16::from_be_bytes(array::<2>(&mut rest));
+    let mac = array::<6>(&mut rest);
+    let net = NetConfig {
+        ip: array(&mut rest),
+        mask: array(&mut rest),
+        gateway: array(&mut rest),
+        port: u16::from_be_bytes(array(&mut rest)),
+    };
+    let password = take(&mut rest, usize::from(pw_len) % (MAX_PASSWORD_LEN + 1));
+    let new = take(&mut rest, usize::from(new_len) % (MAX_PASSWORD_LEN + 1));
+    let request = match kind % 5 {
+        0 => Request::Search,
+        1 => Request::SetNetwork { mac, password, net },
+        2 => Request::Restart { mac, password },
+        3 => Request::Identify { mac },
+        _ => Request::SetPassword { mac, password, new },
+    };
+    let bytes = encode(id, &request).expect("every request fits a datagram");
+    assert_eq!(decode_request(&bytes), Some((id, request)), "round trip");
+});

@@ -1,0 +1,94 @@
+//! The whole Modbus path through both modules' real register maps: the input is a byte stream
+//! (its first byte picks the module), cut into frames by the real framing and answered by the
+//! real engine, as the connection server does. Invariants of every answer: it echoes the
+//! request's transaction and unit ids and function code, or sets bit 7 with exception 1 to 4
+//! and nothing more; it fits a PDU; a read answers exactly the quantity asked; a write echoes
+//! the request's start and quantity (or value). The maps' own rules (the 8350's extra pulses,
+//! flags cleared on read, settings committed to a RAM flash, the diagnostics registers) run as
+//! on the module.
+//! `cargo +nightly fuzz run modbus_path` (from the repository root).
+#![no_main]
+
+use core::cell::RefCell;
+
+use embassy_futures::block_on;
+use embassy_sync::blocking_mutex::raw::NoopRawMutex;
+use libfuzzer_sys::fuzz_target;
+use remodaq_shared::modbus::frame::{classify, Frame, MAX_ADU, MBAP_LEN};
+use remodaq_shared::modbus::server::answer_request;
+use remodaq_shared::modbus::{RegisterMap, MAX_PDU};
+use remodaq_shared::ram_flash::RamFlash;
+use remodaq_shared::settings::{Schema, SettingsStore};
+
+type Flash = RamFlash<{ 64 * 1024 }, { 16 * 1024 }>;
+
+fn check(request: &[u8], answer: &[u8]) {
+    assert!(answer.len() >= MBAP_LEN + 2 && answer.len() <= MAX_ADU, "answer length {}", answer.len());
+    let pdu = &answer[MBAP_LEN..];
+    assert!(pdu.len() <= MAX_PDU);
+    let length = usize::from(u16::from_be_bytes([answer[4], answer[5]]));
+    assert_eq!(length, pdu.len() + 1, "MBAP length field");
+    assert_eq!(&answer[..2], &request[..2], "transaction id echoed");
+    assert_eq!(&answer[2..4], &[0, 0], "protocol id 0");
+    assert_eq!(answer[6], request[6], "unit id echoed");
+    let function = request.get(MBAP_LEN).copied().unwrap_or(0);
+    if pdu[0] & 0x80 != 0 {
+        assert_eq!(pdu[0], function | 0x80, "the exception echoes the function");
+        assert!((1..=4).contains(&pdu[1]), "exception code {}", pdu[1]);
+        assert_eq!(pdu.len(), 2, "an exception is two bytes");
+        return;
+    }
+    assert_eq!(pdu[0], function, "the function is echoed");
+    let req = &request[MBAP_LEN..];
+    let quantity = u16::from_be_bytes([req[3], req[4]]);
+    match function {
+        0x01 | 0x02 => {
+            assert_eq!(usize::from(pdu[1]), usize::from(quantity).div_ceil(8));
+            assert_eq!(pdu.len(), 2 + usize::from(pdu[1]));
+        }
+        0x03 | 0x04 => {
+            assert_eq!(usize::from(pdu[1]), 2 * usize::from(quantity));
+            assert_eq!(pdu.len(), 2 + usize::from(pdu[1]));
+        }
+        0x05 | 0x06 | 0x0F | 0x10 => assert_eq!(pdu, &req[..5], "a write echoes start and quantity or value"),
+        other => panic!("function {other:02x} answered without an exception"),
+    }
+}
+
+fn serve(map: &mut impl RegisterMap, mut stream: &[u8]) {
+    let mut out = [0u8; MAX_ADU];
+    loop {
+        match classify(stream) {
+            Frame::Incomplete | Frame::Desync => return,
+            Frame::Discard { len } => stream = &stream[len..],
+            Frame::Request { header, len } => {
+                let n = block_on(answer_request(map, header, &stream[MBAP_LEN..len], &mut out));
+                check(&stream[..len], &out[..n]);
+                stream = &stream[len..];
+            }
+        }
+    }
+}
+
+fuzz_target!(|data: &[u8]| {
+    let Some((&which, stream)) = data.split_first() else { return };
+    if which & 1 == 0 {
+        type Settings = remodaq_8318::settings::Settings;
+        let store =
+            block_on(SettingsStore::open(Flash::new(), const { SettingsStore::<Flash, Settings>::config(0..64 * 1024) }));
+        let mut map = remodaq_8318::map::Map8318::new(store);
+        serve(&mut map, stream);
+    } else {
+        type Settings = remodaq_8350::settings::Settings;
+        let store =
+            block_on(SettingsStore::open(Flash::new(), const { SettingsStore::<Flash, Settings>::config(0..64 * 1024) }));
+        let io = remodaq_8350::io::IoCell::<NoopRawMutex>::new(RefCell::new(remodaq_8350::io::Io::new(
+            remodaq_8350::di::SAMPLE_RATE_HZ,
+            &Settings::defaults(),
+        )));
+        // Some input activity, so flags and counters have something to show.
+        remodaq_8350::io::with(&io, |s| s.di.process(&[0, 0xFFF, 0, 0xA5A, 0x5A5]));
+        let mut map = remodaq_8350::map::Map8350::new(store, &io);
+        serve(&mut map, stream);
+    }
+});
