@@ -1,10 +1,12 @@
-//! The build script of both image crates (`build` in their Cargo.toml). Target builds: the
-//! workspace's `memory.x` (STM32F429ZI) on the linker search path, and the cortex-m-rt and
-//! defmt linker scripts.
+//! The build script of the target images (`build` in the Cargo.toml of both image crates and
+//! of `tools/on-target`). Target builds: the workspace's `memory.x` (STM32F429ZI) on the linker
+//! search path, and the cortex-m-rt and defmt linker scripts.
 fn main() {
-    println!("cargo:rerun-if-changed=../memory.x");
+    // The workspace root: the first directory up from the package that holds memory.x.
+    let package = std::path::PathBuf::from(std::env::var_os("CARGO_MANIFEST_DIR").unwrap_or_default());
+    let root = package.ancestors().find(|dir| dir.join("memory.x").exists()).unwrap_or(&package).to_path_buf();
+    println!("cargo:rerun-if-changed={}", root.join("memory.x").display());
     if std::env::var("CARGO_CFG_TARGET_OS").as_deref() == Ok("none") {
-        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
         // A link argument, not a link-search path: search paths of a build script reach every
         // package that depends on this one, and tools linking their own memory.x must not see it.
         println!("cargo:rustc-link-arg-bins=-L{}", root.display());

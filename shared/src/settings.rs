@@ -201,7 +201,14 @@ impl<F: NorFlash, S: Schema> SettingsStore<F, S> {
     }
 
     /// Commits `value` to flash, then puts it in force. On error the old value stays in force.
+    /// (The outcome also sets or clears the diagnostics' settings-store-fault bit.)
     pub async fn commit(&mut self, value: S) -> Result<(), StoreError> {
+        let result = self.store(value).await;
+        crate::diagnostics::DIAGNOSTICS.committed(&result);
+        result
+    }
+
+    async fn store(&mut self, value: S) -> Result<(), StoreError> {
         let mut record = [0u8; MAX_RECORD];
         let len = encode_record(&value, &mut record).ok_or(StoreError::TooLarge)?;
         match self.map.store_item::<&[u8]>(&mut self.buf.0, &RECORD_KEY, &&record[..len]).await {

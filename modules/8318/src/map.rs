@@ -82,7 +82,6 @@ impl<F: NorFlash> RegisterMap for Map8318<F> {
                 }
             })
             .await;
-        DIAGNOSTICS.committed(&result);
         result.map_err(|e| {
             warn!("8318: settings commit failed: {:?}", e);
             Exception::ServerDeviceFailure
@@ -96,8 +95,6 @@ impl<F: NorFlash> SettingsAccess for Map8318<F> {
         self.store.get()
     }
     async fn commit(&mut self, settings: Settings) -> Result<(), StoreError> {
-        let result = self.store.commit(settings).await;
-        DIAGNOSTICS.committed(&result);
-        result
+        self.store.commit(settings).await
     }
 }

@@ -164,9 +164,7 @@ impl<F: NorFlash, R: RawMutex> RegisterMap for Map8350<'_, F, R> {
         }
         let plan = self.plan(start, values)?;
         if plan.settings != *self.store.get() {
-            let result = self.store.commit(plan.settings).await;
-            DIAGNOSTICS.committed(&result);
-            result.map_err(|e| {
+            self.store.commit(plan.settings).await.map_err(|e| {
                 warn!("8350: settings commit failed: {:?}", e);
                 Exception::ServerDeviceFailure
             })?;
@@ -195,8 +193,6 @@ impl<F: NorFlash, R: RawMutex> SettingsAccess for Map8350<'_, F, R> {
         self.store.get()
     }
     async fn commit(&mut self, settings: Settings) -> Result<(), StoreError> {
-        let result = self.store.commit(settings).await;
-        DIAGNOSTICS.committed(&result);
-        result
+        self.store.commit(settings).await
     }
 }

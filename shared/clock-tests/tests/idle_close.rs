@@ -49,14 +49,18 @@ fn clock() -> (std::sync::MutexGuard<'static, ()>, &'static MockDriver) {
 
 const REQUEST: [u8; 12] = [0, 1, 0, 0, 0, 6, 1, 3, 0, 0, 0, 1];
 
+/// The map, one connection slot, and a peer that has sent one request.
+fn connection() -> (Mutex<NoopRawMutex, OneRegister>, Slots<NoopRawMutex, 1>, Rc<RefCell<VecDeque<Vec<u8>>>>) {
+    let peer = Rc::new(RefCell::new(VecDeque::from([REQUEST.to_vec()])));
+    (Mutex::new(OneRegister), Slots::new(1), peer)
+}
+
 #[test]
 fn a_connection_idle_for_five_minutes_is_closed() {
     assert_eq!(IDLE_TIMEOUT, Duration::from_secs(300), "spec §1.1: 5 minutes");
     let (_turn, clock) = clock();
-    let map = Mutex::<NoopRawMutex, _>::new(OneRegister);
-    let slots = Slots::<NoopRawMutex, 1>::new(1);
-    let peer = Rc::new(RefCell::new(VecDeque::from([REQUEST.to_vec()])));
-    let mut io = Shared(peer.clone(), 0);
+    let (map, slots, peer) = connection();
+    let mut io = Shared(peer, 0);
     {
         let mut server = pin!(serve(&mut io, &map, &slots, 0));
         let mut cx = Context::from_waker(Waker::noop());
@@ -73,9 +77,7 @@ fn a_connection_idle_for_five_minutes_is_closed() {
 #[test]
 fn a_request_restarts_the_idle_count() {
     let (_turn, clock) = clock();
-    let map = Mutex::<NoopRawMutex, _>::new(OneRegister);
-    let slots = Slots::<NoopRawMutex, 1>::new(1);
-    let peer = Rc::new(RefCell::new(VecDeque::from([REQUEST.to_vec()])));
+    let (map, slots, peer) = connection();
     let mut io = Shared(peer.clone(), 0);
     let mut server = pin!(serve(&mut io, &map, &slots, 0));
     let mut cx = Context::from_waker(Waker::noop());
