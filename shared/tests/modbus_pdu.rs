@@ -194,3 +194,15 @@ fn code_15_with_exactly_1968_bits() {
     let r = ask(&mut map, "01 10 00 07 B0");
     assert_eq!(r, format!("01 F6 {}", data.trim_end()));
 }
+
+#[test]
+fn the_last_address_of_the_space() {
+    // 0xFFFF + 1 register ends exactly at the top of the 16-bit space: allowed as a range, and
+    // answered by the map's access rules (unmapped here: exception 02); one more is past the
+    // space (exception 02 too).
+    let mut map = TestMap::default();
+    assert_eq!(ask(&mut map, "03 FF FF 00 01"), "83 02");
+    assert_eq!(ask(&mut map, "03 FF FF 00 02"), "83 02");
+    assert_eq!(ask(&mut map, "01 FF FF 00 01"), "81 02");
+    assert_eq!(ask(&mut map, "06 FF FF 00 01"), "86 02");
+}

@@ -119,8 +119,9 @@ pub trait RegisterMap {
     /// Whether every address of `start..start + count` (inside the 16-bit space, checked by the
     /// engine) allows reading, or writing when `write`.
     fn allows(&self, table: Table, start: u16, count: u16, write: bool) -> bool {
-        (start..start + count).all(|addr| {
-            let access = self.access(table, addr);
+        // `start + i` stays within 16 bits: the engine checked `start + count <= 0x1_0000`.
+        (0..count).all(|i| {
+            let access = self.access(table, start + i);
             if write {
                 access.writable()
             } else {
