@@ -3,7 +3,8 @@
 //! real engine, as the connection server does. Invariants of every answer: it echoes the
 //! request's transaction and unit ids and function code, or sets bit 7 with exception 1 to 4
 //! and nothing more; it fits a PDU; a read answers exactly the quantity asked; a write echoes
-//! the request's start and quantity (or value). The maps' own rules (the 8350's extra pulses,
+//! the request's start and quantity (or value); an answered request only touched addresses that
+//! the protocol crate's decoding maps for that access. The maps' own rules (the 8350's extra pulses,
 //! flags cleared on read, settings committed to a RAM flash, the diagnostics registers) run as
 //! on the module.
 //! `cargo +nightly fuzz run modbus_path` (from the repository root).
@@ -16,13 +17,35 @@ use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use libfuzzer_sys::fuzz_target;
 use remodaq_shared::modbus::frame::{classify, Frame, MAX_ADU, MBAP_LEN};
 use remodaq_shared::modbus::server::answer_request;
-use remodaq_shared::modbus::{RegisterMap, MAX_PDU};
+use remodaq_shared::modbus::{Access, RegisterMap, Table, MAX_PDU};
 use remodaq_shared::ram_flash::RamFlash;
 use remodaq_shared::settings::{Schema, SettingsStore};
 
 type Flash = RamFlash<{ 64 * 1024 }, { 16 * 1024 }>;
 
-fn check(request: &[u8], answer: &[u8]) {
+/// The protocol crate's access rule of the module under test.
+type AccessRule = fn(Table, u16) -> Access;
+
+/// Whether the protocol crate says every address of the request's range allows its access.
+fn range_allowed(rule: AccessRule, function: u8, start: u16, quantity: u16) -> bool {
+    let (table, write) = match function {
+        0x01 | 0x02 => (Table::Bits, false),
+        0x03 | 0x04 => (Table::Registers, false),
+        0x05 | 0x0F => (Table::Bits, true),
+        _ => (Table::Registers, true),
+    };
+    u32::from(start) + u32::from(quantity) <= 0x1_0000
+        && (0..quantity).all(|i| {
+            let access = rule(table, start + i);
+            if write {
+                access.writable()
+            } else {
+                access.readable()
+            }
+        })
+}
+
+fn check(rule: AccessRule, request: &[u8], answer: &[u8]) {
     assert!(answer.len() >= MBAP_LEN + 2 && answer.len() <= MAX_ADU, "answer length {}", answer.len());
     let pdu = &answer[MBAP_LEN..];
     assert!(pdu.len() <= MAX_PDU);
@@ -40,7 +63,11 @@ fn check(request: &[u8], answer: &[u8]) {
     }
     assert_eq!(pdu[0], function, "the function is echoed");
     let req = &request[MBAP_LEN..];
+    let start = u16::from_be_bytes([req[1], req[2]]);
     let quantity = u16::from_be_bytes([req[3], req[4]]);
+    // An answered request only touched addresses the protocol crate maps for that access.
+    let count = if matches!(function, 0x05 | 0x06) { 1 } else { quantity };
+    assert!(range_allowed(rule, function, start, count), "answered outside the map: {req:02x?}");
     match function {
         0x01 | 0x02 => {
             assert_eq!(usize::from(pdu[1]), usize::from(quantity).div_ceil(8));
@@ -55,7 +82,7 @@ fn check(request: &[u8], answer: &[u8]) {
     }
 }
 
-fn serve(map: &mut impl RegisterMap, mut stream: &[u8]) {
+fn serve(rule: AccessRule, map: &mut impl RegisterMap, mut stream: &[u8]) {
     let mut out = [0u8; MAX_ADU];
     loop {
         match classify(stream) {
@@ -63,7 +90,7 @@ fn serve(map: &mut impl RegisterMap, mut stream: &[u8]) {
             Frame::Discard { len } => stream = &stream[len..],
             Frame::Request { header, len } => {
                 let n = block_on(answer_request(map, header, &stream[MBAP_LEN..len], &mut out));
-                check(&stream[..len], &out[..n]);
+                check(rule, &stream[..len], &out[..n]);
                 stream = &stream[len..];
             }
         }
@@ -74,14 +101,18 @@ fuzz_target!(|data: &[u8]| {
     let Some((&which, stream)) = data.split_first() else { return };
     if which & 1 == 0 {
         type Settings = remodaq_8318::settings::Settings;
-        let store =
-            block_on(SettingsStore::open(Flash::new(), const { SettingsStore::<Flash, Settings>::config(0..64 * 1024) }));
+        let store = block_on(SettingsStore::open(
+            Flash::new(),
+            const { SettingsStore::<Flash, Settings>::config(0..64 * 1024) },
+        ));
         let mut map = remodaq_8318::map::Map8318::new(store);
-        serve(&mut map, stream);
+        serve(remodaq_protocol::m8318::access, &mut map, stream);
     } else {
         type Settings = remodaq_8350::settings::Settings;
-        let store =
-            block_on(SettingsStore::open(Flash::new(), const { SettingsStore::<Flash, Settings>::config(0..64 * 1024) }));
+        let store = block_on(SettingsStore::open(
+            Flash::new(),
+            const { SettingsStore::<Flash, Settings>::config(0..64 * 1024) },
+        ));
         let io = remodaq_8350::io::IoCell::<NoopRawMutex>::new(RefCell::new(remodaq_8350::io::Io::new(
             remodaq_8350::di::SAMPLE_RATE_HZ,
             &Settings::defaults(),
@@ -89,6 +120,6 @@ fuzz_target!(|data: &[u8]| {
         // Some input activity, so flags and counters have something to show.
         remodaq_8350::io::with(&io, |s| s.di.process(&[0, 0xFFF, 0, 0xA5A, 0x5A5]));
         let mut map = remodaq_8350::map::Map8350::new(store, &io);
-        serve(&mut map, stream);
+        serve(remodaq_protocol::m8350::access, &mut map, stream);
     }
 });

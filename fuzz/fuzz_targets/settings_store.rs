@@ -55,8 +55,11 @@ fuzz_target!(|data: &[u8]| {
     assert_eq!(*store.get(), model);
     for op in data.chunks_exact(4) {
         let &[kind, a, b, c] = op else { break };
-        let value =
-            Settings { serial: u32::from_le_bytes([a, b, c, kind]), mode: u16::from(a) << 8 | u16::from(c), blob: [b; 20] };
+        let value = Settings {
+            serial: u32::from_le_bytes([a, b, c, kind]),
+            mode: u16::from(a) << 8 | u16::from(c),
+            blob: [b; 20],
+        };
         match kind % 4 {
             // A commit that completes, then a restart sometimes.
             0 | 1 => {
