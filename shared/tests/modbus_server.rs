@@ -128,3 +128,47 @@ fn slots_evict_the_longest_idle() {
     slots.close(1); // the evicted task closing does not disturb the count
     assert_eq!(slots.active(), 2);
 }
+
+/// A peer that sends one request and then never reads: every write waits forever.
+struct Stalled(Option<Vec<u8>>);
+
+impl embedded_io_async::ErrorType for Stalled {
+    type Error = core::convert::Infallible;
+}
+
+impl embedded_io_async::Read for Stalled {
+    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
+        match self.0.take() {
+            Some(frame) => {
+                buf[..frame.len()].copy_from_slice(&frame);
+                Ok(frame.len())
+            }
+            None => core::future::pending().await,
+        }
+    }
+}
+
+impl embedded_io_async::Write for Stalled {
+    async fn write(&mut self, _: &[u8]) -> Result<usize, Self::Error> {
+        core::future::pending().await
+    }
+    async fn flush(&mut self) -> Result<(), Self::Error> {
+        core::future::pending().await
+    }
+}
+
+#[test]
+fn a_peer_that_stops_reading_is_still_evicted() {
+    // Its answer cannot be sent (a zero window); when a newcomer needs the slot, the
+    // connection ends anyway instead of holding its task.
+    use std::future::Future;
+    use std::task::{Context, Poll, Waker};
+    let map = Mutex::<NoopRawMutex, _>::new(TestMap::default());
+    let slots = Slots::<NoopRawMutex, 2>::new(1);
+    let mut io = Stalled(Some(hex("00 01 00 00 00 06 01 03 00 00 00 01")));
+    let mut server = std::pin::pin!(serve(&mut io, &map, &slots, 0));
+    let mut cx = Context::from_waker(Waker::noop());
+    assert!(server.as_mut().poll(&mut cx).is_pending(), "stuck sending the answer");
+    assert_eq!(slots.open(1), Some(0), "the newcomer evicts it");
+    assert_eq!(server.as_mut().poll(&mut cx), Poll::Ready(Ended::Evicted));
+}

@@ -155,8 +155,8 @@ async fn serve_frames<R: RawMutex, M: RegisterMap, T: Read + Write, const N: usi
                 Frame::Discard { len } => consumed += len,
                 Frame::Request { header, len } => {
                     if queued + MAX_ADU > TX_BUF {
-                        if io.write_all(&tx[..queued]).await.is_err() {
-                            return Ended::Io;
+                        if let Err(ended) = send(io, &tx[..queued], false, slots, slot).await {
+                            return ended;
                         }
                         queued = 0;
                     }
@@ -170,8 +170,10 @@ async fn serve_frames<R: RawMutex, M: RegisterMap, T: Read + Write, const N: usi
                 }
             }
         }
-        if queued > 0 && (io.write_all(&tx[..queued]).await.is_err() || io.flush().await.is_err()) {
-            return Ended::Io;
+        if queued > 0 {
+            if let Err(ended) = send(io, &tx[..queued], true, slots, slot).await {
+                return ended;
+            }
         }
         if desync {
             return Ended::Desync;
@@ -191,6 +193,33 @@ async fn serve_frames<R: RawMutex, M: RegisterMap, T: Read + Write, const N: usi
             Either::First(Err(_)) => return Ended::Idle,
             Either::Second(()) => return Ended::Evicted,
         }
+    }
+}
+
+/// A peer that stops reading (a zero window) must not hold a connection task forever: sending
+/// ends with the connection when it is evicted or has not progressed for this long.
+const SEND_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// Sends `data` (and flushes when `flush`), unless the connection is evicted or stalls.
+async fn send<R: RawMutex, T: Write, const N: usize>(
+    io: &mut T,
+    data: &[u8],
+    flush: bool,
+    slots: &Slots<R, N>,
+    slot: usize,
+) -> Result<(), Ended> {
+    let sending = async {
+        io.write_all(data).await?;
+        if flush {
+            io.flush().await?;
+        }
+        Ok::<(), T::Error>(())
+    };
+    match select(with_timeout(SEND_TIMEOUT, sending), slots.evict[slot].wait()).await {
+        Either::First(Ok(Ok(()))) => Ok(()),
+        Either::First(Ok(Err(_))) => Err(Ended::Io),
+        Either::First(Err(_)) => Err(Ended::Idle),
+        Either::Second(()) => Err(Ended::Evicted),
     }
 }
 
