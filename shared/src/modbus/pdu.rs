@@ -129,33 +129,40 @@ fn execute<'a, M: RegisterMap>(
             Ok(Step::Answered(2 + bytes))
         }
         WRITE_SINGLE_COIL => {
-            let (addr, value) = fixed_request(data)?;
-            // The value's first byte, FFh or 00h, is also the packed bit (LSB).
-            let values = match value {
-                0xFF00 => WriteValues::bits(&BIT_ON, 1),
-                0x0000 => WriteValues::bits(&BIT_OFF, 1),
+            let &[a0, a1, v0, v1] = data else { return Err(Exception::IllegalDataValue) };
+            let values = match [v0, v1] {
+                [0xFF, 0x00] => WriteValues::bits(&BIT_ON, 1),
+                [0x00, 0x00] => WriteValues::bits(&BIT_OFF, 1),
                 _ => return Err(Exception::IllegalDataValue),
             };
-            check_range(map, Table::Bits, addr, 1, true)?;
+            let addr = u16::from_be_bytes([a0, a1]);
+            if !map.allows(Table::Bits, addr, 1, true) {
+                return Err(Exception::IllegalDataAddress);
+            }
             map.validate(addr, &values)?;
             Ok(Step::Write { start: addr, values })
         }
         WRITE_SINGLE_REGISTER => {
-            let (addr, _) = fixed_request(data)?;
-            check_range(map, Table::Registers, addr, 1, true)?;
-            let values = WriteValues::registers(&data[2..4]);
+            // One address is always inside the 16-bit space: only the map's rule to check.
+            let (&[a0, a1], value) = data.split_first_chunk::<2>().ok_or(Exception::IllegalDataValue)?;
+            if value.len() != 2 {
+                return Err(Exception::IllegalDataValue);
+            }
+            let addr = u16::from_be_bytes([a0, a1]);
+            if !map.allows(Table::Registers, addr, 1, true) {
+                return Err(Exception::IllegalDataAddress);
+            }
+            let values = WriteValues::registers(value);
             map.validate(addr, &values)?;
             Ok(Step::Write { start: addr, values })
         }
         WRITE_MULTIPLE_COILS | WRITE_MULTIPLE_REGISTERS => {
             // start(2) quantity(2) byte count(1) values(byte count)
-            if data.len() < 5 {
+            let Some((&[s0, s1, q0, q1, byte_count], values)) = data.split_first_chunk::<5>() else {
                 return Err(Exception::IllegalDataValue);
-            }
-            let start = be16(data, 0);
-            let quantity = be16(data, 2);
-            let byte_count = usize::from(data[4]);
-            let values = &data[5..];
+            };
+            let (start, quantity, byte_count) =
+                (u16::from_be_bytes([s0, s1]), u16::from_be_bytes([q0, q1]), usize::from(byte_count));
             let (table, limit, expected) = if function == WRITE_MULTIPLE_COILS {
                 (Table::Bits, MAX_WRITE_BITS, usize::from(quantity).div_ceil(8))
             } else {
@@ -178,10 +185,6 @@ fn execute<'a, M: RegisterMap>(
 
 const BIT_ON: [u8; 1] = [1];
 const BIT_OFF: [u8; 1] = [0];
-
-fn be16(data: &[u8], at: usize) -> u16 {
-    u16::from_be_bytes([data[at], data[at + 1]])
-}
 
 /// The four-byte body shared by codes 01-06: two big-endian words, nothing more.
 #[inline]

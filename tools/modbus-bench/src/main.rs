@@ -61,13 +61,17 @@ impl MemoryMap {
 impl MemoryMap {
     fn write(&mut self, start: u16, values: &WriteValues<'_>) {
         let start = usize::from(start);
-        if values.len() == 1 {
+        match (values.table(), values.bytes()) {
             // Codes 05 and 06: one value.
-            match values.table() {
-                Table::Bits => self.coils[start] = values.get(0) != 0,
-                Table::Registers => self.holding[start] = values.get(0),
+            (Table::Bits, &[bit]) if values.len() == 1 => {
+                self.coils[start] = bit & 1 != 0;
+                return;
             }
-            return;
+            (Table::Registers, &[hi, lo]) => {
+                self.holding[start] = u16::from_be_bytes([hi, lo]);
+                return;
+            }
+            _ => {}
         }
         match values.table() {
             Table::Bits => {
@@ -76,9 +80,9 @@ impl MemoryMap {
                 }
             }
             Table::Registers => {
-                let to = &mut self.holding[start..start + values.len()];
-                for (r, w) in to.iter_mut().zip(values.bytes().chunks_exact(2)) {
-                    *r = u16::from_be_bytes([w[0], w[1]]);
+                let (words, _) = values.bytes().as_chunks::<2>();
+                for (r, &w) in self.holding[start..].iter_mut().zip(words) {
+                    *r = u16::from_be_bytes(w);
                 }
             }
         }
