@@ -156,31 +156,40 @@ fn execute<'a, M: RegisterMap>(
             map.validate(addr, &values)?;
             Ok(Step::Write { start: addr, values })
         }
-        WRITE_MULTIPLE_COILS | WRITE_MULTIPLE_REGISTERS => {
-            // start(2) quantity(2) byte count(1) values(byte count)
-            let Some((&[s0, s1, q0, q1, byte_count], values)) = data.split_first_chunk::<5>() else {
-                return Err(Exception::IllegalDataValue);
-            };
-            let (start, quantity, byte_count) =
-                (u16::from_be_bytes([s0, s1]), u16::from_be_bytes([q0, q1]), usize::from(byte_count));
-            let (table, limit, expected) = if function == WRITE_MULTIPLE_COILS {
-                (Table::Bits, MAX_WRITE_BITS, usize::from(quantity).div_ceil(8))
-            } else {
-                (Table::Registers, MAX_WRITE_REGISTERS, 2 * usize::from(quantity))
-            };
-            if !(1..=limit).contains(&quantity) || byte_count != expected || values.len() != byte_count {
-                return Err(Exception::IllegalDataValue);
-            }
-            check_range(map, table, start, quantity, true)?;
-            let values = match table {
-                Table::Bits => WriteValues::bits(values, quantity),
-                Table::Registers => WriteValues::registers(values),
-            };
-            map.validate(start, &values)?;
-            Ok(Step::Write { start, values })
-        }
+        // One arm per code, so each compiles with its table and limits as constants.
+        WRITE_MULTIPLE_COILS => multiple_write(map, data, Table::Bits, MAX_WRITE_BITS),
+        WRITE_MULTIPLE_REGISTERS => multiple_write(map, data, Table::Registers, MAX_WRITE_REGISTERS),
         _ => Err(Exception::IllegalFunction),
     }
+}
+
+/// Codes 15 and 16: start(2) quantity(2) byte count(1) values(byte count).
+#[inline(always)]
+fn multiple_write<'a, M: RegisterMap>(
+    map: &mut M,
+    data: &'a [u8],
+    table: Table,
+    limit: u16,
+) -> Result<Step<'a>, Exception> {
+    let Some((&[s0, s1, q0, q1, byte_count], values)) = data.split_first_chunk::<5>() else {
+        return Err(Exception::IllegalDataValue);
+    };
+    let (start, quantity, byte_count) =
+        (u16::from_be_bytes([s0, s1]), u16::from_be_bytes([q0, q1]), usize::from(byte_count));
+    let expected = match table {
+        Table::Bits => usize::from(quantity).div_ceil(8),
+        Table::Registers => 2 * usize::from(quantity),
+    };
+    if !(1..=limit).contains(&quantity) || byte_count != expected || values.len() != byte_count {
+        return Err(Exception::IllegalDataValue);
+    }
+    check_range(map, table, start, quantity, true)?;
+    let values = match table {
+        Table::Bits => WriteValues::bits(values, quantity),
+        Table::Registers => WriteValues::registers(values),
+    };
+    map.validate(start, &values)?;
+    Ok(Step::Write { start, values })
 }
 
 const BIT_ON: [u8; 1] = [1];
