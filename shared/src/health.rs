@@ -38,7 +38,7 @@ impl Heartbeat {
 
     /// Every watched task has beaten, the last time within `window_ms` before `now_ms`.
     pub fn all_alive(&self, now_ms: u64, window_ms: u32) -> bool {
-        if self.beaten.load(Ordering::Relaxed) & self.watched != self.watched {
+        if !self.all_started() {
             return false;
         }
         (0..TASKS).filter(|n| self.watched & (1 << n) != 0).all(|n| {
