@@ -108,14 +108,6 @@ pub trait RegisterMap {
     /// before this returns `Ok` (durable on acknowledgement).
     async fn apply(&mut self, start: u16, values: &WriteValues<'_>) -> Result<(), Exception>;
 
-    /// The lean path for writes that need no waiting (outputs, memory): applies the validated
-    /// write at once and returns its result, or `None` to have `apply` do it (a settings
-    /// commit). The default: `None`.
-    fn apply_now(&mut self, start: u16, values: &WriteValues<'_>) -> Option<Result<(), Exception>> {
-        let _ = (start, values);
-        None
-    }
-
     /// Whether every address of `start..start + count` (inside the 16-bit space, checked by the
     /// engine) allows reading, or writing when `write`.
     fn allows(&self, table: Table, start: u16, count: u16, write: bool) -> bool {

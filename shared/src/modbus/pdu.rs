@@ -28,10 +28,7 @@ pub async fn handle_pdu<M: RegisterMap>(map: &mut M, req: &[u8], resp: &mut [u8;
     match prepare(map, req, resp) {
         Step::Answered(len) => len,
         Step::Write { start, values } => {
-            let result = match map.apply_now(start, &values) {
-                Some(result) => result,
-                None => map.apply(start, &values).await,
-            };
+            let result = map.apply(start, &values).await;
             written(req, resp, result)
         }
     }

@@ -255,17 +255,11 @@ pub fn answer_now<M: RegisterMap>(map: &mut M, frame: &[u8], out: &mut [u8; MAX_
     let n = match prepare(map, pdu, body) {
         Step::Answered(n) => n,
         Step::Write { start, values } => {
-            let result = match map.apply_now(start, &values) {
-                Some(result) => result,
-                None => {
-                    let apply = core::pin::pin!(map.apply(start, &values));
-                    match apply.poll(&mut core::task::Context::from_waker(core::task::Waker::noop())) {
-                        core::task::Poll::Ready(result) => result,
-                        core::task::Poll::Pending => return None,
-                    }
-                }
-            };
-            written(pdu, body, result)
+            let apply = core::pin::pin!(map.apply(start, &values));
+            match apply.poll(&mut core::task::Context::from_waker(core::task::Waker::noop())) {
+                core::task::Poll::Ready(result) => written(pdu, body, result),
+                core::task::Poll::Pending => return None,
+            }
         }
     };
     Some(finish(head, header, body, n))

@@ -111,11 +111,6 @@ impl RegisterMap for MemoryMap {
         Ok(())
     }
 
-    fn apply_now(&mut self, start: u16, values: &WriteValues<'_>) -> Option<Result<(), Exception>> {
-        self.write(start, values);
-        Some(Ok(()))
-    }
-
     // Runs in one call each: the block access of the RegisterMap trait.
     fn allows(&self, _: Table, start: u16, count: u16, _: bool) -> bool {
         usize::from(start) + usize::from(count) <= SIZE
