@@ -15,8 +15,6 @@ pub const MAX_DATAGRAM: usize = 160;
 pub const MAGIC: [u8; 4] = *b"RDAQ";
 /// Protocol version.
 pub const VERSION: u8 = 1;
-/// Header length: magic, version, opcode, request id.
-pub const HEADER: usize = 8;
 
 /// Request opcodes (replies set bit 7).
 pub mod op {

@@ -126,7 +126,8 @@ struct Module {
 }
 
 fn resolve(module: &str) -> Result<SocketAddr, Error> {
-    let with_port = if module.contains(':') { module.to_string() } else { format!("{module}:8000") };
+    let with_port =
+        if module.contains(':') { module.to_string() } else { format!("{module}:{}", remodaq_protocol::MODBUS_PORT) };
     with_port
         .to_socket_addrs()
         .map_err(|e| Error::Other(format!("`{module}`: {e}")))?
@@ -564,7 +565,8 @@ pub async fn config(module: &str, setting: Setting, timeout: Duration, json: boo
         Setting::CjcOffset { celsius } => {
             m.expect(m8318::MODULE_NAME)?;
             let hundredths = (celsius * 100.0).round();
-            if !(-5000.0..=5000.0).contains(&hundredths) {
+            let limit = f64::from(m8318::CJC_OFFSET_LIMIT);
+            if !(-limit..=limit).contains(&hundredths) {
                 return Err(Error::Other("the CJC offset is -50.00 to 50.00 °C".into()));
             }
             m.write_regs(REG_CJC_OFFSET, &[m8318::cjc_offset_to_register(hundredths as i16)]).await?;

@@ -6,7 +6,7 @@
 use core::sync::atomic::{AtomicU16, AtomicU32, Ordering};
 
 use embassy_time::Instant;
-pub use remodaq_protocol::diag::{status, Diag};
+pub use remodaq_protocol::diag::{reset_cause, status, Diag};
 
 /// Why this run started (register 40244).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -14,17 +14,17 @@ pub use remodaq_protocol::diag::{status, Diag};
 #[repr(u16)]
 pub enum ResetCause {
     /// Power-on.
-    PowerOn = 0,
+    PowerOn = reset_cause::POWER_ON,
     /// Watchdog.
-    Watchdog = 1,
+    Watchdog = reset_cause::WATCHDOG,
     /// Software restart (restart command, firmware update).
-    Software = 2,
+    Software = reset_cause::SOFTWARE,
     /// Reset pin.
-    Pin = 3,
+    Pin = reset_cause::PIN,
     /// Brown-out.
-    BrownOut = 4,
+    BrownOut = reset_cause::BROWN_OUT,
     /// The board cannot tell.
-    Unknown = 0xFFFF,
+    Unknown = reset_cause::UNKNOWN,
 }
 
 /// The counters and flags behind the diagnostics registers.

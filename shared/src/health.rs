@@ -25,7 +25,7 @@ pub struct Heartbeat {
 impl Heartbeat {
     /// Watches the tasks whose bits are set in `watched` ([`NET`], [`APP`]).
     pub const fn new(watched: u32) -> Self {
-        Self { last_ms: [AtomicU32::new(0), AtomicU32::new(0)], beaten: AtomicU32::new(0), watched }
+        Self { last_ms: [const { AtomicU32::new(0) }; TASKS], beaten: AtomicU32::new(0), watched }
     }
 
     /// Task `bit` is alive at `now_ms`.

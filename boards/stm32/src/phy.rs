@@ -66,11 +66,6 @@ impl<SM: StationManagement> Lan8742a<SM> {
         Self { sm, addr: 0, mode: None }
     }
 
-    /// The mode the MAC runs in, once the link came up.
-    pub fn mode(&self) -> Option<Mode> {
-        self.mode
-    }
-
     fn set_mac(&mut self, mode: Mode) {
         pac::ETH.ethernet_mac().maccr().modify(|w| {
             w.set_fes(if mode.fast { Fes::FES100 } else { Fes::FES10 });
@@ -89,7 +84,7 @@ impl<SM: StationManagement> Phy for Lan8742a<SM> {
     /// Finds the PHY (the Nucleo straps it to address 0; any address answers) and resets it,
     /// bounded: about 100 ms per address tried.
     fn phy_reset(&mut self) {
-        for addr in (0..32u8).cycle().take(32) {
+        for addr in 0..32u8 {
             self.sm.smi_write(addr, BCR, BCR_RESET);
             for _ in 0..100 {
                 if self.sm.smi_read(addr, BCR) & BCR_RESET == 0 {

@@ -36,7 +36,7 @@ impl<F: NorFlash> Map8318<F> {
 
 impl<F: NorFlash> RegisterMap for Map8318<F> {
     fn access(&self, table: Table, addr: u16) -> Access {
-        decode(table, addr).map_or(Access::None, Reg::access)
+        remodaq_protocol::m8318::access(table, addr)
     }
 
     fn read(&mut self, table: Table, addr: u16) -> u16 {

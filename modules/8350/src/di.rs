@@ -13,7 +13,7 @@
 pub const SAMPLE_RATE_HZ: u32 = 50_000;
 
 /// Number of digital inputs.
-pub const CHANNELS: usize = 12;
+pub const CHANNELS: usize = remodaq_protocol::m8350::DI_CHANNELS;
 /// The bits of a sample that are inputs.
 pub const MASK: u16 = (1 << CHANNELS) - 1;
 

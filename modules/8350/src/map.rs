@@ -143,7 +143,7 @@ impl<'a, F: NorFlash, R: RawMutex> Map8350<'a, F, R> {
 
 impl<F: NorFlash, R: RawMutex> RegisterMap for Map8350<'_, F, R> {
     fn access(&self, table: Table, addr: u16) -> Access {
-        decode(table, addr).map_or(Access::None, Point::access)
+        remodaq_protocol::m8350::access(table, addr)
     }
 
     fn read(&mut self, table: Table, addr: u16) -> u16 {

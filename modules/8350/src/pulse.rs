@@ -9,7 +9,7 @@
 //! until stopped. Width changes apply from the next pulse; a count change at the next start.
 
 /// Number of digital outputs.
-pub const CHANNELS: usize = 6;
+pub const CHANNELS: usize = remodaq_protocol::m8350::DO_CHANNELS;
 /// The engine's tick: 0.1 ms.
 pub const TICK_HZ: u32 = 10_000;
 

@@ -66,11 +66,6 @@ impl<'a> WriteValues<'a> {
         self.data
     }
 
-    /// The registers of a register write, in order (no per-value table check).
-    pub fn words(&self) -> impl Iterator<Item = u16> + '_ {
-        self.data.chunks_exact(2).map(|w| u16::from_be_bytes([w[0], w[1]]))
-    }
-
     /// The bits of a bit write, in order, as booleans.
     pub fn flags(&self) -> impl Iterator<Item = bool> + '_ {
         (0..self.len()).map(|i| self.data.get(i / 8).is_some_and(|b| b >> (i % 8) & 1 != 0))
