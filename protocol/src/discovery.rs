@@ -2,6 +2,7 @@
 //! `docs/discovery.md` for the wire format. [`decode_request`] is pure and total (fuzzed); the
 //! module side's service is in `remodaq-shared`, the PC side in the `remodaq` utility.
 
+use crate::access::{AllowList, ENCODED_MAX};
 use crate::net::NetConfig;
 
 /// The longest password (bytes).
@@ -28,6 +29,10 @@ pub mod op {
     pub const IDENTIFY: u8 = 0x04;
     /// Change the configuration password.
     pub const SET_PASSWORD: u8 = 0x05;
+    /// Read the Modbus write allow-list (extensions §4); the reply carries it.
+    pub const GET_ACCESS: u8 = 0x06;
+    /// Store a new Modbus write allow-list (in force at once).
+    pub const SET_ACCESS: u8 = 0x07;
     /// Reply to SEARCH.
     pub const INFO: u8 = 0x81;
     /// Reply bit.
@@ -99,6 +104,69 @@ pub enum Request<'a> {
         /// New password.
         new: &'a [u8],
     },
+    /// GET_ACCESS of the module with `mac`.
+    GetAccess {
+        /// Target module.
+        mac: [u8; 6],
+        /// Configuration password.
+        password: &'a [u8],
+    },
+    /// SET_ACCESS of the module with `mac`.
+    SetAccess {
+        /// Target module.
+        mac: [u8; 6],
+        /// Configuration password.
+        password: &'a [u8],
+        /// The new list (empty: writes not restricted).
+        list: AllowList,
+    },
+}
+
+impl Request<'_> {
+    /// The request's opcode.
+    pub fn opcode(&self) -> u8 {
+        match self {
+            Request::Search => op::SEARCH,
+            Request::SetNetwork { .. } => op::SET_NETWORK,
+            Request::Restart { .. } => op::RESTART,
+            Request::Identify { .. } => op::IDENTIFY,
+            Request::SetPassword { .. } => op::SET_PASSWORD,
+            Request::GetAccess { .. } => op::GET_ACCESS,
+            Request::SetAccess { .. } => op::SET_ACCESS,
+        }
+    }
+}
+
+/// Encodes request `id` into `out`; `None` if it does not fit (a password over
+/// [`MAX_PASSWORD_LEN`] bytes is not encodable either).
+pub fn encode_request(id: u16, request: &Request<'_>, out: &mut [u8]) -> Option<usize> {
+    let mut w = Writer::new(out, request.opcode(), id);
+    let password = |w: &mut Writer<'_>, p: &[u8]| {
+        if p.len() > MAX_PASSWORD_LEN {
+            w.overflow = true;
+        }
+        w.string(p);
+    };
+    match *request {
+        Request::Search => {}
+        Request::SetNetwork { mac, password: p, net } => {
+            password(w.bytes(&mac), p);
+            w.net(&net);
+        }
+        Request::Restart { mac, password: p } | Request::GetAccess { mac, password: p } => password(w.bytes(&mac), p),
+        Request::Identify { mac } => {
+            w.bytes(&mac);
+        }
+        Request::SetPassword { mac, password: p, new } => {
+            password(w.bytes(&mac), p);
+            password(&mut w, new);
+        }
+        Request::SetAccess { mac, password: p, list } => {
+            password(w.bytes(&mac), p);
+            w.allow_list(&list);
+        }
+    }
+    w.finish()
 }
 
 /// A reader over a datagram that fails (None) instead of running past its end.
@@ -132,6 +200,11 @@ impl<'a> Reader<'a> {
     fn net(&mut self) -> Option<NetConfig> {
         Some(NetConfig { ip: self.array()?, mask: self.array()?, gateway: self.array()?, port: self.u16()? })
     }
+    fn allow_list(&mut self) -> Option<AllowList> {
+        let list = AllowList::decode(self.rest)?;
+        self.rest = &[];
+        Some(list)
+    }
     fn end(&self) -> Option<()> {
         self.rest.is_empty().then_some(())
     }
@@ -155,6 +228,8 @@ pub fn decode_request(datagram: &[u8]) -> Option<(u16, Request<'_>)> {
         op::RESTART => Request::Restart { mac: r.array()?, password: r.string()? },
         op::IDENTIFY => Request::Identify { mac: r.array()? },
         op::SET_PASSWORD => Request::SetPassword { mac: r.array()?, password: r.string()?, new: r.string()? },
+        op::GET_ACCESS => Request::GetAccess { mac: r.array()?, password: r.string()? },
+        op::SET_ACCESS => Request::SetAccess { mac: r.array()?, password: r.string()?, list: r.allow_list()? },
         _ => return None,
     };
     r.end()?;
@@ -197,6 +272,12 @@ impl<'a> Writer<'a> {
     pub fn net(&mut self, n: &NetConfig) -> &mut Self {
         self.bytes(&n.ip).bytes(&n.mask).bytes(&n.gateway).bytes(&n.port.to_be_bytes())
     }
+    /// Appends an allow-list.
+    pub fn allow_list(&mut self, list: &AllowList) -> &mut Self {
+        let mut buf = [0u8; ENCODED_MAX];
+        let n = list.encode(&mut buf);
+        self.bytes(&buf[..n])
+    }
     /// The datagram's length; `None` if it did not fit.
     pub fn finish(&self) -> Option<usize> {
         (!self.overflow).then_some(self.len)
@@ -222,6 +303,14 @@ pub struct Info<'a> {
     pub uptime_s: u32,
     /// Model string.
     pub name: &'a [u8],
+    /// Flags ([`info_flags`]); `None` from a module whose reply has none (older firmware).
+    pub flags: Option<u8>,
+}
+
+/// Flags at the end of an INFO reply.
+pub mod info_flags {
+    /// The Modbus write allow-list is not empty: writes are restricted (extensions §4).
+    pub const WRITES_RESTRICTED: u8 = 1 << 0;
 }
 
 /// Decodes an INFO reply.
@@ -239,13 +328,33 @@ pub fn decode_info(datagram: &[u8]) -> Option<Info<'_>> {
         stored: r.net()?,
         uptime_s: u32::from_be_bytes(r.array()?),
         name: r.string()?,
+        flags: match r.rest {
+            [] => None,
+            [flags] => Some(*flags),
+            _ => return None,
+        },
     };
-    r.end()?;
     Some(info)
 }
 
-/// Decodes a command reply: (opcode without the reply bit, id, mac, status).
-pub fn decode_result(datagram: &[u8]) -> Option<(u8, u16, [u8; 6], Status)> {
+/// A decoded command reply (the PC side).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Reply {
+    /// The command's opcode (without the reply bit).
+    pub opcode: u8,
+    /// Request id echoed.
+    pub id: u16,
+    /// The module's MAC address.
+    pub mac: [u8; 6],
+    /// The result.
+    pub status: Status,
+    /// GET_ACCESS answered [`Status::Ok`]: the allow-list.
+    pub list: Option<AllowList>,
+}
+
+/// Decodes a command reply. Only a GET_ACCESS reply with [`Status::Ok`] carries more than the
+/// status: the allow-list.
+pub fn decode_reply(datagram: &[u8]) -> Option<Reply> {
     let mut r = Reader { rest: datagram };
     if r.array::<4>()? != MAGIC || r.array::<1>()? != [VERSION] {
         return None;
@@ -255,6 +364,11 @@ pub fn decode_result(datagram: &[u8]) -> Option<(u8, u16, [u8; 6], Status)> {
         return None;
     }
     let (id, mac, [status]) = (r.u16()?, r.array()?, r.array::<1>()?);
+    let (opcode, status) = (opcode & !op::REPLY, Status::from_code(status)?);
+    let list = match (opcode, status) {
+        (op::GET_ACCESS, Status::Ok) => Some(r.allow_list()?),
+        _ => None,
+    };
     r.end()?;
-    Some((opcode & !op::REPLY, id, mac, Status::from_code(status)?))
+    Some(Reply { opcode, id, mac, status, list })
 }

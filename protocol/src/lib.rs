@@ -10,6 +10,7 @@
 #[cfg(test)]
 extern crate std;
 
+pub mod access;
 pub mod diag;
 pub mod discovery;
 pub mod m8318;

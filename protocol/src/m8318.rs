@@ -22,6 +22,62 @@ pub const REG_INPUT_TYPE: u16 = 0x00C8;
 pub const REG_CJC_OFFSET: u16 = 0x00D7;
 /// 40221: channel enable mask.
 pub const REG_ENABLE_MASK: u16 = 0x00DC;
+/// 40225 + n: channel n status ([`ChannelStatus`], extensions §2).
+pub const REG_STATUS: u16 = 0x00E0;
+/// 40233: open-input value (extensions §2): 0 upscale (FFFFh), 1 downscale (0000h).
+pub const REG_OPEN_VALUE: u16 = 0x00E8;
+
+/// Why a channel reads what it reads (registers 40225-40232, extensions §2).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ChannelStatus {
+    /// The value is a measurement inside the range.
+    #[default]
+    Ok = 0,
+    /// Nothing connected (burnt-out thermocouple): the open-input value.
+    Open = 1,
+    /// Above the range: FFFFh.
+    Over = 2,
+    /// Below the range: 0000h.
+    Under = 3,
+    /// The channel is disabled: 0000h.
+    Disabled = 4,
+    /// The conversion failed (the ADC does not answer or timed out): FFFFh.
+    FrontEndFault = 5,
+    /// A thermocouple channel without a valid cold-junction reading: FFFFh.
+    CjcFault = 6,
+}
+
+impl ChannelStatus {
+    /// Every status, by register value.
+    pub const ALL: [ChannelStatus; 7] = [
+        ChannelStatus::Ok,
+        ChannelStatus::Open,
+        ChannelStatus::Over,
+        ChannelStatus::Under,
+        ChannelStatus::Disabled,
+        ChannelStatus::FrontEndFault,
+        ChannelStatus::CjcFault,
+    ];
+
+    /// The status of a register value.
+    pub fn from_register(v: u16) -> Option<Self> {
+        Self::ALL.get(usize::from(v)).copied()
+    }
+
+    /// A short name.
+    pub fn name(self) -> &'static str {
+        match self {
+            ChannelStatus::Ok => "ok",
+            ChannelStatus::Open => "open",
+            ChannelStatus::Over => "over range",
+            ChannelStatus::Under => "under range",
+            ChannelStatus::Disabled => "disabled",
+            ChannelStatus::FrontEndFault => "front-end fault",
+            ChannelStatus::CjcFault => "cold-junction fault",
+        }
+    }
+}
 
 /// One register of the 8318.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -37,6 +93,10 @@ pub enum Reg {
     CjcOffset,
     /// Channel enable mask.
     EnableMask,
+    /// Channel n status (0..8).
+    Status(u8),
+    /// Open-input value.
+    OpenValue,
     /// Module name.
     Name,
     /// Firmware version.
@@ -56,6 +116,8 @@ pub fn decode(table: Table, addr: u16) -> Option<Reg> {
         REG_INPUT_TYPE => Reg::InputType,
         REG_CJC_OFFSET => Reg::CjcOffset,
         REG_ENABLE_MASK => Reg::EnableMask,
+        a if (REG_STATUS..REG_STATUS + CHANNELS as u16).contains(&a) => Reg::Status((a - REG_STATUS) as u8),
+        REG_OPEN_VALUE => Reg::OpenValue,
         REG_NAME => Reg::Name,
         REG_VERSION => Reg::Version,
         a => Reg::Diag(diag::decode(a)?),
@@ -71,6 +133,8 @@ impl Reg {
             Reg::InputType => REG_INPUT_TYPE,
             Reg::CjcOffset => REG_CJC_OFFSET,
             Reg::EnableMask => REG_ENABLE_MASK,
+            Reg::Status(n) => REG_STATUS + u16::from(n),
+            Reg::OpenValue => REG_OPEN_VALUE,
             Reg::Name => REG_NAME,
             Reg::Version => REG_VERSION,
             Reg::Diag(d) => d.addr(),
@@ -80,7 +144,7 @@ impl Reg {
     /// What the register allows.
     pub fn access(self) -> Access {
         match self {
-            Reg::InputType | Reg::CjcOffset | Reg::EnableMask => Access::ReadWrite,
+            Reg::InputType | Reg::CjcOffset | Reg::EnableMask | Reg::OpenValue => Access::ReadWrite,
             _ => Access::Read,
         }
     }
@@ -277,7 +341,11 @@ mod tests {
             }
         }
         // Spec §2.1, by 4X number.
-        let mapped: [(u16, Access); 14] = [
+        let mapped: [(u16, Access); 18] = [
+            (40225, Access::Read),
+            (40232, Access::Read),
+            (40233, Access::ReadWrite),
+            (40234, Access::None),
             (40001, Access::Read),
             (40008, Access::Read),
             (40009, Access::Read),

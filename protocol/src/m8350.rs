@@ -36,6 +36,28 @@ pub const REG_DO_MODE: u16 = 0x110;
 pub const REG_ALL_DI: u16 = 0x12C;
 /// 4X: all DO.
 pub const REG_ALL_DO: u16 = 0x12E;
+/// 4X: host watchdog timeout, 0.1 s, 0 off (extensions §3).
+pub const REG_WD_TIMEOUT: u16 = 0x130;
+/// 4X: safe output values, bit n = DOn.
+pub const REG_SAFE_VALUES: u16 = 0x131;
+/// 4X: host watchdog mode ([`wd_mode`]).
+pub const REG_WD_MODE: u16 = 0x132;
+/// 4X: host watchdog status: bit 0 tripped; write 0 to clear.
+pub const REG_WD_STATUS: u16 = 0x133;
+/// 4X: power-on output values, bit n = DOn.
+pub const REG_POWER_ON: u16 = 0x134;
+/// Largest watchdog timeout, 0.1 s (10 min).
+pub const WD_TIMEOUT_MAX: u16 = 6000;
+
+/// Bits of the watchdog mode register (40307).
+pub mod wd_mode {
+    /// 1: only write requests feed the watchdog; 0: any request.
+    pub const WRITES_ONLY: u16 = 1 << 0;
+    /// 1: the next feeding request ends the safe state; 0: only writing 0 to 40308.
+    pub const AUTO_CLEAR: u16 = 1 << 1;
+    /// Bits with a meaning.
+    pub const ALL: u16 = WRITES_ONLY | AUTO_CLEAR;
+}
 
 /// The four 32-bit pulse fields of each output, in register order.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -85,6 +107,16 @@ pub enum Point {
     Version,
     /// Register: a diagnostics register (extensions §1).
     Diag(Diag),
+    /// Register: host watchdog timeout.
+    WatchdogTimeout,
+    /// Register: safe output values.
+    SafeValues,
+    /// Register: host watchdog mode.
+    WatchdogMode,
+    /// Register: host watchdog status.
+    WatchdogStatus,
+    /// Register: power-on output values.
+    PowerOnValues,
 }
 
 /// The point at `addr` of `table`; `None` where nothing is mapped.
@@ -125,6 +157,11 @@ pub fn decode(table: Table, addr: u16) -> Option<Point> {
             REG_ALL_DO => Point::AllDo,
             REG_NAME => Point::Name,
             REG_VERSION => Point::Version,
+            REG_WD_TIMEOUT => Point::WatchdogTimeout,
+            REG_SAFE_VALUES => Point::SafeValues,
+            REG_WD_MODE => Point::WatchdogMode,
+            REG_WD_STATUS => Point::WatchdogStatus,
+            REG_POWER_ON => Point::PowerOnValues,
             a => Point::Diag(diag::decode(a)?),
         },
     })
@@ -150,7 +187,18 @@ impl Point {
             Point::Name => (Table::Registers, REG_NAME),
             Point::Version => (Table::Registers, REG_VERSION),
             Point::Diag(d) => (Table::Registers, d.addr()),
+            Point::WatchdogTimeout => (Table::Registers, REG_WD_TIMEOUT),
+            Point::SafeValues => (Table::Registers, REG_SAFE_VALUES),
+            Point::WatchdogMode => (Table::Registers, REG_WD_MODE),
+            Point::WatchdogStatus => (Table::Registers, REG_WD_STATUS),
+            Point::PowerOnValues => (Table::Registers, REG_POWER_ON),
         }
+    }
+
+    /// Whether a write to the point could change an output (refused while the host watchdog
+    /// is tripped, extensions §3): the DO bits, all DO, the DO modes and the pulse settings.
+    pub fn moves_output(self) -> bool {
+        matches!(self, Point::Do(_) | Point::AllDo | Point::DoMode(_) | Point::Pulse(..))
     }
 
     /// What the point allows.
@@ -250,7 +298,13 @@ mod tests {
         for (n0x, want) in bits {
             assert_eq!(decode(Table::Bits, n0x - 1), want, "0X {n0x}");
         }
-        let regs: [(u16, Option<Point>); 13] = [
+        let regs: [(u16, Option<Point>); 19] = [
+            (40304, None),
+            (40305, Some(Point::WatchdogTimeout)),
+            (40306, Some(Point::SafeValues)),
+            (40307, Some(Point::WatchdogMode)),
+            (40308, Some(Point::WatchdogStatus)),
+            (40309, Some(Point::PowerOnValues)),
             (40001, Some(Point::Counter(0, Word::Low))),
             (40024, Some(Point::Counter(11, Word::High))),
             (40025, Some(Point::Pulse(PulseField::Low, 0, Word::Low))),

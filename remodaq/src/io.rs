@@ -4,8 +4,10 @@ use std::net::{SocketAddr, ToSocketAddrs};
 use std::time::Duration;
 
 use clap::{Subcommand, ValueEnum};
-use remodaq_protocol::m8318::{self, InputType, Kind, REG_CJC_OFFSET, REG_ENABLE_MASK, REG_INPUT_TYPE};
-use remodaq_protocol::m8350::{self, DiMode as Mode, Point, PulseField, Word};
+use remodaq_protocol::m8318::{
+    self, ChannelStatus, InputType, Kind, REG_CJC_OFFSET, REG_ENABLE_MASK, REG_INPUT_TYPE, REG_OPEN_VALUE, REG_STATUS,
+};
+use remodaq_protocol::m8350::{self, wd_mode, DiMode as Mode, Point, PulseField, Word};
 use remodaq_protocol::{diag, identity, words_low_first};
 use serde::Serialize;
 use tokio::time::timeout as within;
@@ -26,6 +28,26 @@ pub enum Setting {
         #[arg(allow_negative_numbers = true)]
         celsius: f64,
     },
+    /// 8318: what an open (burnt-out) thermocouple reads (40233): upscale FFFFh (factory) or
+    /// downscale 0000h.
+    OpenValue { value: OpenValue },
+    /// 8350: host watchdog (40305, 40307): a timeout in seconds (0.1 to 600), `off`, or
+    /// `clear` to end the safe state (0 to 40308). When no feeding request arrives in time,
+    /// the outputs go to their safe levels.
+    Watchdog {
+        /// Seconds, `off` or `clear`.
+        timeout: String,
+        /// Only write requests feed the watchdog (default: any request).
+        #[arg(long)]
+        writes_only: bool,
+        /// The next feeding request ends the safe state (default: only `watchdog clear`).
+        #[arg(long)]
+        auto_clear: bool,
+    },
+    /// 8350: output levels in the watchdog's safe state (40306), bit N = DO N, e.g. 0b000011.
+    Safe { levels: String },
+    /// 8350: output levels after a power-up or restart (40309), bit N = DO N.
+    PowerOn { levels: String },
     /// 8350: mode of input N (40257 + N).
     DiMode { channel: u16, mode: DiMode },
     /// 8350: mode of output N (40273 + N).
@@ -76,6 +98,22 @@ impl From<DiMode> for Mode {
 }
 
 #[derive(Clone, Copy, ValueEnum)]
+pub enum OpenValue {
+    /// FFFFh (factory).
+    Upscale,
+    /// 0000h.
+    Downscale,
+}
+
+/// Where `read` and `watch` ask the module whether its writes are restricted.
+#[derive(clap::Args)]
+pub struct DiscoveryAt {
+    /// The module's discovery service (default: the module's address, port 8300).
+    #[arg(long, value_name = "ADDR:PORT")]
+    discovery: Option<SocketAddr>,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
 pub enum DoMode {
     Normal,
     Pulse,
@@ -108,10 +146,14 @@ fn bit(point: Point) -> u16 {
 
 fn exception(e: ExceptionCode) -> Error {
     let meaning = match e {
-        ExceptionCode::IllegalFunction => "01 illegal function: the module does not support this request",
+        ExceptionCode::IllegalFunction => {
+            "01 illegal function: the module does not support this request, or does not let this PC write (see `remodaq access`)"
+        }
         ExceptionCode::IllegalDataAddress => "02 illegal data address: not mapped for this access on this module",
         ExceptionCode::IllegalDataValue => "03 illegal data value: the module does not accept this value",
-        ExceptionCode::ServerDeviceFailure => "04 server device failure: the setting could not be stored",
+        ExceptionCode::ServerDeviceFailure => {
+            "04 server device failure: the setting could not be stored, or the outputs are held in the safe state (host watchdog tripped: `config MODULE watchdog clear`)"
+        }
         _ => "unexpected exception",
     };
     Error::Exception(format!("the module answered exception {meaning}"))
@@ -242,8 +284,12 @@ struct Analog {
     unit: &'static str,
     cold_junction_c: Option<f64>,
     cjc_offset_c: f64,
+    /// What an open input reads: "upscale" (FFFFh) or "downscale" (0000h).
+    open_value: &'static str,
     channels: Vec<AnalogChannel>,
     diagnostics: Diagnostics,
+    /// Whether the module's write allow-list restricts writes (`null`: unknown).
+    writes_restricted: Option<bool>,
 }
 
 /// The diagnostics registers (extensions §1).
@@ -307,23 +353,18 @@ async fn read_analog(m: &mut Module) -> Result<Analog, Error> {
     let code = m.reg(REG_INPUT_TYPE).await?;
     let offset = m.reg(REG_CJC_OFFSET).await? as i16;
     let enabled = m.reg(REG_ENABLE_MASK).await?;
+    // 40225-40233: channel statuses and the open-input value.
+    let status = m.regs(REG_STATUS, REG_OPEN_VALUE - REG_STATUS + 1).await?;
     let input =
         InputType::from_code(code as u8).ok_or_else(|| Error::Other(format!("unknown input type {code:02X}")))?;
     let (name, unit, divisor) = type_name(&input);
-    let tc = matches!(input.kind, Kind::Thermocouple(_));
     let channels = (0..m8318::CHANNELS)
         .map(|ch| {
             let raw = values[ch];
             let on = enabled & (1 << ch) != 0;
-            let status = match (on, raw) {
-                (false, _) => "disabled",
-                (true, 0x0000) => "under range",
-                (true, 0xFFFF) if tc => "open or over range",
-                (true, 0xFFFF) => "over range",
-                _ => "ok",
-            };
-            let value = (status == "ok").then(|| (input.value(raw) / divisor * 1000.0).round() / 1000.0);
-            AnalogChannel { channel: ch, enabled: on, raw, value, status }
+            let state = ChannelStatus::from_register(status[ch]);
+            let value = (state == Some(ChannelStatus::Ok)).then(|| (input.value(raw) / divisor * 1000.0).round() / 1000.0);
+            AnalogChannel { channel: ch, enabled: on, raw, value, status: state.map_or("unknown", ChannelStatus::name) }
         })
         .collect();
     Ok(Analog {
@@ -337,8 +378,10 @@ async fn read_analog(m: &mut Module) -> Result<Analog, Error> {
             raw => Some(f64::from(raw as i16) / 100.0),
         },
         cjc_offset_c: f64::from(offset) / 100.0,
+        open_value: if status[m8318::CHANNELS] == 1 { "downscale" } else { "upscale" },
         channels,
         diagnostics: read_diagnostics(m).await?,
+        writes_restricted: None,
     })
 }
 
@@ -348,7 +391,25 @@ struct Digital {
     model: &'static str,
     inputs: Vec<Input>,
     outputs: Vec<Output>,
+    watchdog: Watchdog,
     diagnostics: Diagnostics,
+    /// Whether the module's write allow-list restricts writes (`null`: unknown).
+    writes_restricted: Option<bool>,
+}
+
+/// The host watchdog (extensions §3).
+#[derive(Serialize)]
+struct Watchdog {
+    /// Timeout, s; 0: off.
+    timeout_s: f64,
+    writes_only: bool,
+    auto_clear: bool,
+    /// The outputs are held in the safe state.
+    tripped: bool,
+    /// Safe levels, bit n = DOn.
+    safe: u16,
+    /// Power-on levels, bit n = DOn.
+    power_on: u16,
 }
 
 #[derive(Serialize)]
@@ -409,12 +470,39 @@ async fn read_digital(m: &mut Module) -> Result<Digital, Error> {
             count: pulses[12 + n],
         })
         .collect();
-    Ok(Digital { model: m8350::MODEL, inputs, outputs, diagnostics: read_diagnostics(m).await? })
+    let w = m.regs(m8350::REG_WD_TIMEOUT, m8350::REG_POWER_ON - m8350::REG_WD_TIMEOUT + 1).await?;
+    let watchdog = Watchdog {
+        timeout_s: f64::from(w[0]) / 10.0,
+        safe: w[1],
+        writes_only: w[2] & wd_mode::WRITES_ONLY != 0,
+        auto_clear: w[2] & wd_mode::AUTO_CLEAR != 0,
+        tripped: w[3] & 1 != 0,
+        power_on: w[4],
+    };
+    let diagnostics = read_diagnostics(m).await?;
+    Ok(Digital { model: m8350::MODEL, inputs, outputs, watchdog, diagnostics, writes_restricted: None })
 }
 
-async fn read_once(m: &mut Module, json: bool) -> Result<(), Error> {
+/// Asks the module's discovery service whether its writes are restricted (`None`: no answer).
+async fn writes_restricted(addr: SocketAddr, timeout: Duration, at: &DiscoveryAt) -> Option<bool> {
+    let to = at.discovery.unwrap_or(SocketAddr::new(addr.ip(), remodaq_protocol::discovery::PORT));
+    let found = crate::lan::find(to, timeout.min(Duration::from_millis(500))).await.ok()?;
+    found.first()?.writes_restricted
+}
+
+fn print_restricted(restricted: Option<bool>) {
+    match restricted {
+        Some(true) => println!("  writes: restricted to the allow-list (`remodaq access show`)"),
+        Some(false) => println!("  writes: allowed from any client"),
+        None => println!("  writes: restriction unknown (no answer from the discovery service)"),
+    }
+}
+
+async fn read_once(m: &mut Module, at: &DiscoveryAt, json: bool) -> Result<(), Error> {
+    let restricted = writes_restricted(m.addr, m.timeout, at);
     if m.model == m8318::MODULE_NAME {
-        let a = read_analog(m).await?;
+        let (a, restricted) = tokio::join!(read_analog(m), restricted);
+        let a = Analog { writes_restricted: restricted, ..a? };
         if json {
             println!("{}", serde_json::to_string(&a).unwrap_or_default());
             return Ok(());
@@ -425,6 +513,8 @@ async fn read_once(m: &mut Module, json: bool) -> Result<(), Error> {
             a.model, m.addr, a.input_type, a.type_code, a.cjc_offset_c
         );
         print_diagnostics(&a.diagnostics);
+        print_restricted(a.writes_restricted);
+        println!("  open input reads {}", if a.open_value == "downscale" { "0000h (downscale)" } else { "FFFFh (upscale)" });
         for c in &a.channels {
             match c.value {
                 Some(v) => println!("  ch{}  {:>10.3} {:<3}  ({:04X})", c.channel, v, a.unit, c.raw),
@@ -432,13 +522,28 @@ async fn read_once(m: &mut Module, json: bool) -> Result<(), Error> {
             }
         }
     } else {
-        let d = read_digital(m).await?;
+        let (d, restricted) = tokio::join!(read_digital(m), restricted);
+        let d = Digital { writes_restricted: restricted, ..d? };
         if json {
             println!("{}", serde_json::to_string(&d).unwrap_or_default());
             return Ok(());
         }
         println!("{} at {}", d.model, m.addr);
         print_diagnostics(&d.diagnostics);
+        print_restricted(d.writes_restricted);
+        let w = &d.watchdog;
+        if w.timeout_s == 0.0 {
+            println!("  host watchdog: off");
+        } else {
+            println!(
+                "  host watchdog: {} s, fed by {}, cleared {}; {}",
+                w.timeout_s,
+                if w.writes_only { "writes" } else { "any request" },
+                if w.auto_clear { "by the next feeding request" } else { "by `watchdog clear`" },
+                if w.tripped { "TRIPPED: outputs in the safe state" } else { "not tripped" }
+            );
+        }
+        println!("  safe levels {:06b}, power-on levels {:06b} (DO5..DO0)", w.safe, w.power_on);
         println!(
             "  {:<5} {:<5} {:<13} {:>12} {:<8} {:<8} {:<5}",
             "input", "state", "mode", "value", "counter", "overflow", "latch"
@@ -477,14 +582,15 @@ async fn read_once(m: &mut Module, json: bool) -> Result<(), Error> {
 }
 
 /// `remodaq read`.
-pub async fn read(module: &str, timeout: Duration, json: bool) -> Result<(), Error> {
+pub async fn read(module: &str, at: DiscoveryAt, timeout: Duration, json: bool) -> Result<(), Error> {
     let mut m = Module::connect(module, timeout).await?;
-    read_once(&mut m, json).await
+    read_once(&mut m, &at, json).await
 }
 
 /// `remodaq watch`: a reading every `interval` (JSON: one object per line).
 pub async fn watch(
     module: &str,
+    at: DiscoveryAt,
     timeout: Duration,
     interval: Duration,
     count: Option<u64>,
@@ -495,7 +601,7 @@ pub async fn watch(
     let mut done = 0u64;
     while count.is_none_or(|c| done < c) {
         ticker.tick().await;
-        read_once(&mut m, json).await?;
+        read_once(&mut m, &at, json).await?;
         done += 1;
     }
     Ok(())
@@ -525,6 +631,14 @@ fn type_code(s: &str) -> Result<u16, Error> {
         .filter(|_| code <= 0xFF)
         .map(|_| code)
         .ok_or_else(|| Error::Other(format!("{code:02X} is not an input type code (00-06, 0E-18)")))
+}
+
+/// Output levels, bit n = DOn (6 bits).
+fn output_levels(s: &str) -> Result<u16, Error> {
+    match parse_number(s)? {
+        v if v < 1 << m8350::DO_CHANNELS => Ok(v as u16),
+        _ => Err(Error::Other(format!("`{s}`: the output levels have 6 bits (0 to 0b111111)"))),
+    }
 }
 
 fn channel(n: u16, count: usize) -> Result<u8, Error> {
@@ -571,6 +685,57 @@ pub async fn config(module: &str, setting: Setting, timeout: Duration, json: boo
             }
             m.write_regs(REG_CJC_OFFSET, &[m8318::cjc_offset_to_register(hundredths as i16)]).await?;
             format!("CJC offset {:+.2} °C", hundredths / 100.0)
+        }
+        Setting::OpenValue { value } => {
+            m.expect(m8318::MODULE_NAME)?;
+            let downscale = matches!(value, OpenValue::Downscale);
+            m.write_regs(REG_OPEN_VALUE, &[u16::from(downscale)]).await?;
+            format!("open inputs read {}", if downscale { "0000h (downscale)" } else { "FFFFh (upscale)" })
+        }
+        Setting::Watchdog { timeout, writes_only, auto_clear } => {
+            m.expect(m8350::MODULE_NAME)?;
+            match timeout.trim() {
+                "clear" => {
+                    m.write_regs(m8350::REG_WD_STATUS, &[0]).await?;
+                    "host watchdog cleared: outputs keep their safe levels until written".to_string()
+                }
+                t => {
+                    let tenths = if t == "off" {
+                        0.0
+                    } else {
+                        let s: f64 = t.parse().map_err(|_| Error::Other(format!("`{t}` is not seconds, off or clear")))?;
+                        (s * 10.0).round()
+                    };
+                    if !(0.0..=f64::from(m8350::WD_TIMEOUT_MAX)).contains(&tenths) || (t != "off" && tenths < 1.0) {
+                        return Err(Error::Other("the watchdog timeout is 0.1 to 600 s, or off".into()));
+                    }
+                    let mode = if writes_only { wd_mode::WRITES_ONLY } else { 0 } | if auto_clear { wd_mode::AUTO_CLEAR } else { 0 };
+                    m.write_regs(m8350::REG_WD_MODE, &[mode]).await?;
+                    m.write_regs(m8350::REG_WD_TIMEOUT, &[tenths as u16]).await?;
+                    if tenths == 0.0 {
+                        "host watchdog off".to_string()
+                    } else {
+                        format!(
+                            "host watchdog {} s, fed by {}, cleared {}",
+                            tenths / 10.0,
+                            if writes_only { "writes" } else { "any request" },
+                            if auto_clear { "automatically" } else { "by `watchdog clear`" }
+                        )
+                    }
+                }
+            }
+        }
+        Setting::Safe { levels } => {
+            m.expect(m8350::MODULE_NAME)?;
+            let v = output_levels(&levels)?;
+            m.write_regs(m8350::REG_SAFE_VALUES, &[v]).await?;
+            format!("safe levels {v:06b} (DO5..DO0)")
+        }
+        Setting::PowerOn { levels } => {
+            m.expect(m8350::MODULE_NAME)?;
+            let v = output_levels(&levels)?;
+            m.write_regs(m8350::REG_POWER_ON, &[v]).await?;
+            format!("power-on levels {v:06b} (DO5..DO0)")
         }
         Setting::DiMode { channel: n, mode } => {
             m.expect(m8350::MODULE_NAME)?;

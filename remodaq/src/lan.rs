@@ -4,7 +4,8 @@ use std::net::{Ipv4Addr, SocketAddr};
 use std::str::FromStr;
 use std::time::{Duration, Instant};
 
-use remodaq_protocol::discovery::{decode_info, decode_result, op, Status, Writer, MAX_DATAGRAM};
+use remodaq_protocol::access::{AllowList, Network};
+use remodaq_protocol::discovery::{decode_info, decode_reply, encode_request, info_flags, Reply, Request, Status, MAX_DATAGRAM};
 use remodaq_protocol::net::NetConfig;
 use serde::Serialize;
 use tokio::net::UdpSocket;
@@ -71,6 +72,9 @@ pub struct Found {
     /// The settings stored; different from `running` until the module restarts.
     stored: Net,
     uptime_s: u32,
+    /// Whether the module's Modbus write allow-list restricts writes (`null`: the module does
+    /// not say).
+    pub writes_restricted: Option<bool>,
     #[serde(skip)]
     raw_stored: NetConfig,
 }
@@ -93,7 +97,7 @@ pub async fn find(to: SocketAddr, timeout: Duration) -> Result<Vec<Found>, Error
     let socket = socket().await?;
     let id = request_id();
     let mut buf = [0u8; MAX_DATAGRAM];
-    let n = Writer::new(&mut buf, op::SEARCH, id).finish().unwrap_or(0);
+    let n = encode_request(id, &Request::Search, &mut buf).unwrap_or(0);
     socket.send_to(&buf[..n], to).await.map_err(|e| Error::Other(format!("cannot send to {to}: {e}")))?;
     let deadline = Instant::now() + timeout;
     let mut found: Vec<Found> = Vec::new();
@@ -112,6 +116,7 @@ pub async fn find(to: SocketAddr, timeout: Duration) -> Result<Vec<Found>, Error
             running: info.running.into(),
             stored: info.stored.into(),
             uptime_s: info.uptime_s,
+            writes_restricted: info.flags.map(|f| f & info_flags::WRITES_RESTRICTED != 0),
             raw_stored: info.stored,
         });
     }
@@ -168,6 +173,10 @@ pub enum Command<'a> {
     Identify,
     /// Change the password (old, new).
     SetPassword(&'a str, &'a str),
+    /// Read the Modbus write allow-list.
+    GetAccess(&'a str),
+    /// Store a Modbus write allow-list.
+    SetAccess(&'a str, AllowList),
 }
 
 /// `remodaq net set`: the stored settings (found by a search) with the changes applied.
@@ -197,26 +206,66 @@ pub async fn set_network(
     command(to, mac, Command::SetNetwork(password, net), timeout, json).await
 }
 
-/// Sends a configuration command and waits for its result.
+/// Sends a configuration command and prints its result.
 pub async fn command(to: SocketAddr, mac: Mac, cmd: Command<'_>, timeout: Duration, json: bool) -> Result<(), Error> {
+    let what = match cmd {
+        Command::SetNetwork(..) => "network settings stored (in force after a restart)",
+        Command::Restart(_) => "restarting",
+        Command::Identify => "identifying: the LED blinks for 10 s",
+        Command::SetPassword(..) => "password changed",
+        Command::GetAccess(_) => "",
+        Command::SetAccess(_, list) if list.is_empty() => "Modbus writes allowed from any client",
+        Command::SetAccess(..) => "Modbus writes allowed from the listed networks only",
+    };
+    let reply = exchange(to, mac, &cmd, timeout).await?;
+    if let Some(list) = reply.list {
+        let nets: Vec<String> = list.iter().map(cidr).collect();
+        if json {
+            let out = serde_json::json!({ "mac": mac.to_string(), "restricted": !list.is_empty(), "allow": nets });
+            println!("{out}");
+        } else if nets.is_empty() {
+            println!("{mac}: Modbus writes allowed from any client (allow-list empty)");
+        } else {
+            println!("{mac}: Modbus writes allowed only from {}", nets.join(", "));
+        }
+    } else if json {
+        println!("{}", serde_json::json!({ "mac": mac.to_string(), "status": "ok", "message": what }));
+    } else {
+        println!("{mac}: {what}");
+    }
+    Ok(())
+}
+
+/// A network in CIDR form.
+pub fn cidr(n: Network) -> String {
+    format!("{}/{}", Ipv4Addr::from(n.ip), n.prefix)
+}
+
+/// Parses `a.b.c.d/n` (a bare address is /32).
+pub fn parse_cidr(s: &str) -> Result<Network, String> {
+    let (ip, prefix) = s.split_once('/').unwrap_or((s, "32"));
+    let ip: Ipv4Addr = ip.parse().map_err(|_| format!("`{s}` is not an IPv4 network (a.b.c.d/n)"))?;
+    let prefix: u8 = prefix.parse().map_err(|_| format!("`{s}`: the prefix is 0 to 32"))?;
+    Network::new(ip.octets(), prefix).ok_or_else(|| format!("`{s}`: the prefix is 0 to 32"))
+}
+
+/// Sends a configuration command and waits for the module's reply (an error unless it is Ok).
+async fn exchange(to: SocketAddr, mac: Mac, cmd: &Command<'_>, timeout: Duration) -> Result<Reply, Error> {
     let socket = socket().await?;
     let id = request_id();
     let mut buf = [0u8; MAX_DATAGRAM];
-    let (opcode, what) = match cmd {
-        Command::SetNetwork(..) => (op::SET_NETWORK, "network settings stored (in force after a restart)"),
-        Command::Restart(_) => (op::RESTART, "restarting"),
-        Command::Identify => (op::IDENTIFY, "identifying: the LED blinks for 10 s"),
-        Command::SetPassword(..) => (op::SET_PASSWORD, "password changed"),
+    let mac_bytes = mac.0;
+    let request = match *cmd {
+        Command::SetNetwork(password, net) => Request::SetNetwork { mac: mac_bytes, password: password.as_bytes(), net },
+        Command::Restart(password) => Request::Restart { mac: mac_bytes, password: password.as_bytes() },
+        Command::Identify => Request::Identify { mac: mac_bytes },
+        Command::SetPassword(old, new) => {
+            Request::SetPassword { mac: mac_bytes, password: old.as_bytes(), new: new.as_bytes() }
+        }
+        Command::GetAccess(password) => Request::GetAccess { mac: mac_bytes, password: password.as_bytes() },
+        Command::SetAccess(password, list) => Request::SetAccess { mac: mac_bytes, password: password.as_bytes(), list },
     };
-    let mut w = Writer::new(&mut buf, opcode, id);
-    w.bytes(&mac.0);
-    match cmd {
-        Command::SetNetwork(password, net) => w.string(password.as_bytes()).net(&net),
-        Command::Restart(password) => w.string(password.as_bytes()),
-        Command::Identify => &mut w,
-        Command::SetPassword(old, new) => w.string(old.as_bytes()).string(new.as_bytes()),
-    };
-    let n = w.finish().ok_or_else(|| Error::Other("password too long".into()))?;
+    let n = encode_request(id, &request, &mut buf).ok_or_else(|| Error::Other("password too long".into()))?;
     socket.send_to(&buf[..n], to).await.map_err(|e| Error::Other(format!("cannot send to {to}: {e}")))?;
     let deadline = Instant::now() + timeout;
     let mut rx = [0u8; 512];
@@ -229,19 +278,12 @@ pub async fn command(to: SocketAddr, mac: Mac, cmd: Command<'_>, timeout: Durati
             )));
         };
         let Some(n) = datagram(received) else { continue };
-        let Some((reply_op, reply_id, reply_mac, status)) = decode_result(&rx[..n]) else { continue };
-        if reply_op != opcode || reply_id != id || reply_mac != mac.0 {
+        let Some(reply) = decode_reply(&rx[..n]) else { continue };
+        if reply.opcode != request.opcode() || reply.id != id || reply.mac != mac.0 {
             continue;
         }
-        let message = match status {
-            Status::Ok => {
-                if json {
-                    println!("{}", serde_json::json!({ "mac": mac.to_string(), "status": "ok", "message": what }));
-                } else {
-                    println!("{mac}: {what}");
-                }
-                return Ok(());
-            }
+        let message = match reply.status {
+            Status::Ok => return Ok(reply),
             Status::WrongPassword => return Err(Error::Refused(format!("{mac}: wrong password, nothing changed"))),
             Status::RateLimited => {
                 return Err(Error::Refused(format!("{mac}: too many wrong passwords, try again later")));

@@ -63,17 +63,27 @@ enum Command {
     Read {
         /// The module's Modbus/TCP address, e.g. 192.168.0.1 or 192.168.0.1:8000.
         module: String,
+        #[command(flatten)]
+        discovery: io::DiscoveryAt,
     },
     /// Read a module's inputs and outputs repeatedly.
     Watch {
         /// The module's Modbus/TCP address.
         module: String,
+        #[command(flatten)]
+        discovery: io::DiscoveryAt,
         /// Seconds between reads.
         #[arg(long, default_value_t = 1.0)]
         interval: f64,
         /// Stop after this many reads (default: until interrupted).
         #[arg(long)]
         count: Option<u64>,
+    },
+    /// Modbus write allow-list: which clients may write (05, 06, 15, 16). Reads are always
+    /// served.
+    Access {
+        #[command(subcommand)]
+        command: AccessCommand,
     },
     /// Configure a module's I/O (each maps to documented registers).
     Config {
@@ -105,6 +115,35 @@ enum NetCommand {
         /// Modbus/TCP port.
         #[arg(long)]
         port: Option<u16>,
+    },
+}
+
+#[derive(Subcommand)]
+enum AccessCommand {
+    /// Show the allow-list.
+    Show {
+        #[command(flatten)]
+        target: Target,
+        #[command(flatten)]
+        password: Auth,
+    },
+    /// Allow writes only from these networks (up to 4, CIDR form: 192.168.0.0/24; a bare
+    /// address is /32). In force at once and kept across restarts.
+    Set {
+        #[command(flatten)]
+        target: Target,
+        #[command(flatten)]
+        password: Auth,
+        /// The networks.
+        #[arg(required = true, num_args = 1..=4, value_parser = lan::parse_cidr)]
+        networks: Vec<remodaq_protocol::access::Network>,
+    },
+    /// Empty the allow-list: every client may write again (the factory setting).
+    Clear {
+        #[command(flatten)]
+        target: Target,
+        #[command(flatten)]
+        password: Auth,
     },
 }
 
@@ -203,9 +242,24 @@ async fn run(cli: Cli) -> Result<(), Error> {
             let cmd = lan::Command::SetPassword(&password.password, &new);
             lan::command(target.to, target.mac, cmd, timeout, json).await
         }
-        Command::Read { module } => io::read(&module, timeout, json).await,
-        Command::Watch { module, interval, count } => {
-            io::watch(&module, timeout, Duration::from_secs_f64(interval.max(0.05)), count, json).await
+        Command::Read { module, discovery } => io::read(&module, discovery, timeout, json).await,
+        Command::Watch { module, discovery, interval, count } => {
+            let interval = Duration::from_secs_f64(interval.max(0.05));
+            io::watch(&module, discovery, timeout, interval, count, json).await
+        }
+        Command::Access { command } => {
+            let (target, cmd) = match &command {
+                AccessCommand::Show { target, password } => (target, lan::Command::GetAccess(&password.password)),
+                AccessCommand::Set { target, password, networks } => {
+                    let list = remodaq_protocol::access::AllowList::of(networks)
+                        .ok_or_else(|| Error::Other("at most 4 networks".into()))?;
+                    (target, lan::Command::SetAccess(&password.password, list))
+                }
+                AccessCommand::Clear { target, password } => {
+                    (target, lan::Command::SetAccess(&password.password, remodaq_protocol::access::AllowList::EMPTY))
+                }
+            };
+            lan::command(target.to, target.mac, cmd, timeout, json).await
         }
         Command::Config { module, setting } => io::config(&module, setting, timeout, json).await,
     }

@@ -19,7 +19,7 @@ use crate::discovery::{Effect, Identity};
 use crate::identity::FIRMWARE_VERSION;
 use crate::modbus::server::{Slots, MAX_CONNECTIONS, SOCKETS};
 use crate::modbus::RegisterMap;
-use crate::module::{CommonSettings, SettingsAccess};
+use crate::module::{CommonSettings, SettingsAccess, Store};
 use crate::net::NetConfig;
 use crate::settings::{Schema, SettingsStore};
 
@@ -73,7 +73,12 @@ pub trait Network: 'static {
         slot: usize,
     ) -> !;
     /// Serves the discovery and configuration protocol, forever.
-    async fn serve_discovery<A: SettingsAccess>(&'static self, map: &'static Shared<A>, identity: Identity) -> !;
+    async fn serve_discovery<A: SettingsAccess, F: NorFlash>(
+        &'static self,
+        map: &'static Shared<A>,
+        store: &'static Store<F, A::Settings>,
+        identity: Identity,
+    ) -> !;
 }
 
 /// How a board carries out what the discovery service asks, after the reply was sent: blink
@@ -101,9 +106,12 @@ pub trait Module: Sized + 'static {
 
     /// The live state, configured from the settings.
     fn state(settings: &Self::Settings) -> Self::State;
-    /// The register map over the opened store.
-    fn map<F: NorFlash + 'static>(store: SettingsStore<F, Self::Settings>, state: &'static Self::State)
-        -> Self::Map<F>;
+    /// The register map over the opened store (`settings`: the settings in force).
+    fn map<F: NorFlash + 'static>(
+        store: &'static Store<F, Self::Settings>,
+        settings: &Self::Settings,
+        state: &'static Self::State,
+    ) -> Self::Map<F>;
 }
 
 /// A module's application over the I/O resources `Io` of a board.
@@ -130,6 +138,7 @@ pub trait IoFor<M: Module>: Board {
 /// The running module: register map, network, identity.
 pub struct App<B: Board, M: Module> {
     map: Shared<M::Map<B::Flash>>,
+    store: &'static Store<B::Flash, M::Settings>,
     net: B::Net,
     slots: ModbusSlots,
     identity: Identity,
@@ -140,13 +149,14 @@ pub struct App<B: Board, M: Module> {
 /// no generic statics).
 pub struct Statics<B: Board, M: Module> {
     state: StaticCell<M::State>,
+    store: StaticCell<Store<B::Flash, M::Settings>>,
     app: StaticCell<App<B, M>>,
 }
 
 impl<B: Board, M: Module> Statics<B, M> {
     /// Empty storage.
     pub const fn new() -> Self {
-        Self { state: StaticCell::new(), app: StaticCell::new() }
+        Self { state: StaticCell::new(), store: StaticCell::new(), app: StaticCell::new() }
     }
 }
 
@@ -181,15 +191,17 @@ where
     crate::info!("self-test: reset cause {:?}; settings store open", reset_cause);
     let stored = store.get().net();
     let mac = board.mac();
-    let state: &'static M::State = statics.state.init(M::state(store.get()));
-    let map = Mutex::new(M::map(store, state));
+    let settings = *store.get();
+    let state: &'static M::State = statics.state.init(M::state(&settings));
+    let store: &'static Store<B::Flash, M::Settings> = statics.store.init(Mutex::new(store));
+    let map = Mutex::new(M::map(store, &settings, state));
     // The module's I/O starts once the settings are in force (a factory reset's sector erases
     // take longer than the STM32's capture ring lasts), just before the network.
     let io = B::io(resources);
     let (net, running) = board.start_network(spawner, stored);
     let identity = Identity { model: M::MODULE_NAME, name: M::MODEL, version: FIRMWARE_VERSION, mac, running };
     crate::info!("{} running, firmware {:04X}", M::MODEL, FIRMWARE_VERSION);
-    let app = statics.app.init(App { map, net, slots: Slots::new(MAX_CONNECTIONS), identity, state });
+    let app = statics.app.init(App { map, store, net, slots: Slots::new(MAX_CONNECTIONS), identity, state });
     (app, io)
 }
 
@@ -201,7 +213,7 @@ impl<B: Board, M: Module> App<B, M> {
 
     /// Serves discovery, forever.
     pub async fn serve_discovery(&'static self) -> ! {
-        self.net.serve_discovery(&self.map, self.identity).await
+        self.net.serve_discovery(&self.map, self.store, self.identity).await
     }
 
     /// Runs the module's application over the board's I/O, forever.

@@ -4,7 +4,12 @@
 
 pub use remodaq_protocol::discovery::*;
 
-use crate::module::{CommonSettings, SettingsAccess};
+use embassy_sync::blocking_mutex::raw::RawMutex;
+use embassy_sync::mutex::Mutex;
+use embedded_storage_async::nor_flash::NorFlash;
+
+use crate::access::AllowList;
+use crate::module::{update, CommonSettings, SettingsAccess, Store};
 use crate::net::NetConfig;
 use crate::password::{self, Check, Limiter, PasswordHash};
 
@@ -46,45 +51,52 @@ impl Service {
         Self { identity, limiter: Limiter::default() }
     }
 
-    /// Handles one datagram at `now_ms` (ms since start): the reply's length in `out` (none for
-    /// datagrams that are ignored or addressed to another module) and the effect to carry out
-    /// after sending it.
-    pub async fn handle<A: SettingsAccess>(
+    /// Handles one datagram from `from` at `now_ms` (ms since start): the reply's length in
+    /// `out` (none for datagrams that are ignored or addressed to another module) and the
+    /// effect to carry out after sending it. The map is locked only to copy the settings in
+    /// force: the password is hashed, and new settings committed, without its lock.
+    pub async fn handle<R: RawMutex, A: SettingsAccess, F: NorFlash>(
         &mut self,
         datagram: &[u8],
+        from: [u8; 4],
         now_ms: u64,
-        access: &mut A,
+        map: &Mutex<R, A>,
+        store: &Store<F, A::Settings>,
         out: &mut [u8],
     ) -> Option<(usize, Effect)> {
         let (id, request) = decode_request(datagram)?;
         let me = self.identity.mac;
-        let (opcode, mac, password) = match request {
-            Request::Search => return self.info(id, now_ms, access.settings(), out).map(|n| (n, Effect::None)),
+        let current = *map.lock().await.settings();
+        let (mac, password) = match request {
+            Request::Search => return self.info(id, now_ms, &current, out).map(|n| (n, Effect::None)),
             Request::Identify { mac } if mac == me => {
-                return result(out, op::IDENTIFY, id, me, Status::Ok).map(|n| (n, Effect::Identify));
+                return result(out, op::IDENTIFY, id, me, Status::Ok, None).map(|n| (n, Effect::Identify));
             }
-            Request::SetNetwork { mac, password, .. } => (op::SET_NETWORK, mac, password),
-            Request::Restart { mac, password } => (op::RESTART, mac, password),
-            Request::SetPassword { mac, password, .. } => (op::SET_PASSWORD, mac, password),
             Request::Identify { .. } => return None,
+            Request::SetNetwork { mac, password, .. }
+            | Request::Restart { mac, password }
+            | Request::SetPassword { mac, password, .. }
+            | Request::GetAccess { mac, password }
+            | Request::SetAccess { mac, password, .. } => (mac, password),
         };
         if mac != me {
             return None;
         }
-        let current = *access.settings();
-        let status = match self.limiter.check(&current.password(), password, now_ms) {
+        let opcode = request.opcode();
+        let mut list = None;
+        let status = match self.limiter.check(&current.password(), password, from, now_ms) {
             Check::Locked => Status::RateLimited,
             Check::Wrong => Status::WrongPassword,
             Check::Ok => match request {
-                Request::SetNetwork { net, .. } if net.is_valid() => {
-                    let mut s = current;
-                    s.set_net(net);
-                    commit(access, s).await
-                }
+                Request::SetNetwork { net, .. } if net.is_valid() => commit(map, store, |s| s.set_net(net)).await,
                 Request::SetPassword { new, .. } if (password::MIN_LEN..=password::MAX_LEN).contains(&new.len()) => {
-                    let mut s = current;
-                    s.set_password(PasswordHash::new(current.password().next_salt(&me, now_ms), new));
-                    commit(access, s).await
+                    let hash = PasswordHash::new(current.password().next_salt(&me, now_ms), new);
+                    commit(map, store, |s| s.set_password(hash)).await
+                }
+                Request::SetAccess { list, .. } => commit(map, store, |s| s.set_allow_list(list)).await,
+                Request::GetAccess { .. } => {
+                    list = Some(current.allow_list());
+                    Status::Ok
                 }
                 Request::Restart { .. } => Status::Ok,
                 _ => Status::Invalid,
@@ -94,7 +106,7 @@ impl Service {
         if status == Status::WrongPassword {
             crate::warn!("discovery: wrong configuration password");
         }
-        result(out, opcode, id, me, status).map(|n| (n, effect))
+        result(out, opcode, id, me, status, list.as_ref()).map(|n| (n, effect))
     }
 
     fn info<S: CommonSettings>(&self, id: u16, now_ms: u64, settings: &S, out: &mut [u8]) -> Option<usize> {
@@ -103,20 +115,30 @@ impl Service {
         w.bytes(&i.model.to_be_bytes()).bytes(&i.version.to_be_bytes()).bytes(&i.mac);
         w.net(&i.running).net(&settings.net());
         w.bytes(&((now_ms / 1000) as u32).to_be_bytes()).string(i.name.as_bytes());
+        let restricted = !settings.allow_list().is_empty();
+        w.bytes(&[if restricted { info_flags::WRITES_RESTRICTED } else { 0 }]);
         w.finish()
     }
 }
 
-async fn commit<A: SettingsAccess>(access: &mut A, settings: A::Settings) -> Status {
-    match access.commit(settings).await {
+/// Commits a change of the settings (the store's lock only).
+async fn commit<R: RawMutex, A: SettingsAccess, F: NorFlash>(
+    map: &Mutex<R, A>,
+    store: &Store<F, A::Settings>,
+    change: impl FnOnce(&mut A::Settings),
+) -> Status {
+    match update(map, store, |s| Ok::<(), ()>(change(s))).await {
         Ok(()) => Status::Ok,
         Err(_) => Status::StoreFailed,
     }
 }
 
-fn result(out: &mut [u8], opcode: u8, id: u16, mac: [u8; 6], status: Status) -> Option<usize> {
+fn result(out: &mut [u8], opcode: u8, id: u16, mac: [u8; 6], status: Status, list: Option<&AllowList>) -> Option<usize> {
     let mut w = Writer::new(out, opcode | op::REPLY, id);
     w.bytes(&mac).bytes(&[status as u8]);
+    if let Some(list) = list {
+        w.allow_list(list);
+    }
     w.finish()
 }
 
@@ -136,15 +158,17 @@ pub trait Datagrams {
 /// Serves the protocol forever. Replies go to the requester, or to the broadcast address (same
 /// port) when the requester is outside the module's subnet, so a PC can configure a module
 /// whose settings do not fit its network. `effect` runs after each reply is sent.
-pub async fn serve<R, A, D>(
+pub async fn serve<R, A, F, D>(
     socket: &mut D,
-    map: &embassy_sync::mutex::Mutex<R, A>,
+    map: &Mutex<R, A>,
+    store: &Store<F, A::Settings>,
     identity: Identity,
     mut effect: impl AsyncFnMut(Effect),
 ) -> !
 where
-    R: embassy_sync::blocking_mutex::raw::RawMutex,
+    R: RawMutex,
     A: SettingsAccess,
+    F: NorFlash,
     D: Datagrams,
 {
     let mut service = Service::new(identity);
@@ -159,10 +183,7 @@ where
             }
         };
         let now_ms = embassy_time::Instant::now().as_millis();
-        let reply = {
-            let mut map = map.lock().await;
-            service.handle(&rx[..n], now_ms, &mut *map, &mut tx).await
-        };
+        let reply = service.handle(&rx[..n], ip, now_ms, map, store, &mut tx).await;
         let Some((len, what)) = reply else { continue };
         let to = if identity.running.same_subnet(ip) { ip } else { [255; 4] };
         if let Err(e) = socket.send(&tx[..len], to, port).await {

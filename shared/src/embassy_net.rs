@@ -10,7 +10,8 @@ use crate::board::{Effects, ModbusSlots, Network, Shared};
 use crate::discovery::{serve, Datagrams, Identity, MAX_DATAGRAM, PORT};
 use crate::modbus::server::{serve as serve_modbus, Ended};
 use crate::modbus::RegisterMap;
-use crate::module::SettingsAccess;
+use crate::module::{SettingsAccess, Store};
+use embedded_storage_async::nor_flash::NorFlash;
 use crate::{debug, error, warn};
 
 /// How long a connection the peer closed may take to finish closing before it is reset.
@@ -45,7 +46,11 @@ impl<E: Effects> Network for EmbassyNet<E> {
                 continue;
             }
             debug!("modbus: slot {} connected", slot);
-            let ended = serve_modbus(&mut socket, map, slots, slot).await;
+            let from = match socket.remote_endpoint() {
+                Some(IpEndpoint { addr: IpAddress::Ipv4(ip), .. }) => ip.octets(),
+                None => [0; 4],
+            };
+            let ended = serve_modbus(&mut socket, from, map, slots, slot).await;
             debug!("modbus: slot {} closed: {:?}", slot, ended);
             // Back to accepting at once, so that a newcomer finds a listening socket even in a
             // flood of connections: a peer that closed gets our FIN (every answer was flushed
@@ -58,7 +63,12 @@ impl<E: Effects> Network for EmbassyNet<E> {
         }
     }
 
-    async fn serve_discovery<A: SettingsAccess>(&'static self, map: &'static Shared<A>, identity: Identity) -> ! {
+    async fn serve_discovery<A: SettingsAccess, F: NorFlash>(
+        &'static self,
+        map: &'static Shared<A>,
+        store: &'static Store<F, A::Settings>,
+        identity: Identity,
+    ) -> ! {
         let mut rx_meta = [PacketMetadata::EMPTY; 4];
         let mut tx_meta = [PacketMetadata::EMPTY; 4];
         let mut rx = [0u8; 4 * (MAX_DATAGRAM + 1)];
@@ -69,7 +79,7 @@ impl<E: Effects> Network for EmbassyNet<E> {
             Timer::after(Duration::from_secs(1)).await;
         }
         let mut datagrams = NetDatagrams(socket);
-        serve(&mut datagrams, map, identity, async |effect| self.effects.apply(effect).await).await
+        serve(&mut datagrams, map, store, identity, async |effect| self.effects.apply(effect).await).await
     }
 }
 

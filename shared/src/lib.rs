@@ -8,6 +8,7 @@ extern crate std;
 
 pub mod fmt;
 
+pub mod access;
 pub mod board;
 pub mod diagnostics;
 pub mod discovery;

@@ -1,9 +1,14 @@
 //! What every module's settings and register map offer to the common services (network
 //! configuration and discovery): the network settings and the configuration password.
 
+use embassy_sync::blocking_mutex::raw::{CriticalSectionRawMutex, RawMutex};
+use embassy_sync::mutex::Mutex;
+use embedded_storage_async::nor_flash::NorFlash;
+
 use crate::net::NetConfig;
 use crate::password::PasswordHash;
-use crate::settings::{Schema, StoreError};
+use crate::protocol::access::AllowList;
+use crate::settings::{Schema, SettingsStore, StoreError};
 
 /// Settings present in both modules.
 pub trait CommonSettings: Schema + Copy {
@@ -15,22 +20,61 @@ pub trait CommonSettings: Schema + Copy {
     fn password(&self) -> PasswordHash;
     /// Changes the configuration password.
     fn set_password(&mut self, hash: PasswordHash);
+    /// The Modbus write allow-list (extensions §4).
+    fn allow_list(&self) -> AllowList;
+    /// Changes the Modbus write allow-list.
+    fn set_allow_list(&mut self, list: AllowList);
 }
 
-/// Reading and committing a module's settings (implemented by its register map, which owns
-/// the store).
-#[allow(async_fn_in_trait)]
+/// The settings store behind its own lock, shared by the register map (Modbus writes) and the
+/// discovery service. A commit holds this lock and never the register map's, so Modbus reads
+/// go on while the flash is written (extensions §4). Lock order: the store, then the map.
+pub type Store<F, S> = Mutex<CriticalSectionRawMutex, SettingsStore<F, S>>;
+
+/// The settings in force, as a module's register map keeps them (a copy of the store's, so
+/// that reading them never waits for a commit).
 pub trait SettingsAccess {
     /// The module's settings.
     type Settings: CommonSettings;
     /// The settings in force.
     fn settings(&self) -> &Self::Settings;
-    /// Commits new settings (durable when `Ok`), then puts them in force.
-    async fn commit(&mut self, settings: Self::Settings) -> Result<(), StoreError>;
+    /// Puts settings just committed in force.
+    fn committed(&mut self, settings: &Self::Settings);
 }
 
-/// Implements [`CommonSettings`] for a settings struct with the fields `net: NetConfig` and
-/// `password: PasswordHash`.
+/// Why [`update`] changed nothing.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum UpdateError<E> {
+    /// The change refused the settings.
+    Refused(E),
+    /// The store could not commit; the old settings stay in force.
+    Store(StoreError),
+}
+
+/// Applies `change` to the latest settings and commits them (when they changed) holding the
+/// store's lock only, then puts them in force in `map`. Returns what `change` returned.
+pub async fn update<R, A, F, T, E>(
+    map: &Mutex<R, A>,
+    store: &Store<F, A::Settings>,
+    change: impl FnOnce(&mut A::Settings) -> Result<T, E>,
+) -> Result<T, UpdateError<E>>
+where
+    R: RawMutex,
+    A: SettingsAccess,
+    F: NorFlash,
+{
+    let mut store = store.lock().await;
+    let mut settings = *store.get();
+    let out = change(&mut settings).map_err(UpdateError::Refused)?;
+    if settings != *store.get() {
+        store.commit(settings).await.map_err(UpdateError::Store)?;
+        map.lock().await.committed(&settings);
+    }
+    Ok(out)
+}
+
+/// Implements [`CommonSettings`] for a settings struct with the fields `net: NetConfig`,
+/// `password: PasswordHash` and `allow: AllowList`.
 #[macro_export]
 macro_rules! impl_common_settings {
     ($settings:ty) => {
@@ -46,6 +90,12 @@ macro_rules! impl_common_settings {
             }
             fn set_password(&mut self, hash: $crate::password::PasswordHash) {
                 self.password = hash;
+            }
+            fn allow_list(&self) -> $crate::protocol::access::AllowList {
+                self.allow
+            }
+            fn set_allow_list(&mut self, list: $crate::protocol::access::AllowList) {
+                self.allow = list;
             }
         }
     };

@@ -81,13 +81,26 @@ impl PasswordHash {
 const FREE_FAILURES: u32 = 3;
 /// Longest lock-out, ms.
 const MAX_LOCKOUT_MS: u64 = 300_000;
+/// Sources whose wrong guesses are remembered (extensions §4: at least the 16 most recent).
+pub const SOURCES: usize = 16;
 
-/// Rate limit on password checks: after [`FREE_FAILURES`] wrong guesses, every further check
-/// is refused for 1 s, then 2 s, 4 s, ... up to 5 minutes, until a right password.
-#[derive(Default)]
-pub struct Limiter {
+/// One source's wrong guesses.
+#[derive(Clone, Copy)]
+struct Source {
+    ip: [u8; 4],
     failures: u32,
     locked_until_ms: u64,
+    last_ms: u64,
+}
+
+/// Rate limit on password checks, kept per source address (extensions §4), so one host
+/// guessing cannot lock the administrator out elsewhere: after [`FREE_FAILURES`] wrong
+/// guesses from a source, every further check from it is refused for 1 s, then 2 s, 4 s, ...
+/// up to 5 minutes, until a right password from it. The [`SOURCES`] most recently seen
+/// sources are remembered.
+#[derive(Default)]
+pub struct Limiter {
+    sources: [Option<Source>; SOURCES],
 }
 
 /// The outcome of a password check.
@@ -97,26 +110,45 @@ pub enum Check {
     Ok,
     /// Wrong password.
     Wrong,
-    /// Not checked: too many wrong guesses, try later.
+    /// Not checked: too many wrong guesses from this source, try later.
     Locked,
 }
 
 impl Limiter {
-    /// Checks `password` against `hash` at time `now_ms`.
-    pub fn check(&mut self, hash: &PasswordHash, password: &[u8], now_ms: u64) -> Check {
-        if now_ms < self.locked_until_ms {
-            return Check::Locked;
+    /// Checks `password` from source `from` against `hash` at time `now_ms` (the hash is not
+    /// computed while the source is locked out).
+    pub fn check(&mut self, hash: &PasswordHash, password: &[u8], from: [u8; 4], now_ms: u64) -> Check {
+        let index = self.sources.iter().position(|s| s.is_some_and(|s| s.ip == from));
+        if let Some(source) = index.and_then(|i| self.sources[i].as_mut()) {
+            source.last_ms = now_ms;
+            if now_ms < source.locked_until_ms {
+                return Check::Locked;
+            }
         }
         if hash.matches(password) {
-            self.failures = 0;
+            if let Some(i) = index {
+                self.sources[i] = None;
+            }
             return Check::Ok;
         }
-        self.failures = self.failures.saturating_add(1);
-        if self.failures >= FREE_FAILURES {
-            let exp = (self.failures - FREE_FAILURES).min(20);
-            self.locked_until_ms = now_ms + (1000u64 << exp).min(MAX_LOCKOUT_MS);
+        let slot = index.unwrap_or_else(|| self.free_or_oldest());
+        let source = self.sources[slot].get_or_insert(Source { ip: from, failures: 0, locked_until_ms: 0, last_ms: now_ms });
+        source.failures = source.failures.saturating_add(1);
+        if source.failures >= FREE_FAILURES {
+            let exp = (source.failures - FREE_FAILURES).min(20);
+            source.locked_until_ms = now_ms + (1000u64 << exp).min(MAX_LOCKOUT_MS);
         }
         Check::Wrong
+    }
+
+    /// A free entry, else the one seen least recently (its record is dropped).
+    fn free_or_oldest(&mut self) -> usize {
+        let slot = match self.sources.iter().position(Option::is_none) {
+            Some(free) => free,
+            None => (0..SOURCES).min_by_key(|i| self.sources[*i].map_or(0, |s| s.last_ms)).unwrap_or(0),
+        };
+        self.sources[slot] = None;
+        slot
     }
 }
 
@@ -135,14 +167,33 @@ mod tests {
         assert!(h2.matches(b"secret") && !h2.matches(b"remodaq"));
 
         let mut l = Limiter::default();
-        assert_eq!(l.check(&h, b"a", 0), Check::Wrong);
-        assert_eq!(l.check(&h, b"b", 0), Check::Wrong);
-        assert_eq!(l.check(&h, b"c", 0), Check::Wrong);
-        assert_eq!(l.check(&h, b"remodaq", 500), Check::Locked, "even the right one, while locked");
-        assert_eq!(l.check(&h, b"d", 1000), Check::Wrong);
-        assert_eq!(l.check(&h, b"remodaq", 2999), Check::Locked, "2 s after the fourth");
-        assert_eq!(l.check(&h, b"remodaq", 3000), Check::Ok);
-        assert_eq!(l.check(&h, b"x", 3000), Check::Wrong, "reset by the right password");
-        assert_eq!(l.check(&h, b"remodaq", 3000), Check::Ok);
+        let a = [10, 0, 0, 1];
+        assert_eq!(l.check(&h, b"a", a, 0), Check::Wrong);
+        assert_eq!(l.check(&h, b"b", a, 0), Check::Wrong);
+        assert_eq!(l.check(&h, b"c", a, 0), Check::Wrong);
+        assert_eq!(l.check(&h, b"remodaq", a, 500), Check::Locked, "even the right one, while locked");
+        assert_eq!(l.check(&h, b"d", a, 1000), Check::Wrong);
+        assert_eq!(l.check(&h, b"remodaq", a, 2999), Check::Locked, "2 s after the fourth");
+        assert_eq!(l.check(&h, b"remodaq", a, 3000), Check::Ok);
+        assert_eq!(l.check(&h, b"x", a, 3000), Check::Wrong, "reset by the right password");
+        assert_eq!(l.check(&h, b"remodaq", a, 3000), Check::Ok);
+    }
+
+    #[test]
+    fn lock_out_is_per_source() {
+        let h = PasswordHash::factory();
+        let mut l = Limiter::default();
+        let (guesser, admin) = ([10, 0, 0, 66], [10, 0, 0, 1]);
+        for _ in 0..10 {
+            l.check(&h, b"guess", guesser, 100);
+        }
+        assert_eq!(l.check(&h, b"remodaq", guesser, 200), Check::Locked);
+        assert_eq!(l.check(&h, b"remodaq", admin, 200), Check::Ok, "another source is still accepted");
+        assert_eq!(l.check(&h, b"wrong", admin, 200), Check::Wrong, "and gets its own free guesses");
+        // 15 other sources guessing after the guesser keep it among the 16 remembered.
+        for i in 0..14u8 {
+            l.check(&h, b"x", [10, 1, 0, i], 300);
+        }
+        assert_eq!(l.check(&h, b"remodaq", guesser, 400), Check::Locked, "still remembered");
     }
 }

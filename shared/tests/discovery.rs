@@ -1,14 +1,18 @@
 //! The discovery / configuration protocol on the module side, without sockets.
 
+use embassy_sync::blocking_mutex::raw::{CriticalSectionRawMutex, NoopRawMutex};
+use embassy_sync::mutex::Mutex;
 use futures_executor::block_on;
+use remodaq_shared::access::{AllowList, Network};
 use remodaq_shared::discovery::{
-    decode_info, decode_request, decode_result, op, Effect, Identity, Service, Status, Writer, MAX_DATAGRAM,
+    decode_info, decode_reply, decode_request, encode_request, info_flags, op, Effect, Identity, Request, Service,
+    Status, Writer, MAX_DATAGRAM,
 };
 use remodaq_shared::module::SettingsAccess;
 use remodaq_shared::net::{NetConfig, NetRecord};
 use remodaq_shared::password::PasswordHash;
 use remodaq_shared::ram_flash::RamFlash;
-use remodaq_shared::settings::{RecordReader, RecordWriter, Schema, SettingsStore, StoreError};
+use remodaq_shared::settings::{RecordReader, RecordWriter, Schema, SettingsStore};
 
 type Flash = RamFlash<4096, 1024>;
 
@@ -16,39 +20,55 @@ type Flash = RamFlash<4096, 1024>;
 struct S {
     net: NetConfig,
     password: PasswordHash,
+    allow: AllowList,
 }
 
 impl Schema for S {
     const VERSION: u8 = 1;
     fn defaults() -> Self {
-        Self { net: NetConfig::FACTORY, password: PasswordHash::factory() }
+        Self { net: NetConfig::FACTORY, password: PasswordHash::factory(), allow: AllowList::EMPTY }
     }
     fn encode(&self, w: &mut RecordWriter<'_>) {
         self.net.encode(w);
         self.password.encode(w);
+        remodaq_shared::access::encode(&self.allow, w);
     }
     fn decode(_: u8, r: &RecordReader<'_>) -> Self {
-        Self { net: NetConfig::decode(r), password: PasswordHash::decode(r) }
+        Self { net: NetConfig::decode(r), password: PasswordHash::decode(r), allow: remodaq_shared::access::decode(r) }
     }
 }
 
 remodaq_shared::impl_common_settings!(S);
 
-struct Module {
-    store: SettingsStore<Flash, S>,
-    fail_commits: bool,
-}
+/// A register map's copy of the settings in force.
+struct Live(S);
 
-impl SettingsAccess for Module {
+impl SettingsAccess for Live {
     type Settings = S;
     fn settings(&self) -> &S {
-        self.store.get()
+        &self.0
     }
-    async fn commit(&mut self, s: S) -> Result<(), StoreError> {
-        if self.fail_commits {
-            return Err(StoreError::Flash);
-        }
-        self.store.commit(s).await
+    fn committed(&mut self, s: &S) {
+        self.0 = *s;
+    }
+}
+
+/// The map (behind its lock) and the store (behind its own).
+struct Module {
+    map: Mutex<NoopRawMutex, Live>,
+    store: Mutex<CriticalSectionRawMutex, SettingsStore<Flash, S>>,
+}
+
+impl Module {
+    fn settings(&self) -> S {
+        block_on(self.map.lock()).0
+    }
+
+    /// From now on every commit fails (a flash whose writes fail).
+    fn fail_commits(&mut self) {
+        let mut flash = Flash::new();
+        flash.set_budget(Some(0));
+        *self.store.get_mut() = block_on(SettingsStore::open(flash, const { SettingsStore::<Flash, S>::config(0..4096) }));
     }
 }
 
@@ -60,7 +80,8 @@ fn setup() -> (Service, Module) {
     let store = block_on(SettingsStore::open(Flash::new(), const { SettingsStore::<Flash, S>::config(0..4096) }));
     let identity =
         Identity { model: 0x8318, name: "RemoDAQ-8318", version: 0xA100, mac: MAC, running: NetConfig::FACTORY };
-    (Service::new(identity), Module { store, fail_commits: false })
+    let settings = *store.get();
+    (Service::new(identity), Module { map: Mutex::new(Live(settings)), store: Mutex::new(store) })
 }
 
 fn request(opcode: u8, id: u16, build: impl FnOnce(&mut Writer<'_>)) -> Vec<u8> {
@@ -77,13 +98,27 @@ fn set_network(mac: [u8; 6], password: &str, net: &NetConfig) -> Vec<u8> {
     })
 }
 
+/// The administrator's PC.
+const ADMIN: [u8; 4] = [192, 168, 0, 10];
+
 fn ask(service: &mut Service, module: &mut Module, datagram: &[u8], now_ms: u64) -> Option<(Vec<u8>, Effect)> {
+    ask_from(service, module, datagram, ADMIN, now_ms)
+}
+
+fn ask_from(
+    service: &mut Service,
+    module: &mut Module,
+    datagram: &[u8],
+    from: [u8; 4],
+    now_ms: u64,
+) -> Option<(Vec<u8>, Effect)> {
     let mut out = [0u8; MAX_DATAGRAM];
-    block_on(service.handle(datagram, now_ms, module, &mut out)).map(|(n, e)| (out[..n].to_vec(), e))
+    block_on(service.handle(datagram, from, now_ms, &module.map, &module.store, &mut out))
+        .map(|(n, e)| (out[..n].to_vec(), e))
 }
 
 fn status(reply: &[u8]) -> Status {
-    decode_result(reply).unwrap().3
+    decode_reply(reply).unwrap().status
 }
 
 #[test]
@@ -114,7 +149,7 @@ fn set_network_with_right_and_wrong_password() {
     assert_eq!((info.running, info.stored), (NetConfig::FACTORY, NEW_NET));
     // Durable: a new store on the same flash has it.
     let flash = std::mem::replace(
-        &mut module.store,
+        module.store.get_mut(),
         block_on(SettingsStore::open(Flash::new(), const { SettingsStore::<Flash, S>::config(0..4096) })),
     )
     .into_flash();
@@ -128,7 +163,7 @@ fn invalid_settings_and_failed_commits() {
     let bad = NetConfig { mask: [255, 0, 255, 0], ..NEW_NET };
     let (reply, _) = ask(&mut service, &mut module, &set_network(MAC, "remodaq", &bad), 0).unwrap();
     assert_eq!(status(&reply), Status::Invalid);
-    module.fail_commits = true;
+    module.fail_commits();
     let (reply, _) = ask(&mut service, &mut module, &set_network(MAC, "remodaq", &NEW_NET), 0).unwrap();
     assert_eq!(status(&reply), Status::StoreFailed);
     assert_eq!(module.settings().net, NetConfig::FACTORY);
@@ -210,7 +245,84 @@ fn valid_requests() -> Vec<Vec<u8>> {
         request(op::SET_PASSWORD, 4, |w| {
             w.bytes(&MAC).string(b"remodaq").string(b"newpass1");
         }),
+        request(op::GET_ACCESS, 5, |w| {
+            w.bytes(&MAC).string(b"remodaq");
+        }),
+        request(op::SET_ACCESS, 6, |w| {
+            w.bytes(&MAC).string(b"remodaq").allow_list(&AllowList::of(&[Network::new([10, 0, 0, 0], 8).unwrap()]).unwrap());
+        }),
     ]
+}
+
+#[test]
+fn encode_request_writes_what_decode_request_reads() {
+    let list = AllowList::of(&[Network::new([127, 0, 0, 2], 32).unwrap()]).unwrap();
+    let requests = [
+        Request::Search,
+        Request::SetNetwork { mac: MAC, password: b"remodaq", net: NEW_NET },
+        Request::Restart { mac: MAC, password: b"pw" },
+        Request::Identify { mac: OTHER },
+        Request::SetPassword { mac: MAC, password: b"old", new: b"new pass" },
+        Request::GetAccess { mac: MAC, password: b"remodaq" },
+        Request::SetAccess { mac: MAC, password: b"remodaq", list },
+        Request::SetAccess { mac: MAC, password: b"remodaq", list: AllowList::EMPTY },
+    ];
+    for (id, r) in requests.iter().enumerate() {
+        let mut buf = [0u8; MAX_DATAGRAM];
+        let n = encode_request(id as u16, r, &mut buf).unwrap();
+        assert_eq!(decode_request(&buf[..n]), Some((id as u16, *r)));
+    }
+    let mut buf = [0u8; MAX_DATAGRAM];
+    assert_eq!(encode_request(1, &Request::Restart { mac: MAC, password: &[b'x'; 33] }, &mut buf), None);
+}
+
+#[test]
+fn lock_out_is_kept_per_source() {
+    let (mut service, mut module) = setup();
+    let guesser = [192, 168, 0, 66];
+    for _ in 0..6 {
+        ask_from(&mut service, &mut module, &set_network(MAC, "guess", &NEW_NET), guesser, 1000);
+    }
+    let (reply, _) = ask_from(&mut service, &mut module, &set_network(MAC, "remodaq", &NEW_NET), guesser, 1500).unwrap();
+    assert_eq!(status(&reply), Status::RateLimited, "the guessing host is locked out");
+    let (reply, _) = ask(&mut service, &mut module, &set_network(MAC, "remodaq", &NEW_NET), 1500).unwrap();
+    assert_eq!(status(&reply), Status::Ok, "the administrator elsewhere is not");
+}
+
+#[test]
+fn allow_list_set_read_and_cleared_with_the_password() {
+    let (mut service, mut module) = setup();
+    let list = AllowList::of(&[Network::new([127, 0, 0, 2], 32).unwrap(), Network::new([10, 9, 0, 0], 16).unwrap()]).unwrap();
+    let set = |password: &str, list: AllowList| {
+        let mut buf = [0u8; MAX_DATAGRAM];
+        let n = encode_request(5, &Request::SetAccess { mac: MAC, password: password.as_bytes(), list }, &mut buf).unwrap();
+        buf[..n].to_vec()
+    };
+    let (reply, _) = ask(&mut service, &mut module, &set("wrong", list), 0).unwrap();
+    assert_eq!(status(&reply), Status::WrongPassword);
+    assert_eq!(module.settings().allow, AllowList::EMPTY);
+    let (reply, _) = ask(&mut service, &mut module, &set("remodaq", list), 0).unwrap();
+    assert_eq!(status(&reply), Status::Ok);
+    assert_eq!(module.settings().allow, list, "in force at once");
+    let search = request(op::SEARCH, 1, |_| {});
+    let info = decode_info(&ask(&mut service, &mut module, &search, 0).unwrap().0).unwrap().flags;
+    assert_eq!(info, Some(info_flags::WRITES_RESTRICTED), "a search shows that writes are restricted");
+    let get = request(op::GET_ACCESS, 6, |w| {
+        w.bytes(&MAC).string(b"remodaq");
+    });
+    let reply = decode_reply(&ask(&mut service, &mut module, &get, 0).unwrap().0).unwrap();
+    assert_eq!((reply.status, reply.list), (Status::Ok, Some(list)));
+    let wrong = request(op::GET_ACCESS, 6, |w| {
+        w.bytes(&MAC).string(b"nope");
+    });
+    let reply = decode_reply(&ask(&mut service, &mut module, &wrong, 0).unwrap().0).unwrap();
+    assert_eq!((reply.status, reply.list), (Status::WrongPassword, None), "the list needs the password");
+    // Durable: the store has it.
+    assert_eq!(block_on(module.store.lock()).get().allow, list);
+    ask(&mut service, &mut module, &set("remodaq", AllowList::EMPTY), 0).unwrap();
+    assert_eq!(module.settings().allow, AllowList::EMPTY);
+    let info = decode_info(&ask(&mut service, &mut module, &search, 0).unwrap().0).unwrap().flags;
+    assert_eq!(info, Some(0));
 }
 
 #[test]
@@ -245,7 +357,7 @@ fn truncated_extended_and_oversized_datagrams_are_ignored_without_side_effects()
 #[test]
 fn random_and_mutated_datagrams_never_panic_nor_change_settings() {
     let (mut service, mut module) = setup();
-    let before = *module.settings();
+    let before = module.settings();
     let mut seed = 0x9E37_79B9_7F4A_7C15u64;
     let mut next = move || {
         seed ^= seed << 13;
@@ -271,20 +383,20 @@ fn random_and_mutated_datagrams_never_panic_nor_change_settings() {
         }
         let _ = decode_request(&d);
         let _ = decode_info(&d);
-        let _ = decode_result(&d);
+        let _ = decode_reply(&d);
         // Through the service, but never with the right password: nothing may change. Each
         // datagram comes 6 minutes after the last, longer than the longest lock-out (5 min),
         // so every command is really checked against the password, never just rate limited.
         if !d.windows(7).any(|w| w == b"remodaq") {
             if let Some((reply, _)) = ask(&mut service, &mut module, &d, i * 360_000) {
-                if let Some((opcode, _, _, status)) = decode_result(&reply) {
-                    let what = if opcode == op::IDENTIFY { "identify" } else { "command" };
-                    *statuses.entry(format!("{what} {status:?}")).or_insert(0u32) += 1;
+                if let Some(r) = decode_reply(&reply) {
+                    let what = if r.opcode == op::IDENTIFY { "identify" } else { "command" };
+                    *statuses.entry(format!("{what} {:?}", r.status)).or_insert(0u32) += 1;
                 }
             }
         }
     }
-    assert_eq!(*module.settings(), before);
+    assert_eq!(module.settings(), before);
     // What the service answered: thousands of commands reached the password check and were
     // refused, none was locked out, and only identify (which needs no password) succeeded.
     assert_eq!(statuses.get("command RateLimited"), None, "{statuses:?}");

@@ -2,12 +2,16 @@
 mod common;
 
 use common::{hex, TestMap};
+use embassy_sync::blocking_mutex::raw::NoopRawMutex;
+use embassy_sync::mutex::Mutex;
 use futures_executor::block_on;
 use remodaq_shared::modbus::{handle_pdu, MAX_PDU};
 
 fn ask(map: &mut TestMap, req: &str) -> String {
     let mut resp = [0u8; MAX_PDU];
-    let n = block_on(handle_pdu(map, &hex(req), &mut resp));
+    let shared = Mutex::<NoopRawMutex, _>::new(std::mem::take(map));
+    let n = block_on(handle_pdu(&shared, [127, 0, 0, 1], &hex(req), &mut resp));
+    *map = shared.into_inner();
     resp[..n].iter().map(|b| format!("{b:02X}")).collect::<Vec<_>>().join(" ")
 }
 

@@ -11,7 +11,7 @@ fn run(segments: &[&[u8]]) -> (Vec<u8>, Ended) {
     let map = Mutex::<NoopRawMutex, _>::new(TestMap::default());
     let slots = Slots::<NoopRawMutex, 2>::new(1);
     let mut io = Script::new(segments);
-    let ended = block_on(serve(&mut io, &map, &slots, 0));
+    let ended = block_on(serve(&mut io, [127, 0, 0, 1], &map, &slots, 0));
     assert_eq!(slots.active(), 0, "slot released");
     (io.outgoing, ended)
 }
@@ -28,7 +28,7 @@ fn manual_framing_example() {
     block_on(async { map.lock().await.regs[6..8].copy_from_slice(&[0x7FFF, 0x7FFF]) });
     let slots = Slots::<NoopRawMutex, 1>::new(1);
     let mut io = Script::new(&[&hex("00 00 00 00 00 06 01 04 00 06 00 02")]);
-    assert_eq!(block_on(serve(&mut io, &map, &slots, 0)), Ended::PeerClosed);
+    assert_eq!(block_on(serve(&mut io, [127, 0, 0, 1], &map, &slots, 0)), Ended::PeerClosed);
     assert_eq!(io.outgoing, hex("00 00 00 00 00 07 01 04 04 7F FF 7F FF"));
 }
 
@@ -166,7 +166,7 @@ fn a_peer_that_stops_reading_is_still_evicted() {
     let map = Mutex::<NoopRawMutex, _>::new(TestMap::default());
     let slots = Slots::<NoopRawMutex, 2>::new(1);
     let mut io = Stalled(Some(hex("00 01 00 00 00 06 01 03 00 00 00 01")));
-    let mut server = std::pin::pin!(serve(&mut io, &map, &slots, 0));
+    let mut server = std::pin::pin!(serve(&mut io, [127, 0, 0, 1], &map, &slots, 0));
     let mut cx = Context::from_waker(Waker::noop());
     assert!(server.as_mut().poll(&mut cx).is_pending(), "stuck sending the answer");
     assert_eq!(slots.open(1), Some(0), "the newcomer evicts it");

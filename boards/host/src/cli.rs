@@ -31,6 +31,11 @@ pub struct Options {
     #[arg(long, value_name = "ADDR:PORT", default_value = "0.0.0.0:8300")]
     pub discovery: SocketAddr,
 
+    /// Make every settings-flash write and erase take this many milliseconds longer (a slow
+    /// flash, to watch the module go on answering while it commits).
+    #[arg(long, value_name = "MS", default_value_t = 0)]
+    pub slow_flash: u64,
+
     /// Reset every setting (network, password, I/O) to factory defaults at start-up, as
     /// holding the USER button at power-up does on the module.
     #[arg(long)]

@@ -7,7 +7,8 @@ use std::net::{SocketAddr, SocketAddrV4, UdpSocket};
 use async_io::Async;
 use remodaq_shared::board::{Effects, Shared};
 use remodaq_shared::discovery::{serve, Datagrams, Effect, Identity};
-use remodaq_shared::module::SettingsAccess;
+use embedded_storage_async::nor_flash::NorFlash;
+use remodaq_shared::module::{SettingsAccess, Store};
 
 /// The service's socket.
 pub struct HostDatagrams(Async<UdpSocket>);
@@ -52,14 +53,15 @@ impl Effects for HostEffects {
 }
 
 /// Serves the protocol forever.
-pub async fn run<A: SettingsAccess>(
+pub async fn run<A: SettingsAccess, F: NorFlash>(
     socket: &HostDatagrams,
     map: &Shared<A>,
+    store: &Store<F, A::Settings>,
     identity: Identity,
     effects: &impl Effects,
 ) -> ! {
     let mut socket = socket;
-    serve(&mut socket, map, identity, async |effect| effects.apply(effect).await).await
+    serve(&mut socket, map, store, identity, async |effect| effects.apply(effect).await).await
 }
 
 /// Set in the environment of a simulated module started by a restart (its reset cause).

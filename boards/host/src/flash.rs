@@ -37,6 +37,7 @@ impl NorFlashError for FileFlashError {
 pub struct FileFlash {
     flash: Box<RamFlash<SIZE, SECTOR>>,
     file: File,
+    delay: std::time::Duration,
 }
 
 impl FileFlash {
@@ -46,7 +47,7 @@ impl FileFlash {
         let mut image = Vec::new();
         file.read_to_end(&mut image)?;
         let flash = Box::new(RamFlash::from_image(&image));
-        let mut flash = Self { flash, file };
+        let mut flash = Self { flash, file, delay: std::time::Duration::ZERO };
         if image.len() != SIZE {
             flash.file.set_len(SIZE as u64)?;
             flash.write_through(0, SIZE)?;
@@ -62,7 +63,16 @@ impl FileFlash {
         self.file.sync_data()
     }
 
-    fn persist(&mut self, from: usize, to: usize) -> Result<(), FileFlashError> {
+    /// Makes every later write and erase take `delay` longer (a slow flash, `--slow-flash`):
+    /// the wait yields, as a flash driver waiting for its interrupt does.
+    pub fn slow_down(&mut self, delay: std::time::Duration) {
+        self.delay = delay;
+    }
+
+    async fn persist(&mut self, from: usize, to: usize) -> Result<(), FileFlashError> {
+        if !self.delay.is_zero() {
+            async_io::Timer::after(self.delay).await;
+        }
         self.write_through(from, to).map_err(|_| FileFlashError::File)
     }
 }
@@ -89,11 +99,11 @@ impl NorFlash for FileFlash {
 
     async fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
         self.flash.erase_now(from, to).map_err(FileFlashError::Flash)?;
-        self.persist(from as usize, to as usize)
+        self.persist(from as usize, to as usize).await
     }
 
     async fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
         self.flash.write_now(offset, bytes).map_err(FileFlashError::Flash)?;
-        self.persist(offset as usize, offset as usize + bytes.len())
+        self.persist(offset as usize, offset as usize + bytes.len()).await
     }
 }

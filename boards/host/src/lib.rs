@@ -17,10 +17,11 @@ use std::path::PathBuf;
 
 use clap::Parser;
 use embassy_executor::Spawner;
+use embedded_storage_async::nor_flash::NorFlash;
 use remodaq_shared::board::{Board, ModbusSlots, Network, Shared};
 use remodaq_shared::discovery::Identity;
 use remodaq_shared::modbus::RegisterMap;
-use remodaq_shared::module::SettingsAccess;
+use remodaq_shared::module::{SettingsAccess, Store};
 use remodaq_shared::net::{mac_from_uid, NetConfig};
 
 /// Logging to stderr through `log`; `RUST_LOG` overrides the default level (info).
@@ -75,9 +76,13 @@ impl Board for HostBoard {
         init_logging();
         let options = cli::Options::parse();
         let path = options.flash_path();
-        let flash =
+        let mut flash =
             flash::FileFlash::open(&path).unwrap_or_else(|e| fail(&format!("flash image {}: {e}", path.display())));
         log::info!("settings in {}", path.display());
+        if options.slow_flash > 0 {
+            log::info!("slow flash: every write and erase takes {} ms longer", options.slow_flash);
+            flash.slow_down(std::time::Duration::from_millis(options.slow_flash));
+        }
         let scenario = Scenario(options.scenario.clone());
         (Self { options, path }, flash, scenario)
     }
@@ -137,7 +142,12 @@ impl Network for HostNet {
         modbus::connection_task(&self.listener, map, slots, slot).await
     }
 
-    async fn serve_discovery<A: SettingsAccess>(&'static self, map: &'static Shared<A>, identity: Identity) -> ! {
-        discovery::run(&self.discovery, map, identity, &discovery::HostEffects).await
+    async fn serve_discovery<A: SettingsAccess, F: NorFlash>(
+        &'static self,
+        map: &'static Shared<A>,
+        store: &'static Store<F, A::Settings>,
+        identity: Identity,
+    ) -> ! {
+        discovery::run(&self.discovery, map, store, identity, &discovery::HostEffects).await
     }
 }

@@ -36,9 +36,18 @@ pub async fn connection_task<M: RegisterMap>(
         let _ = stream.get_ref().set_nodelay(true);
         log::debug!("modbus: slot {slot} serves {peer}");
         let mut io = FromFutures::new(stream);
-        let ended = serve(&mut io, map, slots, slot).await;
+        let ended = serve(&mut io, ipv4(peer.ip()), map, slots, slot).await;
         log::debug!("modbus: slot {slot} closed {peer}: {ended:?}");
         let stream: Async<TcpStream> = io.into_inner();
         let _ = stream.get_ref().shutdown(std::net::Shutdown::Both);
+    }
+}
+
+/// A client's IPv4 address for the access rule (an IPv4-mapped IPv6 address is unmapped;
+/// another IPv6 address is unknown: 0.0.0.0, which only an empty allow-list lets write).
+pub fn ipv4(ip: std::net::IpAddr) -> [u8; 4] {
+    match ip {
+        std::net::IpAddr::V4(v4) => v4.octets(),
+        std::net::IpAddr::V6(v6) => v6.to_ipv4_mapped().map_or([0; 4], |v4| v4.octets()),
     }
 }

@@ -9,6 +9,7 @@ use remodaq_shared::module::SettingsAccess;
 use remodaq_shared::warn;
 
 use crate::input::{InputType, Kind};
+pub use remodaq_protocol::m8318::ChannelStatus;
 use crate::map::Map8318;
 use crate::settings::Settings;
 use crate::thermocouple::{Inverse, Reference};
@@ -49,6 +50,8 @@ pub trait AnalogFrontEnd {
 pub struct Snapshot {
     /// Registers 40001-40008.
     pub values: [u16; CHANNELS],
+    /// Registers 40225-40232: why each value reads what it reads.
+    pub status: [ChannelStatus; CHANNELS],
     /// Register 40009: corrected CJC temperature, 0.01 °C.
     pub cjc: i16,
     /// A conversion of this cycle failed (the front end did not answer, or timed out).
@@ -59,26 +62,42 @@ pub struct Snapshot {
 
 impl Default for Snapshot {
     fn default() -> Self {
-        Self { values: [0; CHANNELS], cjc: 0, front_end_fault: false, cjc_fault: false }
+        Self {
+            values: [0; CHANNELS],
+            status: [ChannelStatus::Ok; CHANNELS],
+            cjc: 0,
+            front_end_fault: false,
+            cjc_fault: false,
+        }
     }
 }
 
-/// The register value of one channel. `cj_emf_mv` is E(t_cj + offset) of the type, `None`
-/// when the cold junction is unknown.
-pub fn channel_value(input: &InputType, m: Measurement, cj_emf_mv: Option<f64>) -> u16 {
-    let Measurement::Millivolts(mv) = m else { return 0xFFFF };
-    match input.kind {
-        Kind::Voltage => input.raw(mv),
-        Kind::Current => input.raw(mv / crate::input::SHUNT_OHMS),
+/// The register value of one channel and its status (extensions §2). `cj_emf_mv` is
+/// E(t_cj + offset) of the type, `None` when the cold junction is unknown; `open` is the value
+/// an open input reads (FFFFh upscale, 0000h downscale).
+pub fn channel_value(input: &InputType, m: Measurement, cj_emf_mv: Option<f64>, open: u16) -> (u16, ChannelStatus) {
+    let Measurement::Millivolts(mv) = m else { return (open, ChannelStatus::Open) };
+    let x = match input.kind {
+        Kind::Voltage => mv,
+        Kind::Current => mv / crate::input::SHUNT_OHMS,
         Kind::Thermocouple(tc) => {
-            let Some(cj) = cj_emf_mv else { return 0xFFFF };
+            let Some(cj) = cj_emf_mv else { return (0xFFFF, ChannelStatus::CjcFault) };
             match tc.temperature_c(mv + cj) {
-                Inverse::Below => 0x0000,
-                Inverse::Above => 0xFFFF,
-                Inverse::Celsius(t) => input.raw(t),
+                Inverse::Below => return (0x0000, ChannelStatus::Under),
+                Inverse::Above => return (0xFFFF, ChannelStatus::Over),
+                Inverse::Celsius(t) => t,
             }
         }
-    }
+    };
+    let status = if x < input.lo {
+        ChannelStatus::Under
+    } else if x <= input.hi {
+        ChannelStatus::Ok
+    } else {
+        // Above the range, or not a number (which reads FFFFh).
+        ChannelStatus::Over
+    };
+    (input.raw(x), status)
 }
 
 /// Register 40009 of a corrected cold-junction temperature.
@@ -129,18 +148,21 @@ pub async fn acquire<A: AnalogFrontEnd>(fe: &mut A, settings: &Settings) -> Snap
         None => Some(0.0),
     };
     let detect_open = input.thermocouple().is_some();
+    let open = if settings.downscale { 0x0000 } else { 0xFFFF };
     for ch in 0..CHANNELS {
         if settings.enable_mask & (1 << ch) == 0 {
+            snapshot.status[ch] = ChannelStatus::Disabled;
             continue;
         }
-        snapshot.values[ch] = match fe.measure(ch as u8, crate::input::span_mv(&input), detect_open).await {
-            Ok(m) => channel_value(&input, m, cj_emf),
-            Err(e) => {
-                warn!("8318: channel {} not converted: {:?}", ch, e);
-                snapshot.front_end_fault = true;
-                0xFFFF
-            }
-        };
+        (snapshot.values[ch], snapshot.status[ch]) =
+            match fe.measure(ch as u8, crate::input::span_mv(&input), detect_open).await {
+                Ok(m) => channel_value(&input, m, cj_emf, open),
+                Err(e) => {
+                    warn!("8318: channel {} not converted: {:?}", ch, e);
+                    snapshot.front_end_fault = true;
+                    (0xFFFF, ChannelStatus::FrontEndFault)
+                }
+            };
     }
     snapshot
 }
@@ -149,7 +171,7 @@ pub async fn acquire<A: AnalogFrontEnd>(fe: &mut A, settings: &Settings) -> Snap
 /// `alive` is called after each cycle (the watchdog heartbeat).
 pub async fn run<R: RawMutex, F: NorFlash, A: AnalogFrontEnd>(
     fe: &mut A,
-    map: &Mutex<R, Map8318<F>>,
+    map: &Mutex<R, Map8318<'_, F>>,
     mut alive: impl FnMut(),
 ) -> ! {
     let mut ticker = Ticker::every(PERIOD);

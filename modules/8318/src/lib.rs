@@ -14,7 +14,7 @@ pub mod thermocouple;
 
 use embedded_storage_async::nor_flash::NorFlash;
 use remodaq_shared::board::{Module, Runs, Shared};
-use remodaq_shared::settings::SettingsStore;
+use remodaq_shared::module::Store;
 
 pub use remodaq_protocol::m8318::{MODEL, MODULE_NAME};
 
@@ -26,12 +26,16 @@ impl Module for M8318 {
     const MODEL: &'static str = MODEL;
     type Settings = settings::Settings;
     type State = ();
-    type Map<F: NorFlash + 'static> = map::Map8318<F>;
+    type Map<F: NorFlash + 'static> = map::Map8318<'static, F>;
 
     fn state(_: &settings::Settings) {}
 
-    fn map<F: NorFlash + 'static>(store: SettingsStore<F, settings::Settings>, _: &'static ()) -> map::Map8318<F> {
-        map::Map8318::new(store)
+    fn map<F: NorFlash + 'static>(
+        store: &'static Store<F, settings::Settings>,
+        settings: &settings::Settings,
+        _: &'static (),
+    ) -> Self::Map<F> {
+        map::Map8318::new(store, settings)
     }
 }
 
@@ -39,7 +43,7 @@ impl<A: acquisition::AnalogFrontEnd> Runs<A> for M8318 {
     async fn run<F: NorFlash + 'static>(
         mut front_end: A,
         _: &'static (),
-        map: &'static Shared<map::Map8318<F>>,
+        map: &'static Shared<Self::Map<F>>,
         alive: impl FnMut(),
     ) -> ! {
         acquisition::run(&mut front_end, map, alive).await

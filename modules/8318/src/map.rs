@@ -1,31 +1,34 @@
 //! The 8318 register map (spec §2.1) on the shared Modbus core.
 
+use embassy_sync::blocking_mutex::raw::RawMutex;
+use embassy_sync::mutex::Mutex;
 use embedded_storage_async::nor_flash::NorFlash;
 use remodaq_protocol::m8318::{decode, Reg};
+use remodaq_shared::access;
 use remodaq_shared::diagnostics::DIAGNOSTICS;
 use remodaq_shared::identity::FIRMWARE_VERSION;
 use remodaq_shared::modbus::{Access, Exception, RegisterMap, Table, WriteValues};
-use remodaq_shared::module::SettingsAccess;
-use remodaq_shared::settings::{SettingsStore, StoreError};
+use remodaq_shared::module::{update, SettingsAccess, Store, UpdateError};
+use remodaq_shared::settings::StoreError;
 use remodaq_shared::warn;
-
-pub use remodaq_protocol::m8318::{REG_CJC, REG_CJC_OFFSET, REG_ENABLE_MASK, REG_INPUT_TYPE};
 
 use crate::acquisition::Snapshot;
 use crate::input::InputType;
 use crate::settings::{cjc_offset_from_register, cjc_offset_to_register, Settings};
 use crate::MODULE_NAME;
 
-/// The 8318's Modbus view, owning the settings store.
-pub struct Map8318<F: NorFlash> {
-    store: SettingsStore<F, Settings>,
+/// The 8318's Modbus view: the settings in force (the store behind its own lock) and the last
+/// acquisition cycle.
+pub struct Map8318<'a, F: NorFlash> {
+    store: &'a Store<F, Settings>,
+    settings: Settings,
     snapshot: Snapshot,
 }
 
-impl<F: NorFlash> Map8318<F> {
-    /// A map over the opened settings store.
-    pub fn new(store: SettingsStore<F, Settings>) -> Self {
-        Self { store, snapshot: Snapshot::default() }
+impl<'a, F: NorFlash> Map8318<'a, F> {
+    /// A map over the store with `settings` in force.
+    pub fn new(store: &'a Store<F, Settings>, settings: &Settings) -> Self {
+        Self { store, settings: *settings, snapshot: Snapshot::default() }
     }
 
     /// Publishes one acquisition cycle's values, all at once.
@@ -34,19 +37,38 @@ impl<F: NorFlash> Map8318<F> {
     }
 }
 
-impl<F: NorFlash> RegisterMap for Map8318<F> {
+/// The settings after a validated write of `values` at `start`.
+fn written(settings: &mut Settings, start: u16, values: &WriteValues<'_>) {
+    for (i, v) in values.iter().enumerate() {
+        match decode(Table::Registers, start + i as u16) {
+            Some(Reg::InputType) => settings.input_type = v as u8,
+            Some(Reg::CjcOffset) => settings.cjc_offset = cjc_offset_from_register(v).unwrap_or(settings.cjc_offset),
+            Some(Reg::EnableMask) => settings.enable_mask = v as u8,
+            Some(Reg::OpenValue) => settings.downscale = v == 1,
+            _ => {}
+        }
+    }
+}
+
+impl<F: NorFlash> RegisterMap for Map8318<'_, F> {
     fn access(&self, table: Table, addr: u16) -> Access {
         remodaq_protocol::m8318::access(table, addr)
     }
 
+    fn admit(&mut self, from: [u8; 4], function: u8) -> Result<(), Exception> {
+        access::admit(&self.settings.allow, from, function)
+    }
+
     fn read(&mut self, table: Table, addr: u16) -> u16 {
-        let s = self.store.get();
+        let s = &self.settings;
         match decode(table, addr) {
             Some(Reg::Value(n)) => self.snapshot.values[usize::from(n)],
+            Some(Reg::Status(n)) => self.snapshot.status[usize::from(n)] as u16,
             Some(Reg::Cjc) => self.snapshot.cjc as u16,
             Some(Reg::InputType) => u16::from(s.input_type),
             Some(Reg::CjcOffset) => cjc_offset_to_register(s.cjc_offset),
             Some(Reg::EnableMask) => u16::from(s.enable_mask),
+            Some(Reg::OpenValue) => u16::from(s.downscale),
             Some(Reg::Name) => MODULE_NAME,
             Some(Reg::Version) => FIRMWARE_VERSION,
             Some(Reg::Diag(d)) => DIAGNOSTICS.read(d, 0),
@@ -59,6 +81,7 @@ impl<F: NorFlash> RegisterMap for Map8318<F> {
             Some(Reg::InputType) => u8::try_from(v).is_ok_and(|t| InputType::from_code(t).is_some()),
             Some(Reg::CjcOffset) => cjc_offset_from_register(v).is_some(),
             Some(Reg::EnableMask) => v <= 0x00FF,
+            Some(Reg::OpenValue) => v <= 1,
             _ => false,
         });
         if ok {
@@ -68,33 +91,23 @@ impl<F: NorFlash> RegisterMap for Map8318<F> {
         }
     }
 
-    async fn apply(&mut self, start: u16, values: &WriteValues<'_>) -> Result<(), Exception> {
-        let result = self
-            .store
-            .update(|s| {
-                for (i, v) in values.iter().enumerate() {
-                    match decode(Table::Registers, start + i as u16) {
-                        Some(Reg::InputType) => s.input_type = v as u8,
-                        Some(Reg::CjcOffset) => s.cjc_offset = cjc_offset_from_register(v).unwrap_or(s.cjc_offset),
-                        Some(Reg::EnableMask) => s.enable_mask = v as u8,
-                        _ => {}
-                    }
-                }
-            })
-            .await;
-        result.map_err(|e| {
+    /// Every writable register is persisted: committed without the map's lock.
+    async fn write<R: RawMutex>(map: &Mutex<R, Self>, start: u16, values: &WriteValues<'_>) -> Result<(), Exception> {
+        let store = map.lock().await.store;
+        update(map, store, |s| Ok::<(), StoreError>(written(s, start, values))).await.map_err(|e| {
+            let (UpdateError::Refused(e) | UpdateError::Store(e)) = e;
             warn!("8318: settings commit failed: {:?}", e);
             Exception::ServerDeviceFailure
         })
     }
 }
 
-impl<F: NorFlash> SettingsAccess for Map8318<F> {
+impl<F: NorFlash> SettingsAccess for Map8318<'_, F> {
     type Settings = Settings;
     fn settings(&self) -> &Settings {
-        self.store.get()
+        &self.settings
     }
-    async fn commit(&mut self, settings: Settings) -> Result<(), StoreError> {
-        self.store.commit(settings).await
+    fn committed(&mut self, settings: &Settings) {
+        self.settings = *settings;
     }
 }

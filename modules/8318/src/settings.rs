@@ -1,5 +1,6 @@
 //! Persisted settings of the 8318 (spec §2.1, §1.4).
 
+use remodaq_shared::access::{self, AllowList};
 use remodaq_shared::net::{NetConfig, NetRecord};
 use remodaq_shared::password::PasswordHash;
 use remodaq_shared::settings::{RecordReader, RecordWriter, Schema};
@@ -21,12 +22,17 @@ pub struct Settings {
     pub cjc_offset: i16,
     /// Channel enable mask (40221), bit n = channel n.
     pub enable_mask: u8,
+    /// Open-input value (40233, extensions §2): false upscale (FFFFh), true downscale (0000h).
+    pub downscale: bool,
+    /// Modbus write allow-list (extensions §4).
+    pub allow: AllowList,
 }
 
 mod tag {
     pub const INPUT_TYPE: u8 = 32;
     pub const CJC_OFFSET: u8 = 33;
     pub const ENABLE_MASK: u8 = 34;
+    pub const OPEN_VALUE: u8 = 35;
 }
 
 impl Schema for Settings {
@@ -40,6 +46,8 @@ impl Schema for Settings {
             input_type: 0x0F,
             cjc_offset: 0,
             enable_mask: 0xFF,
+            downscale: false,
+            allow: AllowList::EMPTY,
         }
     }
 
@@ -49,6 +57,8 @@ impl Schema for Settings {
         w.put(tag::INPUT_TYPE, &[self.input_type]);
         w.put(tag::CJC_OFFSET, &self.cjc_offset.to_le_bytes());
         w.put(tag::ENABLE_MASK, &[self.enable_mask]);
+        w.put(tag::OPEN_VALUE, &[u8::from(self.downscale)]);
+        access::encode(&self.allow, w);
     }
 
     fn decode(_version: u8, r: &RecordReader<'_>) -> Self {
@@ -67,6 +77,8 @@ impl Schema for Settings {
                 .filter(|o| o.abs() <= CJC_OFFSET_LIMIT)
                 .unwrap_or(d.cjc_offset),
             enable_mask: r.array::<1>(tag::ENABLE_MASK).map(|[m]| m).unwrap_or(d.enable_mask),
+            downscale: r.array::<1>(tag::OPEN_VALUE).is_some_and(|[v]| v == 1),
+            allow: access::decode(r),
         }
     }
 }

@@ -1,5 +1,7 @@
 //! The acquisition cycle and the register map with a fake front end.
 
+use embassy_sync::blocking_mutex::raw::{CriticalSectionRawMutex, NoopRawMutex};
+use embassy_sync::mutex::Mutex;
 use futures_executor::block_on;
 use remodaq_8318::acquisition::{acquire, AnalogFrontEnd, Measurement, Snapshot, CJC_INVALID};
 use remodaq_8318::map::Map8318;
@@ -156,18 +158,20 @@ fn map_publishes_a_whole_cycle() {
             const { SettingsStore::<Flash, Settings>::config(0..4096) },
         )
         .await;
-        let mut map = Map8318::new(store);
+        let settings = *store.get();
+        let store = Mutex::<CriticalSectionRawMutex, _>::new(store);
+        let map = Mutex::<NoopRawMutex, _>::new(Map8318::new(&store, &settings));
         let mut resp = [0u8; MAX_PDU];
-        let n = handle_pdu(&mut map, &[0x04, 0x00, 0x00, 0x00, 0x09], &mut resp).await;
+        let n = handle_pdu(&map, [127, 0, 0, 1], &[0x04, 0x00, 0x00, 0x00, 0x09], &mut resp).await;
         assert_eq!(&resp[..n], &[0x04, 18, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]);
-        map.publish(Snapshot { values: [1, 2, 3, 4, 5, 6, 7, 0xFFFF], cjc: -1234, ..Snapshot::default() });
-        let n = handle_pdu(&mut map, &[0x03, 0x00, 0x00, 0x00, 0x09], &mut resp).await;
+        map.lock().await.publish(Snapshot { values: [1, 2, 3, 4, 5, 6, 7, 0xFFFF], cjc: -1234, ..Snapshot::default() });
+        let n = handle_pdu(&map, [127, 0, 0, 1], &[0x03, 0x00, 0x00, 0x00, 0x09], &mut resp).await;
         assert_eq!(&resp[..n], &[0x03, 18, 0, 1, 0, 2, 0, 3, 0, 4, 0, 5, 0, 6, 0, 7, 0xFF, 0xFF, 0xFB, 0x2E]);
         // 40010 is not mapped.
-        let n = handle_pdu(&mut map, &[0x03, 0x00, 0x00, 0x00, 0x0A], &mut resp).await;
+        let n = handle_pdu(&map, [127, 0, 0, 1], &[0x03, 0x00, 0x00, 0x00, 0x0A], &mut resp).await;
         assert_eq!(&resp[..n], &[0x83, 0x02]);
         // Channel values are read only.
-        let n = handle_pdu(&mut map, &[0x06, 0x00, 0x00, 0x00, 0x01], &mut resp).await;
+        let n = handle_pdu(&map, [127, 0, 0, 1], &[0x06, 0x00, 0x00, 0x00, 0x01], &mut resp).await;
         assert_eq!(&resp[..n], &[0x86, 0x02]);
     });
 }

@@ -14,6 +14,7 @@ use remodaq_shared::diagnostics::{status, DIAGNOSTICS};
 use crate::di::DiEngine;
 use crate::pulse::{self, PulseEngine};
 use crate::settings::Settings;
+use crate::watchdog::HostWatchdog;
 
 /// The engines and the extra-pulses registers.
 pub struct Io {
@@ -23,18 +24,72 @@ pub struct Io {
     pub pulse: PulseEngine,
     /// DO n extra pulses register (40061 + 2n): the last value written.
     pub extra: [u32; pulse::CHANNELS],
+    /// The host watchdog (extensions §3).
+    pub watchdog: HostWatchdog,
+    /// The outputs' levels in the watchdog's safe state.
+    safe: u8,
 }
 
 impl Io {
-    /// Engines for inputs sampled `sample_rate` times a second, configured from `settings`.
+    /// Engines for inputs sampled `sample_rate` times a second, configured from `settings`,
+    /// with the outputs at their power-on values.
     pub fn new(sample_rate: u32, settings: &Settings) -> Self {
-        let mut io = Self { di: DiEngine::new(sample_rate), pulse: PulseEngine::new(), extra: [0; pulse::CHANNELS] };
+        let mut io = Self {
+            di: DiEngine::new(sample_rate),
+            pulse: PulseEngine::new(),
+            extra: [0; pulse::CHANNELS],
+            watchdog: HostWatchdog::new(settings.watchdog, Instant::now()),
+            safe: settings.safe,
+        };
         io.configure(settings);
+        io.pulse.hold(settings.power_on);
         io
     }
 
-    /// Applies the persisted settings (modes and pulse settings); only changes take effect.
+    /// A Modbus request was served (`write`: a write request): feeds the host watchdog.
+    pub fn request(&mut self, write: bool) {
+        if self.watchdog.request(write, Instant::now()) {
+            self.watchdog_cleared();
+        }
+    }
+
+    /// Checks the host watchdog; on a trip, every output goes to its safe level and every
+    /// pulse train stops.
+    pub fn poll_watchdog(&mut self) {
+        if self.watchdog.poll(Instant::now()) {
+            self.pulse.hold(self.safe);
+            DIAGNOSTICS.set(status::HOST_WATCHDOG, true);
+            remodaq_shared::warn!("host watchdog: no request in time, outputs in the safe state {:02X}h", self.safe);
+        }
+    }
+
+    /// Holds the outputs at their safe levels again if the watchdog is tripped (after a
+    /// change that might have moved them); true when it is.
+    pub fn keep_safe(&mut self) -> bool {
+        if self.watchdog.tripped() {
+            self.pulse.hold(self.safe);
+        }
+        self.watchdog.tripped()
+    }
+
+    /// Ends the safe state (0 written to 40308); the outputs keep their levels until written.
+    pub fn clear_watchdog(&mut self) {
+        if self.watchdog.tripped() {
+            self.watchdog.clear();
+            self.watchdog_cleared();
+        }
+    }
+
+    fn watchdog_cleared(&mut self) {
+        DIAGNOSTICS.set(status::HOST_WATCHDOG, false);
+        remodaq_shared::info!("host watchdog: safe state cleared");
+    }
+
+    /// Applies the persisted settings (modes, pulse settings, watchdog); only changes take
+    /// effect.
     pub fn configure(&mut self, settings: &Settings) {
+        self.watchdog.configure(settings.watchdog, Instant::now());
+        self.safe = settings.safe;
         for (n, mode) in settings.di_modes.iter().enumerate() {
             self.di.set_mode(n, *mode);
         }
@@ -124,6 +179,7 @@ pub async fn run<R: RawMutex>(
                     }
                 }
             }
+            with(cell, |s| s.poll_watchdog());
             if DIAGNOSTICS.set(status::INPUTS_PENDING, false) {
                 remodaq_shared::info!("self-test: input capture running");
             }

@@ -11,13 +11,14 @@ pub mod io;
 pub mod map;
 pub mod pulse;
 pub mod settings;
+pub mod watchdog;
 
 use core::cell::RefCell;
 
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embedded_storage_async::nor_flash::NorFlash;
 use remodaq_shared::board::{Module, Runs, Shared};
-use remodaq_shared::settings::SettingsStore;
+use remodaq_shared::module::Store;
 
 pub use remodaq_protocol::m8350::{MODEL, MODULE_NAME};
 
@@ -38,8 +39,12 @@ impl Module for M8350 {
         io::IoCell::new(RefCell::new(io::Io::new(di::SAMPLE_RATE_HZ, settings)))
     }
 
-    fn map<F: NorFlash + 'static>(store: SettingsStore<F, settings::Settings>, state: &'static State) -> Self::Map<F> {
-        map::Map8350::new(store, state)
+    fn map<F: NorFlash + 'static>(
+        store: &'static Store<F, settings::Settings>,
+        settings: &settings::Settings,
+        state: &'static State,
+    ) -> Self::Map<F> {
+        map::Map8350::new(store, settings, state)
     }
 }
 

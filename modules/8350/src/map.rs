@@ -6,23 +6,20 @@
 //! flash before anything reaches the outputs, so a failed commit (exception 04) changes nothing.
 
 use embassy_sync::blocking_mutex::raw::RawMutex;
+use embassy_sync::mutex::Mutex;
 use embedded_storage_async::nor_flash::NorFlash;
-use remodaq_protocol::m8350::{decode, Point, PulseField, Word, DO_CHANNELS};
+use remodaq_protocol::m8350::{decode, Point, PulseField, Word};
+use remodaq_shared::access;
 use remodaq_shared::diagnostics::{status, DIAGNOSTICS};
 use remodaq_shared::identity::FIRMWARE_VERSION;
 use remodaq_shared::modbus::{Access, Exception, RegisterMap, Table, WriteValues};
-use remodaq_shared::module::SettingsAccess;
-use remodaq_shared::settings::{SettingsStore, StoreError};
+use remodaq_shared::module::{update, SettingsAccess, Store, UpdateError};
 use remodaq_shared::warn;
-
-pub use remodaq_protocol::m8350::{
-    BIT_COUNTER, BIT_DI, BIT_DO, REG_ALL_DI, REG_ALL_DO, REG_COUNTER, REG_DI_MODE, REG_DO_MODE, REG_PULSE,
-};
 
 use crate::di::DiMode;
 use crate::io::{self, IoCell};
 use crate::pulse::{self, DoMode, PulseConfig};
-use crate::settings::Settings;
+use crate::settings::{output_values, watchdog_mode, watchdog_timeout, Settings};
 use crate::MODULE_NAME;
 
 fn field(p: &mut PulseConfig, f: PulseField) -> Option<&mut u32> {
@@ -35,6 +32,7 @@ fn field(p: &mut PulseConfig, f: PulseField) -> Option<&mut u32> {
 }
 
 /// A register write, planned.
+#[derive(Clone, Copy)]
 struct Plan {
     settings: Settings,
     extra: [u32; pulse::CHANNELS],
@@ -42,34 +40,49 @@ struct Plan {
     /// §3.4: once per request that writes the low word; a high word alone only stores).
     extra_added: u8,
     all_do: Option<u16>,
+    /// 0 written to the watchdog status: end the safe state.
+    clear_watchdog: bool,
+    /// The request writes a register that could change an output (extensions §3).
+    moves_output: bool,
 }
 
-/// The 8350's Modbus view: the settings store and the shared I/O state.
+/// The 8350's Modbus view: the settings in force (the store behind its own lock) and the
+/// shared I/O state.
 pub struct Map8350<'a, F: NorFlash, R: RawMutex> {
-    store: SettingsStore<F, Settings>,
+    store: &'a Store<F, Settings>,
+    settings: Settings,
     io: &'a IoCell<R>,
 }
 
+/// Exception 04 for a write that would move an output while the host watchdog is tripped.
+const TRIPPED: Exception = Exception::ServerDeviceFailure;
+
 impl<'a, F: NorFlash, R: RawMutex> Map8350<'a, F, R> {
-    /// A map over the opened settings store; configures the engines from it.
-    pub fn new(store: SettingsStore<F, Settings>, io: &'a IoCell<R>) -> Self {
-        io::with(io, |state| state.configure(store.get()));
-        Self { store, io }
+    /// A map over the store with `settings` in force; configures the engines from them.
+    pub fn new(store: &'a Store<F, Settings>, settings: &Settings, io: &'a IoCell<R>) -> Self {
+        io::with(io, |state| state.configure(settings));
+        Self { store, settings: *settings, io }
     }
 
-    /// Gives the settings store back (a simulated restart).
-    pub fn into_store(self) -> SettingsStore<F, Settings> {
-        self.store
-    }
-
-    fn plan(&self, start: u16, values: &WriteValues<'_>) -> Result<Plan, Exception> {
-        let mut plan =
-            Plan { settings: *self.store.get(), extra: io::with(self.io, |s| s.extra), extra_added: 0, all_do: None };
+    /// A register write planned on `settings`; the errors are the request's exception 03.
+    fn plan(io: &IoCell<R>, settings: &Settings, start: u16, values: &WriteValues<'_>) -> Result<Plan, Exception> {
+        let mut plan = Plan {
+            settings: *settings,
+            extra: io::with(io, |s| s.extra),
+            extra_added: 0,
+            all_do: None,
+            clear_watchdog: false,
+            moves_output: false,
+        };
+        let bad = Exception::IllegalDataValue;
         for (i, v) in values.iter().enumerate() {
-            match decode(Table::Registers, start + i as u16) {
-                Some(Point::Pulse(f, n, word)) => {
+            let Some(point) = decode(Table::Registers, start + i as u16) else { return Err(Exception::IllegalDataAddress) };
+            plan.moves_output |= point.moves_output();
+            let s = &mut plan.settings;
+            match point {
+                Point::Pulse(f, n, word) => {
                     let n = usize::from(n);
-                    match field(&mut plan.settings.pulses[n], f) {
+                    match field(&mut s.pulses[n], f) {
                         Some(value) => *value = word.set(*value, v),
                         None => {
                             plan.extra[n] = word.set(plan.extra[n], v);
@@ -79,27 +92,73 @@ impl<'a, F: NorFlash, R: RawMutex> Map8350<'a, F, R> {
                         }
                     }
                 }
-                Some(Point::DiMode(n)) => {
-                    plan.settings.di_modes[usize::from(n)] =
-                        DiMode::from_register(v).ok_or(Exception::IllegalDataValue)?;
-                }
-                Some(Point::DoMode(n)) => {
-                    plan.settings.do_modes[usize::from(n)] =
-                        DoMode::from_register(v).ok_or(Exception::IllegalDataValue)?;
-                }
-                Some(Point::AllDo) if v >> DO_CHANNELS == 0 => plan.all_do = Some(v),
-                Some(Point::AllDo) => return Err(Exception::IllegalDataValue),
+                Point::DiMode(n) => s.di_modes[usize::from(n)] = DiMode::from_register(v).ok_or(bad)?,
+                Point::DoMode(n) => s.do_modes[usize::from(n)] = DoMode::from_register(v).ok_or(bad)?,
+                Point::AllDo => plan.all_do = Some(u16::from(output_values(v).ok_or(bad)?)),
+                Point::WatchdogTimeout => s.watchdog.timeout = watchdog_timeout(v).ok_or(bad)?,
+                Point::WatchdogMode => s.watchdog.mode = watchdog_mode(v).ok_or(bad)?,
+                Point::SafeValues => s.safe = output_values(v).ok_or(bad)?,
+                Point::PowerOnValues => s.power_on = output_values(v).ok_or(bad)?,
+                Point::WatchdogStatus if v == 0 => plan.clear_watchdog = true,
+                Point::WatchdogStatus => return Err(bad),
                 _ => return Err(Exception::IllegalDataAddress),
             }
         }
         if plan.settings.pulses.iter().any(|p| p.low == 0 || p.high == 0) {
-            return Err(Exception::IllegalDataValue);
+            return Err(bad);
         }
         Ok(plan)
     }
 
+    /// The live part of a planned write, once its settings are in force: refused (and the
+    /// safe levels kept) if it would move an output while the watchdog is tripped.
+    fn apply_live(io: &IoCell<R>, plan: &Plan) -> Result<(), Exception> {
+        io::with(io, |s| {
+            if plan.moves_output && s.keep_safe() {
+                return Err(TRIPPED);
+            }
+            s.extra = plan.extra;
+            for n in 0..pulse::CHANNELS {
+                if plan.extra_added & (1 << n) != 0 && plan.extra[n] > 0 {
+                    s.pulse.add_pulses(n, plan.extra[n]);
+                }
+            }
+            if let Some(all) = plan.all_do {
+                for n in 0..pulse::CHANNELS {
+                    s.pulse.set_do(n, all & (1 << n) != 0);
+                }
+            }
+            if plan.clear_watchdog {
+                s.clear_watchdog();
+            }
+            Ok(())
+        })
+    }
+
+    /// A bit write, checked and applied in one lock of the I/O state.
+    fn write_bits(io: &IoCell<R>, start: u16, values: &WriteValues<'_>) -> Result<(), Exception> {
+        io::with(io, |s| {
+            let points = || (start..).zip(values.iter()).map(|(a, v)| (decode(Table::Bits, a), v != 0));
+            if s.watchdog.tripped() && points().any(|(p, _)| p.is_some_and(Point::moves_output)) {
+                return Err(TRIPPED);
+            }
+            for (point, on) in points() {
+                match (point, on) {
+                    (Some(Point::Do(n)), _) => s.pulse.set_do(usize::from(n), on),
+                    (Some(Point::CounterRun(n)), run) => s.di.set_run(usize::from(n), run),
+                    (Some(Point::CounterClear(n)), true) => s.di.clear_counter(usize::from(n)),
+                    (Some(Point::Overflow(n)), false) => s.di.clear_overflow(usize::from(n)),
+                    (Some(Point::Latch(n)), false) => s.di.clear_latch(usize::from(n)),
+                    // Decision: writing 0 to "clear", or 1 to a flag, changes nothing.
+                    _ => {}
+                }
+            }
+            Ok(())
+        })
+    }
+
     fn read_point(&self, point: Point) -> u16 {
-        let settings = self.store.get();
+        let settings = &self.settings;
         io::with(self.io, |s| match point {
             Point::DiState(n) => s.di.state() >> n & 1,
             Point::Do(n) => u16::from(s.pulse.do_bit(usize::from(n))),
@@ -120,30 +179,24 @@ impl<'a, F: NorFlash, R: RawMutex> Map8350<'a, F, R> {
             Point::Version => FIRMWARE_VERSION,
             // "Samples lost since the last read of this register": cleared by the read.
             Point::Diag(d) => DIAGNOSTICS.read(d, status::FRONT_END_FAULT),
+            Point::WatchdogTimeout => settings.watchdog.timeout,
+            Point::WatchdogMode => settings.watchdog.mode,
+            Point::SafeValues => u16::from(settings.safe),
+            Point::PowerOnValues => u16::from(settings.power_on),
+            Point::WatchdogStatus => u16::from(s.watchdog.tripped()),
         })
-    }
-
-    fn write_bits(&self, start: u16, values: &WriteValues<'_>) {
-        io::with(self.io, |s| {
-            for (i, v) in values.iter().enumerate() {
-                let on = v != 0;
-                match (decode(Table::Bits, start + i as u16), on) {
-                    (Some(Point::Do(n)), _) => s.pulse.set_do(usize::from(n), on),
-                    (Some(Point::CounterRun(n)), run) => s.di.set_run(usize::from(n), run),
-                    (Some(Point::CounterClear(n)), true) => s.di.clear_counter(usize::from(n)),
-                    (Some(Point::Overflow(n)), false) => s.di.clear_overflow(usize::from(n)),
-                    (Some(Point::Latch(n)), false) => s.di.clear_latch(usize::from(n)),
-                    // Decision: writing 0 to "clear", or 1 to a flag, changes nothing.
-                    _ => {}
-                }
-            }
-        });
     }
 }
 
 impl<F: NorFlash, R: RawMutex> RegisterMap for Map8350<'_, F, R> {
     fn access(&self, table: Table, addr: u16) -> Access {
         remodaq_protocol::m8350::access(table, addr)
+    }
+
+    fn admit(&mut self, from: [u8; 4], function: u8) -> Result<(), Exception> {
+        access::admit(&self.settings.allow, from, function)?;
+        io::with(self.io, |s| s.request(access::is_write(function)));
+        Ok(())
     }
 
     fn read(&mut self, table: Table, addr: u16) -> u16 {
@@ -153,46 +206,52 @@ impl<F: NorFlash, R: RawMutex> RegisterMap for Map8350<'_, F, R> {
     fn validate(&self, start: u16, values: &WriteValues<'_>) -> Result<(), Exception> {
         match values.table() {
             Table::Bits => Ok(()),
-            Table::Registers => self.plan(start, values).map(|_| ()),
+            Table::Registers => Self::plan(self.io, &self.settings, start, values).map(|_| ()),
         }
     }
 
-    async fn apply(&mut self, start: u16, values: &WriteValues<'_>) -> Result<(), Exception> {
+    /// Persisted settings are committed to flash (without the map's lock) before anything
+    /// reaches the outputs, so a failed commit (exception 04) changes nothing.
+    async fn write<R2: RawMutex>(map: &Mutex<R2, Self>, start: u16, values: &WriteValues<'_>) -> Result<(), Exception> {
+        let (store, io, settings) = {
+            let m = map.lock().await;
+            (m.store, m.io, m.settings)
+        };
         if values.table() == Table::Bits {
-            self.write_bits(start, values);
-            return Ok(());
+            return Self::write_bits(io, start, values);
         }
-        let plan = self.plan(start, values)?;
-        if plan.settings != *self.store.get() {
-            self.store.commit(plan.settings).await.map_err(|e| {
+        let plan = Self::plan(io, &settings, start, values)?;
+        if plan.settings == settings {
+            return Self::apply_live(io, &plan);
+        }
+        if plan.moves_output && io::with(io, |s| s.watchdog.tripped()) {
+            return Err(TRIPPED);
+        }
+        // Planned again on the latest settings, under the store's lock.
+        let plan = update(map, store, |s| {
+            let plan = Self::plan(io, s, start, values)?;
+            *s = plan.settings;
+            Ok(plan)
+        })
+        .await
+        .map_err(|e| match e {
+            UpdateError::Refused(e) => e,
+            UpdateError::Store(e) => {
                 warn!("8350: settings commit failed: {:?}", e);
                 Exception::ServerDeviceFailure
-            })?;
-        }
-        io::with(self.io, |s| {
-            s.configure(&plan.settings);
-            s.extra = plan.extra;
-            for n in 0..pulse::CHANNELS {
-                if plan.extra_added & (1 << n) != 0 && plan.extra[n] > 0 {
-                    s.pulse.add_pulses(n, plan.extra[n]);
-                }
             }
-            if let Some(all) = plan.all_do {
-                for n in 0..pulse::CHANNELS {
-                    s.pulse.set_do(n, all & (1 << n) != 0);
-                }
-            }
-        });
-        Ok(())
+        })?;
+        Self::apply_live(io, &plan)
     }
 }
 
 impl<F: NorFlash, R: RawMutex> SettingsAccess for Map8350<'_, F, R> {
     type Settings = Settings;
     fn settings(&self) -> &Settings {
-        self.store.get()
+        &self.settings
     }
-    async fn commit(&mut self, settings: Settings) -> Result<(), StoreError> {
-        self.store.commit(settings).await
+    fn committed(&mut self, settings: &Settings) {
+        self.settings = *settings;
+        io::with(self.io, |s| s.configure(settings));
     }
 }

@@ -46,6 +46,8 @@ struct Output {
     pulses_left: Option<u32>,
     /// The low width latched at the current pulse's start.
     low: u32,
+    /// A level held (safe or power-on value) until a client writes the DO bit or the mode.
+    held: Option<bool>,
 }
 
 impl Output {
@@ -58,6 +60,7 @@ impl Output {
         ticks_left: 0,
         pulses_left: None,
         low: 1,
+        held: None,
     };
 
     fn start_pulse(&mut self) {
@@ -67,6 +70,9 @@ impl Output {
     }
 
     fn level_now(&self) -> bool {
+        if let Some(level) = self.held {
+            return level;
+        }
         match self.mode {
             DoMode::Normal => self.level,
             DoMode::Pulse => self.running && self.high_phase,
@@ -144,6 +150,9 @@ impl PulseEngine {
     /// The DO bit of output `n`: its level in normal mode; whether a train runs in pulse mode.
     pub fn do_bit(&self, n: usize) -> bool {
         let out = &self.outputs[n % CHANNELS];
+        if let Some(level) = out.held {
+            return level;
+        }
         match out.mode {
             DoMode::Normal => out.level,
             DoMode::Pulse => out.running,
@@ -151,9 +160,10 @@ impl PulseEngine {
     }
 
     /// Writes output `n`'s DO bit: a level in normal mode; start (if not running) or stop in
-    /// pulse mode.
+    /// pulse mode. A held level ends.
     pub fn set_do(&mut self, n: usize, on: bool) {
         let out = &mut self.outputs[n % CHANNELS];
+        out.held = None;
         match out.mode {
             DoMode::Normal => out.level = on,
             DoMode::Pulse if on && !out.running => {
@@ -174,7 +184,23 @@ impl PulseEngine {
         self.outputs[n % CHANNELS].mode
     }
 
-    /// Sets output `n`'s mode: a change stops any train and turns the output off.
+    /// Holds every output at its level in `levels` (bit n = DOn), whatever its mode: every
+    /// pulse train stops. The DO bits read the held levels until a client writes them (or the
+    /// mode). The host watchdog's safe state and the power-on values (extensions §3).
+    pub fn hold(&mut self, levels: u8) {
+        for (n, out) in self.outputs.iter_mut().enumerate() {
+            let level = levels >> n & 1 != 0;
+            out.running = false;
+            out.pulses_left = None;
+            out.held = Some(level);
+            if out.mode == DoMode::Normal {
+                out.level = level;
+            }
+        }
+    }
+
+    /// Sets output `n`'s mode: a change stops any train and turns the output off (a held level
+    /// ends).
     pub fn set_mode(&mut self, n: usize, mode: DoMode) {
         let out = &mut self.outputs[n % CHANNELS];
         if out.mode != mode {

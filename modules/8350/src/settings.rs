@@ -1,12 +1,15 @@
 //! Persisted settings of the 8350 (spec §3.5, §1.4): DI modes, DO modes, pulse widths and
 //! counts, network settings. Counters, run bits, flags and output states are not persisted.
 
+use remodaq_protocol::m8350::{wd_mode, DO_CHANNELS, WD_TIMEOUT_MAX};
+use remodaq_shared::access::{self, AllowList};
 use remodaq_shared::net::{NetConfig, NetRecord};
 use remodaq_shared::password::PasswordHash;
 use remodaq_shared::settings::{RecordReader, RecordWriter, Schema};
 
 use crate::di::{self, DiMode};
 use crate::pulse::{self, DoMode, PulseConfig};
+use crate::watchdog::WatchdogConfig;
 
 /// Everything the 8350 keeps in flash.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -21,6 +24,29 @@ pub struct Settings {
     pub do_modes: [DoMode; pulse::CHANNELS],
     /// DO n pulse widths and count (40025.., 40037.., 40049..).
     pub pulses: [PulseConfig; pulse::CHANNELS],
+    /// Host watchdog timeout and mode (40305, 40307).
+    pub watchdog: WatchdogConfig,
+    /// Safe output values, bit n = DOn (40306).
+    pub safe: u8,
+    /// Power-on output values, bit n = DOn (40309).
+    pub power_on: u8,
+    /// Modbus write allow-list (extensions §4).
+    pub allow: AllowList,
+}
+
+/// Whether `v` is a valid output-values register (bits 6-15 zero).
+pub fn output_values(v: u16) -> Option<u8> {
+    (v >> DO_CHANNELS == 0).then_some(v as u8)
+}
+
+/// Whether `v` is a valid watchdog timeout (0..=6000).
+pub fn watchdog_timeout(v: u16) -> Option<u16> {
+    (v <= WD_TIMEOUT_MAX).then_some(v)
+}
+
+/// Whether `v` is a valid watchdog mode (bits 2-15 zero).
+pub fn watchdog_mode(v: u16) -> Option<u16> {
+    (v & !wd_mode::ALL == 0).then_some(v)
 }
 
 mod tag {
@@ -29,6 +55,10 @@ mod tag {
     pub const LOW: u8 = 34;
     pub const HIGH: u8 = 35;
     pub const COUNT: u8 = 36;
+    pub const WD_TIMEOUT: u8 = 37;
+    pub const WD_MODE: u8 = 38;
+    pub const SAFE: u8 = 39;
+    pub const POWER_ON: u8 = 40;
 }
 
 fn put_u32s(w: &mut RecordWriter<'_>, tag: u8, values: impl Iterator<Item = u32>) {
@@ -58,6 +88,10 @@ impl Schema for Settings {
             di_modes: [DiMode::Normal; di::CHANNELS],
             do_modes: [DoMode::Normal; pulse::CHANNELS],
             pulses: [PulseConfig::default(); pulse::CHANNELS],
+            watchdog: WatchdogConfig::default(),
+            safe: 0,
+            power_on: 0,
+            allow: AllowList::EMPTY,
         }
     }
 
@@ -69,6 +103,11 @@ impl Schema for Settings {
         put_u32s(w, tag::LOW, self.pulses.iter().map(|p| p.low));
         put_u32s(w, tag::HIGH, self.pulses.iter().map(|p| p.high));
         put_u32s(w, tag::COUNT, self.pulses.iter().map(|p| p.count));
+        w.put_u16(tag::WD_TIMEOUT, self.watchdog.timeout);
+        w.put_u16(tag::WD_MODE, self.watchdog.mode);
+        w.put(tag::SAFE, &[self.safe]);
+        w.put(tag::POWER_ON, &[self.power_on]);
+        access::encode(&self.allow, w);
     }
 
     fn decode(_version: u8, r: &RecordReader<'_>) -> Self {
@@ -92,6 +131,12 @@ impl Schema for Settings {
             p.high = high.map(|v| v[n]).filter(|w| *w >= 1).unwrap_or(d.high);
             p.count = count.map_or(d.count, |v| v[n]);
         }
+        s.watchdog.timeout = r.u16(tag::WD_TIMEOUT).and_then(watchdog_timeout).unwrap_or(0);
+        s.watchdog.mode = r.u16(tag::WD_MODE).and_then(watchdog_mode).unwrap_or(0);
+        let values = |tag| r.array::<1>(tag).and_then(|[v]| output_values(u16::from(v))).unwrap_or(0);
+        s.safe = values(tag::SAFE);
+        s.power_on = values(tag::POWER_ON);
+        s.allow = access::decode(r);
         s
     }
 }

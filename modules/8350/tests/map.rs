@@ -8,7 +8,9 @@ use remodaq_8350::map::Map8350;
 use remodaq_8350::settings::Settings;
 use remodaq_shared::modbus::{handle_pdu, MAX_PDU};
 use remodaq_shared::ram_flash::RamFlash;
+use remodaq_shared::module::Store;
 use remodaq_shared::settings::{Schema, SettingsStore};
+use embassy_sync::mutex::Mutex;
 
 type Flash = RamFlash<{ 4 * 1024 }, 1024>;
 
@@ -22,7 +24,8 @@ fn show(b: &[u8]) -> String {
 
 struct Module {
     io: &'static IoCell<NoopRawMutex>,
-    map: Map8350<'static, Flash, NoopRawMutex>,
+    store: &'static Store<Flash, Settings>,
+    map: Mutex<NoopRawMutex, Map8350<'static, Flash, NoopRawMutex>>,
 }
 
 impl Module {
@@ -34,14 +37,16 @@ impl Module {
         let io: &'static IoCell<NoopRawMutex> =
             Box::leak(Box::new(IoCell::new(core::cell::RefCell::new(Io::new(1000, &Settings::defaults())))));
         let store = block_on(SettingsStore::open(flash, const { SettingsStore::<Flash, Settings>::config(0..4096) }));
-        Self { io, map: Map8350::new(store, io) }
+        let settings = *store.get();
+        let store: &'static Store<Flash, Settings> = Box::leak(Box::new(Mutex::new(store)));
+        Self { io, store, map: Mutex::new(Map8350::new(store, &settings, io)) }
     }
 
     /// Sends an RTU-style example (station, then PDU) and answers the same way.
     fn ask(&mut self, frame: &str) -> String {
         let frame = hex(frame);
         let mut resp = [0u8; MAX_PDU];
-        let n = block_on(handle_pdu(&mut self.map, &frame[1..], &mut resp));
+        let n = block_on(handle_pdu(&self.map, [127, 0, 0, 1], &frame[1..], &mut resp));
         format!("{:02X} {}", frame[0], show(&resp[..n]))
     }
 
@@ -156,7 +161,9 @@ fn pulse_settings_persist_and_extra_pulses_add() {
     assert_eq!(ticks.matches("###").count(), 5, "3 left + 2 extra: {ticks}");
     assert_eq!(m.ask("01 01 00 10 00 01"), "01 01 01 00", "the train ended");
     // Restart on the same flash: modes and pulse settings are back, outputs off.
-    let flash = std::mem::replace(&mut m, Module::new()).map.into_store().into_flash();
+    let store = std::mem::replace(&mut m, Module::new()).store;
+    let blank = block_on(SettingsStore::open(Flash::new(), const { SettingsStore::<Flash, Settings>::config(0..4096) }));
+    let flash = std::mem::replace(&mut *block_on(store.lock()), blank).into_flash();
     let mut m = Module::with_flash(flash);
     assert_eq!(m.ask("01 03 01 10 00 01"), "01 03 02 00 01");
     assert_eq!(m.ask("01 03 00 18 00 02"), "01 03 04 00 02 00 00");

@@ -62,7 +62,7 @@ fn a_connection_idle_for_five_minutes_is_closed() {
     let (map, slots, peer) = connection();
     let mut io = Shared(peer, 0);
     {
-        let mut server = pin!(serve(&mut io, &map, &slots, 0));
+        let mut server = pin!(serve(&mut io, [127, 0, 0, 1], &map, &slots, 0));
         let mut cx = Context::from_waker(Waker::noop());
         assert!(server.as_mut().poll(&mut cx).is_pending(), "answered, then waiting");
         clock.advance(Duration::from_millis(299_999));
@@ -79,7 +79,7 @@ fn a_request_restarts_the_idle_count() {
     let (_turn, clock) = clock();
     let (map, slots, peer) = connection();
     let mut io = Shared(peer.clone(), 0);
-    let mut server = pin!(serve(&mut io, &map, &slots, 0));
+    let mut server = pin!(serve(&mut io, [127, 0, 0, 1], &map, &slots, 0));
     let mut cx = Context::from_waker(Waker::noop());
     assert!(server.as_mut().poll(&mut cx).is_pending());
     clock.advance(Duration::from_secs(200));

@@ -1,6 +1,9 @@
 //! The register-map abstraction a module implements: which addresses exist, how to read them,
 //! how to check a write, and how to apply it. The protocol rules live in [`super::pdu`] only.
 
+use embassy_sync::blocking_mutex::raw::RawMutex;
+use embassy_sync::mutex::Mutex;
+
 use super::Exception;
 
 pub use remodaq_protocol::{Access, Table};
@@ -80,7 +83,8 @@ impl<'a> WriteValues<'a> {
 
 /// A module's data model as seen by Modbus.
 ///
-/// The protocol engine calls, for each request: `allows` once for the whole run of addresses
+/// The protocol engine calls, for each request: `admit` with the client's address and the
+/// function code (a module's access rule and host watchdog), `allows` once for the whole run of addresses
 /// (exception 02 if any is not mapped for that access), then for reads `read_registers` or
 /// `read_bits` once for the run, for writes `validate` once with the whole request (exception
 /// 03 if the values are unacceptable) and `apply` once (exception 04 if it fails, e.g. the
@@ -100,8 +104,30 @@ pub trait RegisterMap {
     fn validate(&self, start: u16, values: &WriteValues<'_>) -> Result<(), Exception>;
 
     /// Apply a validated write: all or nothing. Persisted values must be committed to flash
-    /// before this returns `Ok` (durable on acknowledgement).
-    async fn apply(&mut self, start: u16, values: &WriteValues<'_>) -> Result<(), Exception>;
+    /// before this returns `Ok` (durable on acknowledgement). Called by the default
+    /// [`RegisterMap::write`] (and by `answer_now`); a map that overrides `write` need not
+    /// implement it (the default refuses with exception 04).
+    async fn apply(&mut self, start: u16, values: &WriteValues<'_>) -> Result<(), Exception> {
+        let _ = (start, values);
+        Err(Exception::ServerDeviceFailure)
+    }
+
+    /// Carries out a validated write on the map behind its lock, as the connection server
+    /// does. The default applies it under the lock; a map whose writes commit to flash
+    /// overrides this to commit without holding the lock, so reads go on meanwhile.
+    async fn write<R: RawMutex>(map: &Mutex<R, Self>, start: u16, values: &WriteValues<'_>) -> Result<(), Exception>
+    where
+        Self: Sized,
+    {
+        map.lock().await.apply(start, values).await
+    }
+
+    /// Whether the request with `function` from the client at `from` (IPv4; 0.0.0.0 when
+    /// unknown) is served; called first, for every request. The default serves everything.
+    fn admit(&mut self, from: [u8; 4], function: u8) -> Result<(), Exception> {
+        let _ = (from, function);
+        Ok(())
+    }
 
     /// Whether every address of `start..start + count` (inside the 16-bit space, checked by the
     /// engine) allows reading, or writing when `write`.

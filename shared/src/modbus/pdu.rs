@@ -3,6 +3,9 @@
 //! application protocol: function code (01), quantity / byte count / value (03), addresses (02),
 //! module-specific values (03), execution (04).
 
+use embassy_sync::blocking_mutex::raw::RawMutex;
+use embassy_sync::mutex::Mutex;
+
 use super::{Exception, RegisterMap, Table, WriteValues};
 
 /// Largest PDU (Modbus/TCP length field 254 = unit id + 253 bytes).
@@ -22,15 +25,20 @@ const MAX_READ_REGISTERS: u16 = 125;
 const MAX_WRITE_BITS: u16 = 1968;
 const MAX_WRITE_REGISTERS: u16 = 123;
 
-/// Answer one request PDU (function code first) into `resp`; returns the response PDU length.
-/// Never panics: every malformed request gets an exception response.
-pub async fn handle_pdu<M: RegisterMap>(map: &mut M, req: &[u8], resp: &mut [u8; MAX_PDU]) -> usize {
-    match prepare(map, req, resp) {
+/// Answer one request PDU (function code first) from the client at `from` into `resp`;
+/// returns the response PDU length. Never panics: every malformed request gets an exception
+/// response. The map is locked for the checks and reads only; a write is carried out by
+/// [`RegisterMap::write`], which commits to flash without holding the lock.
+pub async fn handle_pdu<R: RawMutex, M: RegisterMap>(
+    map: &Mutex<R, M>,
+    from: [u8; 4],
+    req: &[u8],
+    resp: &mut [u8; MAX_PDU],
+) -> usize {
+    let step = prepare(&mut *map.lock().await, from, req, resp);
+    match step {
         Step::Answered(len) => len,
-        Step::Write { start, values } => {
-            let result = map.apply(start, &values).await;
-            written(req, resp, result)
-        }
+        Step::Write { start, values } => written(req, resp, M::write(map, start, &values).await),
     }
 }
 
@@ -61,15 +69,16 @@ pub enum Step<'a> {
     },
 }
 
-/// Everything of a request but applying a write: the checks in the order of the Modbus
-/// application protocol, and reads answered in place.
+/// Everything of a request from the client at `from` but applying a write: the map's
+/// admission, the checks in the order of the Modbus application protocol, and reads answered
+/// in place.
 #[inline]
-pub fn prepare<'a, M: RegisterMap>(map: &mut M, req: &'a [u8], resp: &mut [u8; MAX_PDU]) -> Step<'a> {
+pub fn prepare<'a, M: RegisterMap>(map: &mut M, from: [u8; 4], req: &'a [u8], resp: &mut [u8; MAX_PDU]) -> Step<'a> {
     let Some((&function, data)) = req.split_first() else {
         // An empty PDU has no function code to answer with: treat it as an unknown function 0.
         return Step::Answered(exception(resp, 0, Exception::IllegalFunction));
     };
-    match execute(map, function, data, resp) {
+    match map.admit(from, function).and_then(|()| execute(map, function, data, resp)) {
         Ok(step) => step,
         Err(e) => Step::Answered(exception(resp, function, e)),
     }

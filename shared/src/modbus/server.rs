@@ -109,9 +109,11 @@ impl<R: RawMutex, const N: usize> Slots<R, N> {
     }
 }
 
-/// Serves one accepted connection in `slot` until it ends; the caller then closes the socket.
+/// Serves one accepted connection from the client at `from` (IPv4; 0.0.0.0 when unknown) in
+/// `slot` until it ends; the caller then closes the socket.
 pub async fn serve<R: RawMutex, M: RegisterMap, T: Read + Write, const N: usize>(
     io: &mut T,
+    from: [u8; 4],
     map: &Mutex<R, M>,
     slots: &Slots<R, N>,
     slot: usize,
@@ -120,7 +122,7 @@ pub async fn serve<R: RawMutex, M: RegisterMap, T: Read + Write, const N: usize>
     if let Some(victim) = slots.open(slot) {
         crate::info!("modbus: connection limit reached, closing idle connection {}", victim);
     }
-    let ended = serve_frames(io, map, slots, slot).await;
+    let ended = serve_frames(io, from, map, slots, slot).await;
     slots.close(slot);
     crate::diagnostics::DIAGNOSTICS.connection(false);
     ended
@@ -132,6 +134,7 @@ const TX_BUF: usize = 2 * MAX_ADU;
 
 async fn serve_frames<R: RawMutex, M: RegisterMap, T: Read + Write, const N: usize>(
     io: &mut T,
+    from: [u8; 4],
     map: &Mutex<R, M>,
     slots: &Slots<R, N>,
     slot: usize,
@@ -162,10 +165,7 @@ async fn serve_frames<R: RawMutex, M: RegisterMap, T: Read + Write, const N: usi
                     }
                     let pdu = &rx[consumed + MBAP_LEN..consumed + len];
                     let Some(out) = tx[queued..].first_chunk_mut::<MAX_ADU>() else { return Ended::Io };
-                    queued += {
-                        let mut map = map.lock().await;
-                        answer_request(&mut *map, header, pdu, out).await
-                    };
+                    queued += answer_request(map, from, header, pdu, out).await;
                     consumed += len;
                 }
             }
@@ -223,11 +223,17 @@ async fn send<R: RawMutex, T: Write, const N: usize>(
     }
 }
 
-/// Answers one request (its header and PDU) into `out`: the answer's header and PDU, and its
-/// length. Counted in the diagnostics.
-pub async fn answer_request<M: RegisterMap>(map: &mut M, header: Header, pdu: &[u8], out: &mut [u8; MAX_ADU]) -> usize {
+/// Answers one request (its header and PDU) from the client at `from` into `out`: the
+/// answer's header and PDU, and its length. Counted in the diagnostics.
+pub async fn answer_request<R: RawMutex, M: RegisterMap>(
+    map: &Mutex<R, M>,
+    from: [u8; 4],
+    header: Header,
+    pdu: &[u8],
+    out: &mut [u8; MAX_ADU],
+) -> usize {
     let Some((head, body)) = split(out) else { return 0 };
-    let n = handle_pdu(map, pdu, body).await;
+    let n = handle_pdu(map, from, pdu, body).await;
     finish(head, header, body, n)
 }
 
@@ -252,7 +258,7 @@ pub fn answer_now<M: RegisterMap>(map: &mut M, frame: &[u8], out: &mut [u8; MAX_
     let Frame::Request { header, len } = classify(frame) else { return None };
     let pdu = frame.get(MBAP_LEN..len)?;
     let (head, body) = split(out)?;
-    let n = match prepare(map, pdu, body) {
+    let n = match prepare(map, [0; 4], pdu, body) {
         Step::Answered(n) => n,
         Step::Write { start, values } => {
             let apply = core::pin::pin!(map.apply(start, &values));

@@ -11,7 +11,7 @@ use std::process::{Child, Command, ExitCode, Stdio};
 use std::time::{Duration, Instant};
 
 use remodaq_protocol::diag;
-use remodaq_protocol::discovery::{decode_info, decode_result, op, Status, Writer, MAX_DATAGRAM};
+use remodaq_protocol::discovery::{decode_info, decode_reply, encode_request, Request, Status, MAX_DATAGRAM};
 use remodaq_protocol::identity::{FIRMWARE_VERSION, REG_NAME, REG_VERSION};
 use remodaq_protocol::m8318::{REG_CJC, REG_INPUT_TYPE, REG_VALUE};
 use remodaq_protocol::m8350::{Point, PulseField, Word, REG_ALL_DI, REG_DI_MODE};
@@ -364,7 +364,7 @@ async fn discover(to: SocketAddr, request: &[u8]) -> Result<Vec<u8>, String> {
 /// stored settings and the input type written before (the settings region survives a reset).
 async fn discovery_and_restart(to: SocketAddr, modbus: SocketAddr, model: u16) -> Result<(), String> {
     let mut buf = [0u8; MAX_DATAGRAM];
-    let n = Writer::new(&mut buf, op::SEARCH, 7).finish().ok_or("search")?;
+    let n = encode_request(7, &Request::Search, &mut buf).ok_or("search")?;
     let reply = discover(to, &buf[..n]).await?;
     let info = decode_info(&reply).ok_or("search: not an INFO reply")?;
     if info.model != model || info.id != 7 || info.running.ip != [10, 0, 2, 15] {
@@ -372,23 +372,19 @@ async fn discovery_and_restart(to: SocketAddr, modbus: SocketAddr, model: u16) -
     }
     let mac = info.mac;
     let net = NetConfig { ip: [10, 0, 0, 50], mask: [255, 255, 0, 0], gateway: [10, 0, 0, 1], port: 8000 };
-    let mut w = Writer::new(&mut buf, op::SET_NETWORK, 8);
-    w.bytes(&mac).string(b"remodaq").net(&net);
-    let n = w.finish().ok_or("set")?;
-    let status = decode_result(&discover(to, &buf[..n]).await?).map(|r| r.3);
+    let n = encode_request(8, &Request::SetNetwork { mac, password: b"remodaq", net }, &mut buf).ok_or("set")?;
+    let status = decode_reply(&discover(to, &buf[..n]).await?).map(|r| r.status);
     if status != Some(Status::Ok) {
         return Err(format!("set network: {status:?}"));
     }
-    let mut w = Writer::new(&mut buf, op::RESTART, 9);
-    w.bytes(&mac).string(b"remodaq");
-    let n = w.finish().ok_or("restart")?;
-    let status = decode_result(&discover(to, &buf[..n]).await?).map(|r| r.3);
+    let n = encode_request(9, &Request::Restart { mac, password: b"remodaq" }, &mut buf).ok_or("restart")?;
+    let status = decode_reply(&discover(to, &buf[..n]).await?).map(|r| r.status);
     if status != Some(Status::Ok) {
         return Err(format!("restart: {status:?}"));
     }
     sleep(Duration::from_secs(1)).await;
     let mut ctx = wait_ready(modbus).await?;
-    let n = Writer::new(&mut buf, op::SEARCH, 10).finish().ok_or("search")?;
+    let n = encode_request(10, &Request::Search, &mut buf).ok_or("search")?;
     let reply = discover(to, &buf[..n]).await?;
     let info = decode_info(&reply).ok_or("search after restart")?;
     if info.stored != net || info.uptime_s > 30 {
