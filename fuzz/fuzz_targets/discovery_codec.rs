@@ -5,37 +5,16 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
+use remodaq_protocol::access::{AllowList, Network, MAX_NETWORKS};
 use remodaq_protocol::discovery::{
-    decode_info, decode_request, decode_result, op, Request, Writer, MAX_DATAGRAM, MAX_PASSWORD_LEN,
+    decode_info, decode_reply, decode_request, encode_request, Request, MAX_DATAGRAM, MAX_PASSWORD_LEN,
 };
 use remodaq_protocol::net::NetConfig;
 
 /// Encodes a request as the `remodaq` tool does.
 fn encode(id: u16, request: &Request<'_>) -> Option<Vec<u8>> {
     let mut buf = [0u8; MAX_DATAGRAM];
-    let n = match *request {
-        Request::Search => Writer::new(&mut buf, op::SEARCH, id).finish(),
-        Request::SetNetwork { mac, password, net } => {
-            let mut w = Writer::new(&mut buf, op::SET_NETWORK, id);
-            w.bytes(&mac).string(password).net(&net);
-            w.finish()
-        }
-        Request::Restart { mac, password } => {
-            let mut w = Writer::new(&mut buf, op::RESTART, id);
-            w.bytes(&mac).string(password);
-            w.finish()
-        }
-        Request::Identify { mac } => {
-            let mut w = Writer::new(&mut buf, op::IDENTIFY, id);
-            w.bytes(&mac);
-            w.finish()
-        }
-        Request::SetPassword { mac, password, new } => {
-            let mut w = Writer::new(&mut buf, op::SET_PASSWORD, id);
-            w.bytes(&mac).string(password).string(new);
-            w.finish()
-        }
-    }?;
+    let n = encode_request(id, request, &mut buf)?;
     Some(buf[..n].to_vec())
 }
 
@@ -58,7 +37,7 @@ fn array<const N: usize>(data: &mut &[u8]) -> [u8; N] {
 fuzz_target!(|data: &[u8]| {
     // Arbitrary bytes as a datagram.
     let _ = decode_info(data);
-    let _ = decode_result(data);
+    let _ = decode_reply(data);
     if let Some((id, request)) = decode_request(data) {
         assert_eq!(encode(id, &request).as_deref(), Some(data), "canonical: {request:?}");
     }
@@ -75,12 +54,21 @@ fuzz_target!(|data: &[u8]| {
     };
     let password = take(&mut rest, usize::from(pw_len) % (MAX_PASSWORD_LEN + 1));
     let new = take(&mut rest, usize::from(new_len) % (MAX_PASSWORD_LEN + 1));
-    let request = match kind % 5 {
+    let nets: Vec<Network> = (0..usize::from(new_len) % (MAX_NETWORKS + 1))
+        .filter_map(|_| {
+            let [a, b, c, d, prefix] = array::<5>(&mut rest);
+            Network::new([a, b, c, d], prefix % 33)
+        })
+        .collect();
+    let list = AllowList::of(&nets).expect("at most 4");
+    let request = match kind % 7 {
         0 => Request::Search,
         1 => Request::SetNetwork { mac, password, net },
         2 => Request::Restart { mac, password },
         3 => Request::Identify { mac },
-        _ => Request::SetPassword { mac, password, new },
+        4 => Request::SetPassword { mac, password, new },
+        5 => Request::GetAccess { mac, password },
+        _ => Request::SetAccess { mac, password, list },
     };
     let bytes = encode(id, &request).expect("every request fits a datagram");
     assert_eq!(decode_request(&bytes), Some((id, request)), "round trip");

@@ -6,14 +6,19 @@
 //! the request's start and quantity (or value); an answered request only touched addresses that
 //! the protocol crate's decoding maps for that access. The maps' own rules (the 8350's extra pulses,
 //! flags cleared on read, settings committed to a RAM flash, the diagnostics registers) run as
-//! on the module.
+//! on the module. The second byte sets the scene: the client's address (127.0.0.1 or
+//! 127.0.0.2), a write allow-list of 127.0.0.2/32 (extensions §4), and on the 8350 a host
+//! watchdog armed and tripped before the stream (its writes that move outputs answer 04).
 //! `cargo +nightly fuzz run modbus_path` (from the repository root).
 #![no_main]
 
 use core::cell::RefCell;
 
 use embassy_futures::block_on;
-use embassy_sync::blocking_mutex::raw::NoopRawMutex;
+use embassy_sync::blocking_mutex::raw::{CriticalSectionRawMutex, NoopRawMutex};
+use embassy_sync::mutex::Mutex;
+use embassy_time::{Duration, Instant};
+use remodaq_shared::access::{AllowList, Network};
 use libfuzzer_sys::fuzz_target;
 use remodaq_shared::modbus::frame::{classify, Frame, MAX_ADU, MBAP_LEN};
 use remodaq_shared::modbus::server::answer_request;
@@ -82,14 +87,14 @@ fn check(rule: AccessRule, request: &[u8], answer: &[u8]) {
     }
 }
 
-fn serve(rule: AccessRule, map: &mut impl RegisterMap, mut stream: &[u8]) {
+fn serve<M: RegisterMap>(rule: AccessRule, map: &Mutex<NoopRawMutex, M>, from: [u8; 4], mut stream: &[u8]) {
     let mut out = [0u8; MAX_ADU];
     loop {
         match classify(stream) {
             Frame::Incomplete | Frame::Desync => return,
             Frame::Discard { len } => stream = &stream[len..],
             Frame::Request { header, len } => {
-                let n = block_on(answer_request(map, header, &stream[MBAP_LEN..len], &mut out));
+                let n = block_on(answer_request(map, from, header, &stream[MBAP_LEN..len], &mut out));
                 check(rule, &stream[..len], &out[..n]);
                 stream = &stream[len..];
             }
@@ -97,29 +102,64 @@ fn serve(rule: AccessRule, map: &mut impl RegisterMap, mut stream: &[u8]) {
     }
 }
 
+/// Scene bits of the second byte.
+const FROM_SECOND: u8 = 1 << 0;
+const RESTRICTED: u8 = 1 << 1;
+const TRIPPED: u8 = 1 << 2;
+const AUTO_CLEAR: u8 = 1 << 3;
+
+/// The store, with `change` applied to the factory settings and committed.
+fn store<S: Schema + Copy>(change: impl FnOnce(&mut S)) -> Mutex<CriticalSectionRawMutex, SettingsStore<Flash, S>> {
+    let mut store = block_on(SettingsStore::open(Flash::new(), const { SettingsStore::<Flash, S>::config(0..64 * 1024) }));
+    let mut settings = S::defaults();
+    change(&mut settings);
+    if settings != S::defaults() {
+        block_on(store.commit(settings)).expect("a RAM flash commits");
+    }
+    Mutex::new(store)
+}
+
 fuzz_target!(|data: &[u8]| {
-    let Some((&which, stream)) = data.split_first() else { return };
+    let Some((&[which, scene], stream)) = data.split_first_chunk::<2>() else { return };
+    let from = if scene & FROM_SECOND != 0 { [127, 0, 0, 2] } else { [127, 0, 0, 1] };
+    let allow = if scene & RESTRICTED != 0 {
+        AllowList::of(&[Network::new([127, 0, 0, 2], 32).expect("a /32")]).expect("one network")
+    } else {
+        AllowList::EMPTY
+    };
     if which & 1 == 0 {
         type Settings = remodaq_8318::settings::Settings;
-        let store = block_on(SettingsStore::open(
-            Flash::new(),
-            const { SettingsStore::<Flash, Settings>::config(0..64 * 1024) },
-        ));
-        let mut map = remodaq_8318::map::Map8318::new(store);
-        serve(remodaq_protocol::m8318::access, &mut map, stream);
+        let store = store(|s: &mut Settings| s.allow = allow);
+        let settings = *block_on(store.lock()).get();
+        let map = Mutex::new(remodaq_8318::map::Map8318::new(&store, &settings));
+        serve(remodaq_protocol::m8318::access, &map, from, stream);
     } else {
         type Settings = remodaq_8350::settings::Settings;
-        let store = block_on(SettingsStore::open(
-            Flash::new(),
-            const { SettingsStore::<Flash, Settings>::config(0..64 * 1024) },
-        ));
+        let store = store(|s: &mut Settings| {
+            s.allow = allow;
+            if scene & TRIPPED != 0 {
+                s.watchdog.timeout = 1;
+                s.safe = 0b10_0101;
+            }
+            if scene & AUTO_CLEAR != 0 {
+                s.watchdog.mode = remodaq_protocol::m8350::wd_mode::AUTO_CLEAR;
+            }
+        });
+        let settings = *block_on(store.lock()).get();
         let io = remodaq_8350::io::IoCell::<NoopRawMutex>::new(RefCell::new(remodaq_8350::io::Io::new(
             remodaq_8350::di::SAMPLE_RATE_HZ,
-            &Settings::defaults(),
+            &settings,
         )));
-        // Some input activity, so flags and counters have something to show.
-        remodaq_8350::io::with(&io, |s| s.di.process(&[0, 0xFFF, 0, 0xA5A, 0x5A5]));
-        let mut map = remodaq_8350::map::Map8350::new(store, &io);
-        serve(remodaq_protocol::m8350::access, &mut map, stream);
+        remodaq_8350::io::with(&io, |s| {
+            // Some input activity, so flags and counters have something to show.
+            s.di.process(&[0, 0xFFF, 0, 0xA5A, 0x5A5]);
+            if scene & TRIPPED != 0 {
+                s.request(false);
+                s.poll_watchdog(Instant::now() + Duration::from_secs(3600));
+                assert!(s.watchdog.tripped(), "an armed 0.1 s watchdog trips after an hour");
+            }
+        });
+        let map = Mutex::new(remodaq_8350::map::Map8350::new(&store, &settings, &io));
+        serve(remodaq_protocol::m8350::access, &map, from, stream);
     }
 });

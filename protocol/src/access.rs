@@ -91,7 +91,7 @@ impl AllowList {
     }
 
     /// Decodes an encoded list that is exactly `bytes`; `None` if malformed (a count above
-    /// [`MAX_NETWORKS`], a prefix above 32, a wrong length).
+    /// [`MAX_NETWORKS`], a prefix above 32, host bits set, a wrong length).
     pub fn decode(bytes: &[u8]) -> Option<Self> {
         let (&count, rest) = bytes.split_first()?;
         let count = usize::from(count);
@@ -100,7 +100,9 @@ impl AllowList {
         }
         let mut list = Self::EMPTY;
         for (slot, chunk) in list.nets.iter_mut().zip(rest.chunks_exact(5)) {
-            *slot = Some(Network::new([chunk[0], chunk[1], chunk[2], chunk[3]], chunk[4])?);
+            let ip = [chunk[0], chunk[1], chunk[2], chunk[3]];
+            let net = Network::new(ip, chunk[4]).filter(|n| n.ip == ip)?;
+            *slot = Some(net);
         }
         Some(list)
     }
@@ -137,6 +139,7 @@ mod tests {
         assert_eq!(AllowList::decode(&[5; 26]), None, "more than 4");
         assert_eq!(AllowList::decode(&[1, 1, 2, 3, 4, 40]), None, "prefix 40");
         assert_eq!(AllowList::decode(&[1, 1, 2, 3, 4]), None, "short");
+        assert_eq!(AllowList::decode(&[1, 10, 0, 0, 1, 24]), None, "host bits set: not the canonical form");
         assert_eq!(AllowList::of(&[Network::new([0; 4], 0).unwrap(); 5]), None);
     }
 }

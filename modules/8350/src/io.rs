@@ -53,10 +53,10 @@ impl Io {
         }
     }
 
-    /// Checks the host watchdog; on a trip, every output goes to its safe level and every
-    /// pulse train stops.
-    pub fn poll_watchdog(&mut self) {
-        if self.watchdog.poll(Instant::now()) {
+    /// Checks the host watchdog at `now`; on a trip, every output goes to its safe level and
+    /// every pulse train stops.
+    pub fn poll_watchdog(&mut self, now: Instant) {
+        if self.watchdog.poll(now) {
             self.pulse.hold(self.safe);
             DIAGNOSTICS.set(status::HOST_WATCHDOG, true);
             remodaq_shared::warn!("host watchdog: no request in time, outputs in the safe state {:02X}h", self.safe);
@@ -179,7 +179,7 @@ pub async fn run<R: RawMutex>(
                     }
                 }
             }
-            with(cell, |s| s.poll_watchdog());
+            with(cell, |s| s.poll_watchdog(Instant::now()));
             if DIAGNOSTICS.set(status::INPUTS_PENDING, false) {
                 remodaq_shared::info!("self-test: input capture running");
             }

@@ -1,0 +1,268 @@
+//! End to end on the host build: the host watchdog and safe state (extensions §3), the write
+//! allow-list and per-source lock-out (§4), and Modbus reads answered while the settings flash
+//! commits (§4), over loopback with tokio-modbus and the discovery protocol.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use remodaq_board_host::testing::SimModule;
+use remodaq_protocol::access::{AllowList, Network};
+use remodaq_protocol::discovery::{decode_info, decode_reply, encode_request, Request, Status, MAX_DATAGRAM};
+use remodaq_protocol::m8350::{
+    wd_mode, BIT_DO, REG_DI_MODE, REG_DO_MODE, REG_POWER_ON, REG_PULSE, REG_SAFE_VALUES, REG_WD_MODE, REG_WD_STATUS,
+    REG_WD_TIMEOUT,
+};
+use tokio::net::{TcpSocket, UdpSocket};
+use tokio::time::{sleep, timeout};
+use tokio_modbus::client::{tcp, Context, Reader, Writer};
+use tokio_modbus::ExceptionCode;
+
+const BIN: &str = env!("CARGO_BIN_EXE_firmware-8350");
+const LIMIT: Duration = Duration::from_secs(10);
+const REG_ALL_DO: u16 = 0x12E;
+const REG_MODULE_STATUS: u16 = 0xF0;
+
+fn temp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("remodaq-ext-8350-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join(name);
+    let _ = std::fs::remove_file(&path);
+    path
+}
+
+async fn connect(addr: SocketAddr) -> Context {
+    timeout(LIMIT, tcp::connect(addr)).await.expect("connect in time").expect("connect")
+}
+
+/// A connection whose source address is `from` (a loopback address).
+async fn connect_from(from: [u8; 4], addr: SocketAddr) -> Context {
+    let socket = TcpSocket::new_v4().unwrap();
+    socket.bind(SocketAddr::from((from, 0))).expect("bind a loopback source");
+    let stream = timeout(LIMIT, socket.connect(addr)).await.unwrap().expect("connect");
+    tcp::attach(stream)
+}
+
+async fn regs(ctx: &mut Context, addr: u16, n: u16) -> Vec<u16> {
+    timeout(LIMIT, ctx.read_holding_registers(addr, n)).await.unwrap().unwrap().expect("no exception")
+}
+
+async fn dos(ctx: &mut Context) -> Vec<bool> {
+    timeout(LIMIT, ctx.read_coils(BIT_DO, 6)).await.unwrap().unwrap().expect("no exception")
+}
+
+async fn write_reg(ctx: &mut Context, addr: u16, value: u16) -> Result<(), ExceptionCode> {
+    timeout(LIMIT, ctx.write_single_register(addr, value)).await.unwrap().unwrap()
+}
+
+async fn write_regs(ctx: &mut Context, addr: u16, values: &[u16]) -> Result<(), ExceptionCode> {
+    timeout(LIMIT, ctx.write_multiple_registers(addr, values)).await.unwrap().unwrap()
+}
+
+async fn write_bit(ctx: &mut Context, addr: u16, on: bool) -> Result<(), ExceptionCode> {
+    timeout(LIMIT, ctx.write_single_coil(addr, on)).await.unwrap().unwrap()
+}
+
+fn levels(bits: &[bool]) -> u16 {
+    bits.iter().enumerate().filter(|(_, b)| **b).fold(0, |acc, (n, _)| acc | 1 << n)
+}
+
+/// With polling stopped, reads until the watchdog status shows a trip; returns (the last
+/// read still untripped: sent, the first tripped read: answered), from `since`. In
+/// writes-only mode the reads do not feed the watchdog.
+async fn wait_trip(ctx: &mut Context, since: Instant) -> (Duration, Duration) {
+    let mut last_ok = Duration::ZERO;
+    loop {
+        let sent = Instant::now();
+        let status = regs(ctx, REG_WD_STATUS, 1).await[0];
+        if status == 1 {
+            return (last_ok, since.elapsed());
+        }
+        last_ok = sent - since;
+        assert!(since.elapsed() < Duration::from_secs(5), "no trip within 5 s");
+        sleep(Duration::from_millis(5)).await;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn host_watchdog_safe_state_clears_power_on_and_persistence() {
+    let flash = temp("watchdog.flash");
+    let module = SimModule::start(BIN, &flash);
+    let mut ctx = connect(module.addr).await;
+
+    // DO0: a continuous 500 Hz pulse train; DO1 on. Safe: only DO2 on. Power-on: only DO3.
+    write_reg(&mut ctx, REG_DO_MODE, 1).await.unwrap();
+    write_bit(&mut ctx, BIT_DO, true).await.unwrap();
+    write_bit(&mut ctx, BIT_DO + 1, true).await.unwrap();
+    write_reg(&mut ctx, REG_SAFE_VALUES, 0b00_0100).await.unwrap();
+    write_reg(&mut ctx, REG_POWER_ON, 0b00_1000).await.unwrap();
+    // Out of range: exception 03, nothing changes.
+    assert_eq!(write_reg(&mut ctx, REG_WD_TIMEOUT, 6001).await, Err(ExceptionCode::IllegalDataValue));
+    assert_eq!(write_reg(&mut ctx, REG_SAFE_VALUES, 0x40).await, Err(ExceptionCode::IllegalDataValue));
+    assert_eq!(write_reg(&mut ctx, REG_WD_MODE, 4).await, Err(ExceptionCode::IllegalDataValue));
+    // 0.5 s, fed by writes only (so reading the status does not feed it), manual clear.
+    write_reg(&mut ctx, REG_WD_MODE, wd_mode::WRITES_ONLY).await.unwrap();
+    let armed = Instant::now();
+    write_reg(&mut ctx, REG_WD_TIMEOUT, 5).await.unwrap();
+    assert_eq!(levels(&dos(&mut ctx).await), 0b00_0011, "DO0 train running, DO1 on");
+
+    let (last_ok, tripped) = wait_trip(&mut ctx, armed).await;
+    eprintln!("watchdog 0.5 s: last untripped read sent at {last_ok:?}, trip seen at {tripped:?} after the last write");
+    assert!(last_ok >= Duration::from_millis(400), "not tripped early: {last_ok:?}");
+    assert!(tripped >= Duration::from_millis(500), "a trip needs 0.5 s without a write: {tripped:?}");
+    assert!(tripped <= Duration::from_millis(800), "tripped within +100 ms (+200 ms for a loaded machine): {tripped:?}");
+    assert_eq!(levels(&dos(&mut ctx).await), 0b00_0100, "safe levels: the train stopped, DO1 off, DO2 on");
+    assert_eq!(regs(&mut ctx, REG_MODULE_STATUS, 1).await[0] & 0x10, 0x10, "module status bit 4");
+
+    // Tripped: writes that would move an output answer 04 and change nothing; others work.
+    let refused = Err(ExceptionCode::ServerDeviceFailure);
+    assert_eq!(write_bit(&mut ctx, BIT_DO + 1, true).await, refused, "DO bit");
+    assert_eq!(write_reg(&mut ctx, REG_ALL_DO, 0b11_1111).await, refused, "all DO");
+    assert_eq!(write_reg(&mut ctx, REG_DO_MODE + 1, 1).await, refused, "DO mode");
+    assert_eq!(write_regs(&mut ctx, REG_PULSE, &[20, 0]).await, refused, "pulse width");
+    assert_eq!(levels(&dos(&mut ctx).await), 0b00_0100, "nothing moved");
+    assert_eq!(regs(&mut ctx, REG_DO_MODE + 1, 1).await, [0], "DO1 mode unchanged");
+    write_reg(&mut ctx, REG_DI_MODE, 1).await.expect("a DI mode write works while tripped");
+    assert_eq!(regs(&mut ctx, REG_WD_STATUS, 1).await, [1], "a write does not clear it in manual mode");
+
+    // Manual clear: only 0 may be written.
+    assert_eq!(write_reg(&mut ctx, REG_WD_STATUS, 1).await, Err(ExceptionCode::IllegalDataValue));
+    write_reg(&mut ctx, REG_WD_STATUS, 0).await.unwrap();
+    assert_eq!(regs(&mut ctx, REG_WD_STATUS, 1).await, [0]);
+    assert_eq!(regs(&mut ctx, REG_MODULE_STATUS, 1).await[0] & 0x10, 0, "module status bit 4 cleared");
+    assert_eq!(levels(&dos(&mut ctx).await), 0b00_0100, "outputs stay at their safe levels until written");
+    write_bit(&mut ctx, BIT_DO + 1, true).await.expect("written after the clear");
+    assert_eq!(levels(&dos(&mut ctx).await), 0b00_0110);
+
+    // Automatic clear: the next write (a feeding request) ends the safe state.
+    let armed = Instant::now();
+    write_reg(&mut ctx, REG_WD_MODE, wd_mode::WRITES_ONLY | wd_mode::AUTO_CLEAR).await.unwrap();
+    let (_, tripped) = wait_trip(&mut ctx, armed).await;
+    eprintln!("watchdog 0.5 s, automatic clear: trip seen at {tripped:?}");
+    assert_eq!(levels(&dos(&mut ctx).await), 0b00_0100);
+    write_reg(&mut ctx, REG_DI_MODE, 0).await.unwrap();
+    assert_eq!(regs(&mut ctx, REG_WD_STATUS, 1).await, [0], "cleared by the write");
+
+    // Any request feeds it (mode 0): polling every 100 ms for 1.5 s, no trip.
+    write_reg(&mut ctx, REG_WD_MODE, 0).await.unwrap();
+    for _ in 0..15 {
+        sleep(Duration::from_millis(100)).await;
+        assert_eq!(regs(&mut ctx, REG_WD_STATUS, 1).await, [0], "fed by reads");
+    }
+
+    // After a restart: the settings are kept, the outputs take their power-on values, and a
+    // module nobody talks to does not trip (the first request arms it).
+    drop(ctx);
+    module.kill();
+    let module = SimModule::start(BIN, &flash);
+    sleep(Duration::from_millis(1200)).await;
+    let mut ctx = connect(module.addr).await;
+    assert_eq!(regs(&mut ctx, REG_WD_TIMEOUT, 5).await, [5, 0b00_0100, 0, 0, 0b00_1000], "persisted, not tripped");
+    assert_eq!(levels(&dos(&mut ctx).await), 0b00_1000, "power-on values");
+    assert_eq!(regs(&mut ctx, REG_DO_MODE, 1).await, [1], "DO0 still in pulse mode, not running");
+    // Armed now by those reads: silence trips it.
+    sleep(Duration::from_millis(800)).await;
+    let mut other = connect(module.addr).await;
+    write_reg(&mut other, REG_WD_TIMEOUT, 0).await.unwrap();
+    assert_eq!(regs(&mut other, REG_WD_STATUS, 1).await, [1], "tripped after 0.5 s of silence");
+    assert_eq!(levels(&dos(&mut other).await), 0b00_0100);
+}
+
+async fn discover(to: SocketAddr, from: [u8; 4], request: &Request<'_>) -> Vec<u8> {
+    let socket = UdpSocket::bind(SocketAddr::from((from, 0))).await.unwrap();
+    let mut buf = [0u8; MAX_DATAGRAM];
+    let n = encode_request(1, request, &mut buf).unwrap();
+    socket.send_to(&buf[..n], to).await.unwrap();
+    let mut rx = [0u8; 512];
+    let (n, _) = timeout(LIMIT, socket.recv_from(&mut rx)).await.expect("a reply").unwrap();
+    rx[..n].to_vec()
+}
+
+async fn mac(module: &SimModule) -> [u8; 6] {
+    decode_info(&discover(module.discovery, [127, 0, 0, 1], &Request::Search).await).unwrap().mac
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn allow_list_and_per_source_lock_out() {
+    let module = SimModule::start(BIN, &temp("access.flash"));
+    let mac = mac(&module).await;
+    let list = AllowList::of(&[Network::new([127, 0, 0, 2], 32).unwrap()]).unwrap();
+    let set = Request::SetAccess { mac, password: b"remodaq", list };
+    let reply = decode_reply(&discover(module.discovery, [127, 0, 0, 1], &set).await).unwrap();
+    assert_eq!(reply.status, Status::Ok);
+
+    let mut outside = connect_from([127, 0, 0, 1], module.addr).await;
+    let mut inside = connect_from([127, 0, 0, 2], module.addr).await;
+    let refused = Err(ExceptionCode::IllegalFunction);
+    assert_eq!(write_reg(&mut outside, REG_DI_MODE, 1).await, refused, "06 from outside the list");
+    assert_eq!(write_regs(&mut outside, REG_DI_MODE, &[1, 1]).await, refused, "16");
+    assert_eq!(write_bit(&mut outside, BIT_DO, true).await, refused, "05");
+    let r = timeout(LIMIT, outside.write_multiple_coils(BIT_DO, &[true, true])).await.unwrap().unwrap();
+    assert_eq!(r, refused, "15");
+    assert_eq!(regs(&mut outside, REG_DI_MODE, 2).await, [0, 0], "reads are served; nothing changed");
+    assert_eq!(dos(&mut outside).await, [false; 6]);
+    write_reg(&mut inside, REG_DI_MODE, 1).await.expect("127.0.0.2 may write");
+    assert_eq!(regs(&mut outside, REG_DI_MODE, 1).await, [1]);
+    let flags = decode_info(&discover(module.discovery, [127, 0, 0, 1], &Request::Search).await).unwrap().flags;
+    assert_eq!(flags, Some(1), "a search says writes are restricted");
+
+    // Per-source lock-out: 127.0.0.3 guesses and is locked out; 127.0.0.1 is still accepted.
+    let guess = Request::GetAccess { mac, password: b"guess" };
+    for _ in 0..4 {
+        discover(module.discovery, [127, 0, 0, 3], &guess).await;
+    }
+    let right = Request::GetAccess { mac, password: b"remodaq" };
+    let locked = decode_reply(&discover(module.discovery, [127, 0, 0, 3], &right).await).unwrap();
+    assert_eq!(locked.status, Status::RateLimited, "the guessing source is locked out");
+    let admin = decode_reply(&discover(module.discovery, [127, 0, 0, 1], &right).await).unwrap();
+    assert_eq!((admin.status, admin.list), (Status::Ok, Some(list)), "another source is accepted");
+
+    // Cleared: anyone may write again.
+    let clear = Request::SetAccess { mac, password: b"remodaq", list: AllowList::EMPTY };
+    assert_eq!(decode_reply(&discover(module.discovery, [127, 0, 0, 1], &clear).await).unwrap().status, Status::Ok);
+    write_reg(&mut outside, REG_DI_MODE, 0).await.expect("writes allowed again");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn reads_are_answered_while_the_flash_commits() {
+    // Every flash write and erase takes 100 ms longer: a commit takes a second or more.
+    let module = SimModule::start_with(BIN, &temp("slow.flash"), &["--listen", "127.0.0.1:0", "--slow-flash", "100"]);
+    let addr = module.addr;
+    let mac = mac(&module).await;
+    let mut reader = connect(addr).await;
+    regs(&mut reader, REG_DI_MODE, 1).await;
+
+    for what in ["a Modbus write of a persisted register", "a password change over discovery"] {
+        let started = Instant::now();
+        let commit = if what.starts_with("a Modbus") {
+            tokio::spawn(async move {
+                let mut writer = connect(addr).await;
+                write_reg(&mut writer, REG_DI_MODE + 3, 4).await.unwrap();
+                started.elapsed()
+            })
+        } else {
+            let to = module.discovery;
+            tokio::spawn(async move {
+                let change = Request::SetPassword { mac, password: b"remodaq", new: b"remodaq" };
+                assert_eq!(decode_reply(&discover(to, [127, 0, 0, 1], &change).await).unwrap().status, Status::Ok);
+                started.elapsed()
+            })
+        };
+        sleep(Duration::from_millis(50)).await;
+        let mut worst = Duration::ZERO;
+        let mut reads = 0;
+        while !commit.is_finished() {
+            let t = Instant::now();
+            regs(&mut reader, REG_DI_MODE, 12).await;
+            worst = worst.max(t.elapsed());
+            reads += 1;
+            sleep(Duration::from_millis(20)).await;
+        }
+        let took = commit.await.unwrap();
+        eprintln!("{what}: commit took {took:?}; {reads} reads meanwhile, the slowest {worst:?}");
+        assert!(took >= Duration::from_millis(300), "the commit was slow: {took:?}");
+        assert!(reads >= 5, "reads went on during the commit: {reads}");
+        assert!(worst < Duration::from_millis(100), "each read answered at once: {worst:?}");
+    }
+    assert_eq!(regs(&mut reader, REG_DI_MODE + 3, 1).await, [4], "the write took effect");
+}
