@@ -301,3 +301,57 @@ async fn a_newcomer_is_answered_during_a_flood_of_64_connections() {
     eprintln!("newcomer answered {took:?} after {} flood connections were opened", open.len());
     assert!(took < Duration::from_millis(100), "newcomer answered after {took:?}");
 }
+
+/// Extensions §2: every channel status produced from a scenario and read over Modbus, in the
+/// same cycle as its value; the open-input value both ways, persisted across a restart.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn channel_status_and_open_input_value() {
+    let dir = flash_file("status").with_extension("d");
+    std::fs::create_dir_all(&dir).unwrap();
+    let scenario = dir.join("scenario.toml");
+    // Type K (factory), cold junction 25 °C, E(25 °C) = 1.000 mV (NIST). ch1: 60 + 1 mV is
+    // above E(1372 °C) = 54.886 mV, the top of the NIST function: over range. ch2: -8 + 1 mV is
+    // below E(-270 °C) = -6.458 mV: under range. ch4: 41.276 + 1 mV = 1025.74 °C: ok.
+    let channels = "[ch0]\nopen = true\n[ch1]\nmillivolts = 60.0\n[ch2]\nmillivolts = -8.0\n[ch4]\nmillivolts = 41.276\n";
+    std::fs::write(&scenario, channels).unwrap();
+    let flash = flash_file("status.flash");
+    let args = ["--listen", "127.0.0.1:0", "--scenario", scenario.to_str().unwrap()];
+    let module = SimModule::start_with(BIN, &flash, &args);
+    let mut ctx = connect(module.addr).await;
+    write(&mut ctx, 0xDC, 0xF7).await; // channel 3 disabled
+
+    // Values 40001-40008, status 40225-40232 (0 ok, 1 open, 2 over, 3 under, 4 disabled).
+    let s = read_until(&mut ctx, 0xE0, 8, |s| s[..5] == [1, 2, 3, 4, 0]).await;
+    let v = read(&mut ctx, 0, 8).await.unwrap();
+    eprintln!("values {v:04x?} status {s:?}");
+    assert_eq!(v[..4], [0xFFFF, 0xFFFF, 0x0000, 0x0000], "open upscale, over, under, disabled");
+    // Spec §2.3: round((1025.74 + 250) / 1650 * 65535) = 50670.
+    assert!((i32::from(v[4]) - 50670).abs() <= 2, "ch4 1025.74 °C: {:04x}", v[4]);
+
+    // A front-end fault: every enabled channel 5; a cold-junction fault: thermocouples 6 (an
+    // open input still says open).
+    std::fs::write(&scenario, format!("{channels}[frontend]\nfault = true\n")).unwrap();
+    let s = read_until(&mut ctx, 0xE0, 8, |s| s[..5] == [5, 5, 5, 4, 5]).await;
+    eprintln!("front-end fault: status {s:?}");
+    std::fs::write(&scenario, format!("{channels}[cjc]\nfault = true\n")).unwrap();
+    let s = read_until(&mut ctx, 0xE0, 8, |s| s[..5] == [1, 6, 6, 4, 6]).await;
+    eprintln!("cold-junction fault: status {s:?}");
+    std::fs::write(&scenario, channels).unwrap();
+    read_until(&mut ctx, 0xE0, 5, |s| s == [1, 2, 3, 4, 0]).await;
+
+    // Open-input value: downscale reads 0000h; only 0 and 1 are accepted; it persists.
+    assert_eq!(read(&mut ctx, 0xE8, 1).await.unwrap(), [0], "factory: upscale");
+    let bad = timeout(LIMIT, ctx.write_single_register(0xE8, 2)).await.unwrap().unwrap();
+    assert_eq!(bad, Err(ExceptionCode::IllegalDataValue));
+    write(&mut ctx, 0xE8, 1).await;
+    read_until(&mut ctx, 0, 1, |v| v == [0x0000]).await;
+    assert_eq!(read(&mut ctx, 0xE0, 1).await.unwrap(), [1], "still open");
+    drop(ctx);
+    module.kill();
+    let module = SimModule::start_with(BIN, &flash_file_keep("status.flash"), &args);
+    let mut ctx = connect(module.addr).await;
+    assert_eq!(read(&mut ctx, 0xE8, 1).await.unwrap(), [1], "persisted");
+    read_until(&mut ctx, 0, 1, |v| v == [0x0000]).await;
+    write(&mut ctx, 0xE8, 0).await;
+    read_until(&mut ctx, 0, 1, |v| v == [0xFFFF]).await;
+}
