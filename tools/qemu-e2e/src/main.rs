@@ -14,7 +14,10 @@ use remodaq_protocol::diag;
 use remodaq_protocol::discovery::{decode_info, decode_reply, encode_request, Request, Status, MAX_DATAGRAM};
 use remodaq_protocol::identity::{FIRMWARE_VERSION, REG_NAME, REG_VERSION};
 use remodaq_protocol::m8318::{REG_CJC, REG_INPUT_TYPE, REG_VALUE};
-use remodaq_protocol::m8350::{Point, PulseField, Word, REG_ALL_DI, REG_DI_MODE};
+use remodaq_protocol::m8350::{
+    wd_mode, Point, PulseField, Word, BIT_DO, REG_ALL_DI, REG_ALL_DO, REG_DI_MODE, REG_SAFE_VALUES, REG_WD_MODE,
+    REG_WD_STATUS, REG_WD_TIMEOUT,
+};
 use remodaq_protocol::net::NetConfig;
 use tokio::time::{sleep, timeout};
 use tokio_modbus::client::{tcp, Context, Reader, Writer as _};
@@ -203,6 +206,46 @@ async fn setting_round_trip(model: u16, ctx: &mut Context) -> Result<(), String>
         return Err(format!("wrote {values:x?} to {addr:#x}, read {back:x?}"));
     }
     Ok(())
+}
+
+/// Extensions §3 through the emulated NIC: a 0.5 s host watchdog fed by writes only, armed by
+/// a write, trips (reads do not feed it): the DOs take their safe levels and a write to the
+/// outputs answers exception 04; writing 0 to the status clears it. The timing comes from the
+/// module's clock (SysTick under QEMU).
+async fn host_watchdog(addr: SocketAddr) -> Result<Duration, String> {
+    let mut ctx = connect(addr).await?;
+    write(&mut ctx, REG_SAFE_VALUES, &[0b00_0101]).await?;
+    write(&mut ctx, REG_WD_MODE, &[wd_mode::WRITES_ONLY]).await?;
+    let armed = Instant::now();
+    write(&mut ctx, REG_WD_TIMEOUT, &[5]).await?;
+    let tripped = loop {
+        if regs(&mut ctx, REG_WD_STATUS, 1).await? == [1] {
+            break armed.elapsed();
+        }
+        if armed.elapsed() > Duration::from_secs(3) {
+            return Err("no trip within 3 s".into());
+        }
+        sleep(Duration::from_millis(10)).await;
+    };
+    if tripped < Duration::from_millis(500) || tripped > Duration::from_millis(1000) {
+        return Err(format!("tripped after {tripped:?}, expected 0.5 s (+0.1 s, +0.4 s for the emulator)"));
+    }
+    let dos = timeout(STEP, ctx.read_coils(BIT_DO, 6)).await.map_err(|_| "coils: no answer".to_string())?;
+    let dos = dos.map_err(|e| e.to_string())?.map_err(|e| format!("coils: exception {e:?}"))?;
+    if dos != [true, false, true, false, false, false] {
+        return Err(format!("DO levels {dos:?}, expected the safe levels 000101"));
+    }
+    match write(&mut ctx, REG_ALL_DO, &[0]).await {
+        Err(e) if e.contains("ServerDeviceFailure") => {}
+        other => return Err(format!("writing the outputs while tripped: {other:?}, expected exception 04")),
+    }
+    write(&mut ctx, REG_WD_STATUS, &[0]).await?;
+    if regs(&mut ctx, REG_WD_STATUS, 1).await? != [0] {
+        return Err("still tripped after the clear".into());
+    }
+    write(&mut ctx, REG_WD_TIMEOUT, &[0]).await?;
+    write(&mut ctx, REG_ALL_DO, &[0]).await?;
+    Ok(tripped)
 }
 
 /// Extensions §1 through the emulated NIC: the QEMU board injects a front-end fault from 20 s
@@ -464,6 +507,13 @@ async fn run(model: &str, image: &str) -> Report {
     report.check("pipelined burst of 10 within 3x one request", pipelining(addr, 3.0).await.map(|_| ()));
     // Measured, not checked: under QEMU a newcomer still waits about 1 s (see docs/design.md).
     let _ = newcomer(addr, Duration::from_secs(10)).await;
+    if name == 0x8350 {
+        let watchdog = host_watchdog(addr).await;
+        if let Ok(t) = &watchdog {
+            println!("qemu-{model}: host watchdog 0.5 s tripped {:.0} ms after the arming write", t.as_secs_f64() * 1e3);
+        }
+        report.check("host watchdog: trip to the safe levels, exception 04, clear", watchdog.map(|_| ()));
+    }
     report.check("diagnostics: injected front-end fault, set and cleared", diagnostics(addr).await);
     let discovery = SocketAddr::from(([127, 0, 0, 1], udp));
     report.check("discovery: search, network settings, restart", discovery_and_restart(discovery, addr, name).await);
