@@ -312,7 +312,8 @@ async fn channel_status_and_open_input_value() {
     // Type K (factory), cold junction 25 °C, E(25 °C) = 1.000 mV (NIST). ch1: 60 + 1 mV is
     // above E(1372 °C) = 54.886 mV, the top of the NIST function: over range. ch2: -8 + 1 mV is
     // below E(-270 °C) = -6.458 mV: under range. ch4: 41.276 + 1 mV = 1025.74 °C: ok.
-    let channels = "[ch0]\nopen = true\n[ch1]\nmillivolts = 60.0\n[ch2]\nmillivolts = -8.0\n[ch4]\nmillivolts = 41.276\n";
+    let channels =
+        "[ch0]\nopen = true\n[ch1]\nmillivolts = 60.0\n[ch2]\nmillivolts = -8.0\n[ch4]\nmillivolts = 41.276\n";
     std::fs::write(&scenario, channels).unwrap();
     let flash = flash_file("status.flash");
     let args = ["--listen", "127.0.0.1:0", "--scenario", scenario.to_str().unwrap()];

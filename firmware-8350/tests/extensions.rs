@@ -110,7 +110,10 @@ async fn host_watchdog_safe_state_clears_power_on_and_persistence() {
     eprintln!("watchdog 0.5 s: last untripped read sent at {last_ok:?}, trip seen at {tripped:?} after the last write");
     assert!(last_ok >= Duration::from_millis(400), "not tripped early: {last_ok:?}");
     assert!(tripped >= Duration::from_millis(500), "a trip needs 0.5 s without a write: {tripped:?}");
-    assert!(tripped <= Duration::from_millis(800), "tripped within +100 ms (+200 ms for a loaded machine): {tripped:?}");
+    assert!(
+        tripped <= Duration::from_millis(800),
+        "tripped within +100 ms (+200 ms for a loaded machine): {tripped:?}"
+    );
     assert_eq!(levels(&dos(&mut ctx).await), 0b00_0100, "safe levels: the train stopped, DO1 off, DO2 on");
     assert_eq!(regs(&mut ctx, REG_MODULE_STATUS, 1).await[0] & 0x10, 0x10, "module status bit 4");
 

@@ -18,8 +18,8 @@ use embassy_futures::block_on;
 use embassy_sync::blocking_mutex::raw::{CriticalSectionRawMutex, NoopRawMutex};
 use embassy_sync::mutex::Mutex;
 use embassy_time::{Duration, Instant};
-use remodaq_shared::access::{AllowList, Network};
 use libfuzzer_sys::fuzz_target;
+use remodaq_shared::access::{AllowList, Network};
 use remodaq_shared::modbus::frame::{classify, Frame, MAX_ADU, MBAP_LEN};
 use remodaq_shared::modbus::server::answer_request;
 use remodaq_shared::modbus::{Access, RegisterMap, Table, MAX_PDU};
@@ -110,7 +110,8 @@ const AUTO_CLEAR: u8 = 1 << 3;
 
 /// The store, with `change` applied to the factory settings and committed.
 fn store<S: Schema + Copy>(change: impl FnOnce(&mut S)) -> Mutex<CriticalSectionRawMutex, SettingsStore<Flash, S>> {
-    let mut store = block_on(SettingsStore::open(Flash::new(), const { SettingsStore::<Flash, S>::config(0..64 * 1024) }));
+    let mut store =
+        block_on(SettingsStore::open(Flash::new(), const { SettingsStore::<Flash, S>::config(0..64 * 1024) }));
     let mut settings = S::defaults();
     change(&mut settings);
     if settings != S::defaults() {

@@ -127,8 +127,9 @@ mod tests {
     #[test]
     fn empty_allows_all_and_round_trip() {
         assert!(AllowList::EMPTY.allows([10, 0, 0, 1]));
-        let list = AllowList::of(&[Network::new([127, 0, 0, 2], 32).unwrap(), Network::new([10, 1, 0, 0], 16).unwrap()])
-            .unwrap();
+        let list =
+            AllowList::of(&[Network::new([127, 0, 0, 2], 32).unwrap(), Network::new([10, 1, 0, 0], 16).unwrap()])
+                .unwrap();
         assert!(list.allows([127, 0, 0, 2]) && list.allows([10, 1, 200, 3]));
         assert!(!list.allows([127, 0, 0, 1]));
         let mut buf = [0u8; ENCODED_MAX];

@@ -36,7 +36,8 @@ pub enum Setting {
     /// the outputs go to their safe levels.
     Watchdog {
         /// Seconds, `off` or `clear`.
-        timeout: String,
+        #[arg(value_name = "SECONDS|off|clear")]
+        seconds: String,
         /// Only write requests feed the watchdog (default: any request).
         #[arg(long)]
         writes_only: bool,
@@ -363,7 +364,8 @@ async fn read_analog(m: &mut Module) -> Result<Analog, Error> {
             let raw = values[ch];
             let on = enabled & (1 << ch) != 0;
             let state = ChannelStatus::from_register(status[ch]);
-            let value = (state == Some(ChannelStatus::Ok)).then(|| (input.value(raw) / divisor * 1000.0).round() / 1000.0);
+            let value =
+                (state == Some(ChannelStatus::Ok)).then(|| (input.value(raw) / divisor * 1000.0).round() / 1000.0);
             AnalogChannel { channel: ch, enabled: on, raw, value, status: state.map_or("unknown", ChannelStatus::name) }
         })
         .collect();
@@ -514,7 +516,10 @@ async fn read_once(m: &mut Module, at: &DiscoveryAt, json: bool) -> Result<(), E
         );
         print_diagnostics(&a.diagnostics);
         print_restricted(a.writes_restricted);
-        println!("  open input reads {}", if a.open_value == "downscale" { "0000h (downscale)" } else { "FFFFh (upscale)" });
+        println!(
+            "  open input reads {}",
+            if a.open_value == "downscale" { "0000h (downscale)" } else { "FFFFh (upscale)" }
+        );
         for c in &a.channels {
             match c.value {
                 Some(v) => println!("  ch{}  {:>10.3} {:<3}  ({:04X})", c.channel, v, a.unit, c.raw),
@@ -692,9 +697,9 @@ pub async fn config(module: &str, setting: Setting, timeout: Duration, json: boo
             m.write_regs(REG_OPEN_VALUE, &[u16::from(downscale)]).await?;
             format!("open inputs read {}", if downscale { "0000h (downscale)" } else { "FFFFh (upscale)" })
         }
-        Setting::Watchdog { timeout, writes_only, auto_clear } => {
+        Setting::Watchdog { seconds, writes_only, auto_clear } => {
             m.expect(m8350::MODULE_NAME)?;
-            match timeout.trim() {
+            match seconds.trim() {
                 "clear" => {
                     m.write_regs(m8350::REG_WD_STATUS, &[0]).await?;
                     "host watchdog cleared: outputs keep their safe levels until written".to_string()
@@ -703,13 +708,15 @@ pub async fn config(module: &str, setting: Setting, timeout: Duration, json: boo
                     let tenths = if t == "off" {
                         0.0
                     } else {
-                        let s: f64 = t.parse().map_err(|_| Error::Other(format!("`{t}` is not seconds, off or clear")))?;
+                        let s: f64 =
+                            t.parse().map_err(|_| Error::Other(format!("`{t}` is not seconds, off or clear")))?;
                         (s * 10.0).round()
                     };
                     if !(0.0..=f64::from(m8350::WD_TIMEOUT_MAX)).contains(&tenths) || (t != "off" && tenths < 1.0) {
                         return Err(Error::Other("the watchdog timeout is 0.1 to 600 s, or off".into()));
                     }
-                    let mode = if writes_only { wd_mode::WRITES_ONLY } else { 0 } | if auto_clear { wd_mode::AUTO_CLEAR } else { 0 };
+                    let mode = if writes_only { wd_mode::WRITES_ONLY } else { 0 }
+                        | if auto_clear { wd_mode::AUTO_CLEAR } else { 0 };
                     m.write_regs(m8350::REG_WD_MODE, &[mode]).await?;
                     m.write_regs(m8350::REG_WD_TIMEOUT, &[tenths as u16]).await?;
                     if tenths == 0.0 {

@@ -5,7 +5,9 @@ use std::str::FromStr;
 use std::time::{Duration, Instant};
 
 use remodaq_protocol::access::{AllowList, Network};
-use remodaq_protocol::discovery::{decode_info, decode_reply, encode_request, info_flags, Reply, Request, Status, MAX_DATAGRAM};
+use remodaq_protocol::discovery::{
+    decode_info, decode_reply, encode_request, info_flags, Reply, Request, Status, MAX_DATAGRAM,
+};
 use remodaq_protocol::net::NetConfig;
 use serde::Serialize;
 use tokio::net::UdpSocket;
@@ -256,14 +258,18 @@ async fn exchange(to: SocketAddr, mac: Mac, cmd: &Command<'_>, timeout: Duration
     let mut buf = [0u8; MAX_DATAGRAM];
     let mac_bytes = mac.0;
     let request = match *cmd {
-        Command::SetNetwork(password, net) => Request::SetNetwork { mac: mac_bytes, password: password.as_bytes(), net },
+        Command::SetNetwork(password, net) => {
+            Request::SetNetwork { mac: mac_bytes, password: password.as_bytes(), net }
+        }
         Command::Restart(password) => Request::Restart { mac: mac_bytes, password: password.as_bytes() },
         Command::Identify => Request::Identify { mac: mac_bytes },
         Command::SetPassword(old, new) => {
             Request::SetPassword { mac: mac_bytes, password: old.as_bytes(), new: new.as_bytes() }
         }
         Command::GetAccess(password) => Request::GetAccess { mac: mac_bytes, password: password.as_bytes() },
-        Command::SetAccess(password, list) => Request::SetAccess { mac: mac_bytes, password: password.as_bytes(), list },
+        Command::SetAccess(password, list) => {
+            Request::SetAccess { mac: mac_bytes, password: password.as_bytes(), list }
+        }
     };
     let n = encode_request(id, &request, &mut buf).ok_or_else(|| Error::Other("password too long".into()))?;
     socket.send_to(&buf[..n], to).await.map_err(|e| Error::Other(format!("cannot send to {to}: {e}")))?;

@@ -235,3 +235,66 @@ fn read_watch_and_config_round_trip_8350() {
     assert_eq!(code, 0);
     assert!(out.contains("DI3") && out.contains("latch-rising"), "{out}");
 }
+
+#[test]
+fn watchdog_safe_state_and_access_through_the_tool() {
+    let module = SimModule::start(&firmware("8350"), &temp("ext-8350.flash"));
+    let (addr, to) = (module.addr.to_string(), module.discovery.to_string());
+    let mac = search(&module)["mac"].as_str().unwrap().to_string();
+    let read = || json(&["read", &addr, "--discovery", &to]);
+    assert_eq!(remodaq(&["config", &addr, "safe", "0b000101"]).0, 0);
+    assert_eq!(remodaq(&["config", &addr, "power-on", "0b10"]).0, 0);
+    assert_eq!(remodaq(&["config", &addr, "watchdog", "0.5", "--writes-only"]).0, 0);
+    let r = read();
+    assert_eq!(r["writes_restricted"].as_bool(), Some(false), "{r}");
+    assert_eq!((r["watchdog"]["timeout_s"].as_f64(), r["watchdog"]["writes_only"].as_bool()), (Some(0.5), Some(true)));
+    std::thread::sleep(Duration::from_millis(900));
+    let r = read();
+    assert_eq!(r["watchdog"]["tripped"].as_bool(), Some(true), "{r}");
+    let states: Vec<bool> = r["outputs"].as_array().unwrap().iter().map(|o| o["state"].as_bool().unwrap()).collect();
+    assert_eq!(states, [true, false, true, false, false, false], "the safe levels");
+    let (code, _, err) = remodaq(&["config", &addr, "do", "1", "on"]);
+    assert_eq!(code, 4, "{err}");
+    assert!(err.contains("04") && err.contains("safe state"), "{err}");
+    let (_, out, _) = remodaq(&["read", &addr, "--discovery", &to]);
+    assert!(out.contains("TRIPPED"), "{out}");
+    assert_eq!(remodaq(&["config", &addr, "watchdog", "clear"]).0, 0);
+    assert_eq!(remodaq(&["config", &addr, "watchdog", "off"]).0, 0);
+    assert_eq!(read()["watchdog"]["tripped"].as_bool(), Some(false));
+
+    // The allow-list: only 127.0.0.2 may write; this PC (127.0.0.1) gets exception 01.
+    let target = ["--mac", &mac, "--to", &to, "--password", "remodaq"];
+    let set = [&["access", "set"][..], &target, &["127.0.0.2/32", "10.1.0.0/16"]].concat();
+    assert_eq!(remodaq(&set).0, 0);
+    let shown = json(&[&["access", "show"][..], &target].concat());
+    assert_eq!(shown["allow"], serde_json::json!(["127.0.0.2/32", "10.1.0.0/16"]), "{shown}");
+    let (code, _, err) = remodaq(&["config", &addr, "do", "1", "on"]);
+    assert_eq!(code, 4, "{err}");
+    assert!(err.contains("01"), "{err}");
+    assert_eq!(read()["writes_restricted"].as_bool(), Some(true));
+    let (_, out, _) = remodaq(&["read", &addr, "--discovery", &to]);
+    assert!(out.contains("writes: restricted"), "{out}");
+    let wrong = ["access", "show", "--mac", &mac, "--to", &to, "--password", "nope"];
+    assert_eq!(remodaq(&wrong).0, 5, "the list needs the password");
+    assert_eq!(remodaq(&[&["access", "clear"][..], &target].concat()).0, 0);
+    assert_eq!(remodaq(&["config", &addr, "do", "1", "on"]).0, 0, "writes allowed again");
+}
+
+#[test]
+fn channel_status_and_open_value_through_the_tool() {
+    let scenario = temp("status.toml");
+    std::fs::write(&scenario, "[ch0]\nopen = true\n[ch1]\nmillivolts = 60.0\n").unwrap();
+    let module = SimModule::start_with(
+        &firmware("8318"),
+        &temp("status-8318.flash"),
+        &["--listen", "127.0.0.1:0", "--scenario", scenario.to_str().unwrap()],
+    );
+    let addr = module.addr.to_string();
+    assert_eq!(remodaq(&["config", &addr, "enable", "0x7F"]).0, 0);
+    assert_eq!(remodaq(&["config", &addr, "open-value", "downscale"]).0, 0);
+    let r = read_until(&addr, |r| r["channels"][0]["status"].as_str() == Some("open"));
+    let status: Vec<&str> = r["channels"].as_array().unwrap().iter().map(|c| c["status"].as_str().unwrap()).collect();
+    assert_eq!(status[..3], ["open", "over range", "ok"], "{r}");
+    assert_eq!(status[7], "disabled");
+    assert_eq!(r["open_value"].as_str(), Some("downscale"));
+}

@@ -127,13 +127,24 @@ async fn commit<R: RawMutex, A: SettingsAccess, F: NorFlash>(
     store: &Store<F, A::Settings>,
     change: impl FnOnce(&mut A::Settings),
 ) -> Status {
-    match update(map, store, |s| Ok::<(), ()>(change(s))).await {
+    let change = |s: &mut A::Settings| {
+        change(s);
+        Ok::<(), ()>(())
+    };
+    match update(map, store, change).await {
         Ok(()) => Status::Ok,
         Err(_) => Status::StoreFailed,
     }
 }
 
-fn result(out: &mut [u8], opcode: u8, id: u16, mac: [u8; 6], status: Status, list: Option<&AllowList>) -> Option<usize> {
+fn result(
+    out: &mut [u8],
+    opcode: u8,
+    id: u16,
+    mac: [u8; 6],
+    status: Status,
+    list: Option<&AllowList>,
+) -> Option<usize> {
     let mut w = Writer::new(out, opcode | op::REPLY, id);
     w.bytes(&mac).bytes(&[status as u8]);
     if let Some(list) = list {

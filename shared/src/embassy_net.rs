@@ -11,8 +11,8 @@ use crate::discovery::{serve, Datagrams, Identity, MAX_DATAGRAM, PORT};
 use crate::modbus::server::{serve as serve_modbus, Ended};
 use crate::modbus::RegisterMap;
 use crate::module::{SettingsAccess, Store};
-use embedded_storage_async::nor_flash::NorFlash;
 use crate::{debug, error, warn};
+use embedded_storage_async::nor_flash::NorFlash;
 
 /// How long a connection the peer closed may take to finish closing before it is reset.
 const CLOSE_WAIT: Duration = Duration::from_millis(100);

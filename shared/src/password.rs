@@ -132,7 +132,8 @@ impl Limiter {
             return Check::Ok;
         }
         let slot = index.unwrap_or_else(|| self.free_or_oldest());
-        let source = self.sources[slot].get_or_insert(Source { ip: from, failures: 0, locked_until_ms: 0, last_ms: now_ms });
+        let source =
+            self.sources[slot].get_or_insert(Source { ip: from, failures: 0, locked_until_ms: 0, last_ms: now_ms });
         source.failures = source.failures.saturating_add(1);
         if source.failures >= FREE_FAILURES {
             let exp = (source.failures - FREE_FAILURES).min(20);

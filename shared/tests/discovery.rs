@@ -68,7 +68,8 @@ impl Module {
     fn fail_commits(&mut self) {
         let mut flash = Flash::new();
         flash.set_budget(Some(0));
-        *self.store.get_mut() = block_on(SettingsStore::open(flash, const { SettingsStore::<Flash, S>::config(0..4096) }));
+        *self.store.get_mut() =
+            block_on(SettingsStore::open(flash, const { SettingsStore::<Flash, S>::config(0..4096) }));
     }
 }
 
@@ -249,7 +250,9 @@ fn valid_requests() -> Vec<Vec<u8>> {
             w.bytes(&MAC).string(b"remodaq");
         }),
         request(op::SET_ACCESS, 6, |w| {
-            w.bytes(&MAC).string(b"remodaq").allow_list(&AllowList::of(&[Network::new([10, 0, 0, 0], 8).unwrap()]).unwrap());
+            w.bytes(&MAC)
+                .string(b"remodaq")
+                .allow_list(&AllowList::of(&[Network::new([10, 0, 0, 0], 8).unwrap()]).unwrap());
         }),
     ]
 }
@@ -283,7 +286,8 @@ fn lock_out_is_kept_per_source() {
     for _ in 0..6 {
         ask_from(&mut service, &mut module, &set_network(MAC, "guess", &NEW_NET), guesser, 1000);
     }
-    let (reply, _) = ask_from(&mut service, &mut module, &set_network(MAC, "remodaq", &NEW_NET), guesser, 1500).unwrap();
+    let (reply, _) =
+        ask_from(&mut service, &mut module, &set_network(MAC, "remodaq", &NEW_NET), guesser, 1500).unwrap();
     assert_eq!(status(&reply), Status::RateLimited, "the guessing host is locked out");
     let (reply, _) = ask(&mut service, &mut module, &set_network(MAC, "remodaq", &NEW_NET), 1500).unwrap();
     assert_eq!(status(&reply), Status::Ok, "the administrator elsewhere is not");
@@ -292,10 +296,12 @@ fn lock_out_is_kept_per_source() {
 #[test]
 fn allow_list_set_read_and_cleared_with_the_password() {
     let (mut service, mut module) = setup();
-    let list = AllowList::of(&[Network::new([127, 0, 0, 2], 32).unwrap(), Network::new([10, 9, 0, 0], 16).unwrap()]).unwrap();
+    let list =
+        AllowList::of(&[Network::new([127, 0, 0, 2], 32).unwrap(), Network::new([10, 9, 0, 0], 16).unwrap()]).unwrap();
     let set = |password: &str, list: AllowList| {
         let mut buf = [0u8; MAX_DATAGRAM];
-        let n = encode_request(5, &Request::SetAccess { mac: MAC, password: password.as_bytes(), list }, &mut buf).unwrap();
+        let n =
+            encode_request(5, &Request::SetAccess { mac: MAC, password: password.as_bytes(), list }, &mut buf).unwrap();
         buf[..n].to_vec()
     };
     let (reply, _) = ask(&mut service, &mut module, &set("wrong", list), 0).unwrap();

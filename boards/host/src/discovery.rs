@@ -5,9 +5,9 @@
 use std::net::{SocketAddr, SocketAddrV4, UdpSocket};
 
 use async_io::Async;
+use embedded_storage_async::nor_flash::NorFlash;
 use remodaq_shared::board::{Effects, Shared};
 use remodaq_shared::discovery::{serve, Datagrams, Effect, Identity};
-use embedded_storage_async::nor_flash::NorFlash;
 use remodaq_shared::module::{SettingsAccess, Store};
 
 /// The service's socket.

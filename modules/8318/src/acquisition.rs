@@ -9,10 +9,10 @@ use remodaq_shared::module::SettingsAccess;
 use remodaq_shared::warn;
 
 use crate::input::{InputType, Kind};
-pub use remodaq_protocol::m8318::ChannelStatus;
 use crate::map::Map8318;
 use crate::settings::Settings;
 use crate::thermocouple::{Inverse, Reference};
+pub use remodaq_protocol::m8318::ChannelStatus;
 
 /// Number of analog inputs.
 pub const CHANNELS: usize = remodaq_protocol::m8318::CHANNELS;

@@ -94,7 +94,11 @@ impl<F: NorFlash> RegisterMap for Map8318<'_, F> {
     /// Every writable register is persisted: committed without the map's lock.
     async fn write<R: RawMutex>(map: &Mutex<R, Self>, start: u16, values: &WriteValues<'_>) -> Result<(), Exception> {
         let store = map.lock().await.store;
-        update(map, store, |s| Ok::<(), StoreError>(written(s, start, values))).await.map_err(|e| {
+        let change = |s: &mut Settings| {
+            written(s, start, values);
+            Ok::<(), StoreError>(())
+        };
+        update(map, store, change).await.map_err(|e| {
             let (UpdateError::Refused(e) | UpdateError::Store(e)) = e;
             warn!("8318: settings commit failed: {:?}", e);
             Exception::ServerDeviceFailure

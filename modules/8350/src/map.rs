@@ -76,7 +76,9 @@ impl<'a, F: NorFlash, R: RawMutex> Map8350<'a, F, R> {
         };
         let bad = Exception::IllegalDataValue;
         for (i, v) in values.iter().enumerate() {
-            let Some(point) = decode(Table::Registers, start + i as u16) else { return Err(Exception::IllegalDataAddress) };
+            let Some(point) = decode(Table::Registers, start + i as u16) else {
+                return Err(Exception::IllegalDataAddress);
+            };
             plan.moves_output |= point.moves_output();
             let s = &mut plan.settings;
             match point {

@@ -2,15 +2,15 @@
 //! byte-exact, and the bit and register rules of spec §3.1-3.2.
 
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
+use embassy_sync::mutex::Mutex;
 use futures_executor::block_on;
 use remodaq_8350::io::{self, Io, IoCell};
 use remodaq_8350::map::Map8350;
 use remodaq_8350::settings::Settings;
 use remodaq_shared::modbus::{handle_pdu, MAX_PDU};
-use remodaq_shared::ram_flash::RamFlash;
 use remodaq_shared::module::Store;
+use remodaq_shared::ram_flash::RamFlash;
 use remodaq_shared::settings::{Schema, SettingsStore};
-use embassy_sync::mutex::Mutex;
 
 type Flash = RamFlash<{ 4 * 1024 }, 1024>;
 
@@ -162,7 +162,8 @@ fn pulse_settings_persist_and_extra_pulses_add() {
     assert_eq!(m.ask("01 01 00 10 00 01"), "01 01 01 00", "the train ended");
     // Restart on the same flash: modes and pulse settings are back, outputs off.
     let store = std::mem::replace(&mut m, Module::new()).store;
-    let blank = block_on(SettingsStore::open(Flash::new(), const { SettingsStore::<Flash, Settings>::config(0..4096) }));
+    let blank =
+        block_on(SettingsStore::open(Flash::new(), const { SettingsStore::<Flash, Settings>::config(0..4096) }));
     let flash = std::mem::replace(&mut *block_on(store.lock()), blank).into_flash();
     let mut m = Module::with_flash(flash);
     assert_eq!(m.ask("01 03 01 10 00 01"), "01 03 02 00 01");

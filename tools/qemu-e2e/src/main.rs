@@ -510,7 +510,10 @@ async fn run(model: &str, image: &str) -> Report {
     if name == 0x8350 {
         let watchdog = host_watchdog(addr).await;
         if let Ok(t) = &watchdog {
-            println!("qemu-{model}: host watchdog 0.5 s tripped {:.0} ms after the arming write", t.as_secs_f64() * 1e3);
+            println!(
+                "qemu-{model}: host watchdog 0.5 s tripped {:.0} ms after the arming write",
+                t.as_secs_f64() * 1e3
+            );
         }
         report.check("host watchdog: trip to the safe levels, exception 04, clear", watchdog.map(|_| ()));
     }
