@@ -489,7 +489,8 @@ async fn read_digital(m: &mut Module) -> Result<Digital, Error> {
 async fn writes_restricted(addr: SocketAddr, timeout: Duration, at: &DiscoveryAt) -> Option<bool> {
     let to = at.discovery.unwrap_or(SocketAddr::new(addr.ip(), remodaq_protocol::discovery::PORT));
     let found = crate::lan::find(to, timeout.min(Duration::from_millis(500))).await.ok()?;
-    found.first()?.writes_restricted
+    // The module that serves this Modbus port (several simulated modules may share a PC).
+    found.iter().find(|f| f.modbus_port == addr.port())?.writes_restricted
 }
 
 fn print_restricted(restricted: Option<bool>) {

@@ -74,6 +74,9 @@ pub struct Found {
     /// The settings stored; different from `running` until the module restarts.
     stored: Net,
     uptime_s: u32,
+    /// The Modbus/TCP port in force.
+    #[serde(skip)]
+    pub modbus_port: u16,
     /// Whether the module's Modbus write allow-list restricts writes (`null`: the module does
     /// not say).
     pub writes_restricted: Option<bool>,
@@ -118,6 +121,7 @@ pub async fn find(to: SocketAddr, timeout: Duration) -> Result<Vec<Found>, Error
             running: info.running.into(),
             stored: info.stored.into(),
             uptime_s: info.uptime_s,
+            modbus_port: info.running.port,
             writes_restricted: info.flags.map(|f| f & info_flags::WRITES_RESTRICTED != 0),
             raw_stored: info.stored,
         });

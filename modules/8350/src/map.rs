@@ -36,6 +36,8 @@ fn field(p: &mut PulseConfig, f: PulseField) -> Option<&mut u32> {
 struct Plan {
     settings: Settings,
     extra: [u32; pulse::CHANNELS],
+    /// Outputs whose extra-pulse register the request wrote (either word).
+    extra_written: u8,
     /// Outputs whose extra-pulse low word the request wrote: the add happens for these (spec
     /// §3.4: once per request that writes the low word; a high word alone only stores).
     extra_added: u8,
@@ -69,6 +71,7 @@ impl<'a, F: NorFlash, R: RawMutex> Map8350<'a, F, R> {
         let mut plan = Plan {
             settings: *settings,
             extra: io::with(io, |s| s.extra),
+            extra_written: 0,
             extra_added: 0,
             all_do: None,
             clear_watchdog: false,
@@ -88,6 +91,7 @@ impl<'a, F: NorFlash, R: RawMutex> Map8350<'a, F, R> {
                         Some(value) => *value = word.set(*value, v),
                         None => {
                             plan.extra[n] = word.set(plan.extra[n], v);
+                            plan.extra_written |= 1 << n;
                             if word == Word::Low {
                                 plan.extra_added |= 1 << n;
                             }
@@ -119,8 +123,12 @@ impl<'a, F: NorFlash, R: RawMutex> Map8350<'a, F, R> {
             if plan.moves_output && s.keep_safe() {
                 return Err(TRIPPED);
             }
-            s.extra = plan.extra;
             for n in 0..pulse::CHANNELS {
+                // Only the registers this request wrote: another client's write that landed
+                // while this one was committing stays.
+                if plan.extra_written & (1 << n) != 0 {
+                    s.extra[n] = plan.extra[n];
+                }
                 if plan.extra_added & (1 << n) != 0 && plan.extra[n] > 0 {
                     s.pulse.add_pulses(n, plan.extra[n]);
                 }

@@ -59,6 +59,7 @@ impl MemoryMap {
 }
 
 impl MemoryMap {
+    #[inline]
     fn write(&mut self, start: u16, values: &WriteValues<'_>) {
         let start = usize::from(start);
         match (values.table(), values.bytes()) {
@@ -81,7 +82,9 @@ impl MemoryMap {
             }
             Table::Registers => {
                 let (words, _) = values.bytes().as_chunks::<2>();
-                for (r, &w) in self.holding[start..].iter_mut().zip(words) {
+                // Two slices of the same length: the copy compiles without bounds checks.
+                let Some(dst) = self.holding.get_mut(start..start + words.len()) else { return };
+                for (r, &w) in dst.iter_mut().zip(words) {
                     *r = u16::from_be_bytes(w);
                 }
             }
