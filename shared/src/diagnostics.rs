@@ -92,7 +92,14 @@ impl Diagnostics {
         if open {
             self.connections.fetch_add(1, Ordering::Relaxed);
         } else {
-            let _ = self.connections.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |n| n.checked_sub(1));
+            // Down by one, never below zero (a compare-and-swap loop).
+            let mut n = self.connections.load(Ordering::Relaxed);
+            while n > 0 {
+                match self.connections.compare_exchange_weak(n, n - 1, Ordering::Relaxed, Ordering::Relaxed) {
+                    Ok(_) => break,
+                    Err(now) => n = now,
+                }
+            }
         }
     }
 
