@@ -16,6 +16,7 @@ pub mod discovery;
 pub mod m8318;
 pub mod m8350;
 pub mod net;
+pub mod update;
 
 /// The two Modbus data tables of the RemoDAQ modules. Codes 01/02/05/15 use `Bits` (0X),
 /// codes 03/04/06/16 use `Registers` (4X).

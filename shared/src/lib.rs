@@ -22,5 +22,6 @@ pub mod net;
 pub mod password;
 pub mod ram_flash;
 pub mod settings;
+pub mod update;
 
 pub use remodaq_protocol as protocol;

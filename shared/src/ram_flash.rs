@@ -133,9 +133,7 @@ impl<const SIZE: usize, const PAGE: usize> ReadNorFlash for RamFlash<SIZE, PAGE>
     const READ_SIZE: usize = 1;
 
     async fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
-        let range = Self::range(offset, bytes.len())?;
-        bytes.copy_from_slice(&self.bytes[range]);
-        Ok(())
+        embedded_storage::nor_flash::ReadNorFlash::read(self, offset, bytes)
     }
 
     fn capacity(&self) -> usize {
@@ -152,6 +150,34 @@ impl<const SIZE: usize, const PAGE: usize> NorFlash for RamFlash<SIZE, PAGE> {
     }
 
     async fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+        self.write_now(offset, bytes)
+    }
+}
+
+/// The blocking NOR traits as well (what a bootloader uses).
+impl<const SIZE: usize, const PAGE: usize> embedded_storage::nor_flash::ReadNorFlash for RamFlash<SIZE, PAGE> {
+    const READ_SIZE: usize = 1;
+
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+        let range = Self::range(offset, bytes.len())?;
+        bytes.copy_from_slice(&self.bytes[range]);
+        Ok(())
+    }
+
+    fn capacity(&self) -> usize {
+        SIZE
+    }
+}
+
+impl<const SIZE: usize, const PAGE: usize> embedded_storage::nor_flash::NorFlash for RamFlash<SIZE, PAGE> {
+    const WRITE_SIZE: usize = 4;
+    const ERASE_SIZE: usize = PAGE;
+
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+        self.erase_now(from, to)
+    }
+
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
         self.write_now(offset, bytes)
     }
 }

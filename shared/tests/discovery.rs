@@ -1,4 +1,7 @@
 //! The discovery / configuration protocol on the module side, without sockets.
+mod common;
+
+use common::{Live, S};
 
 use embassy_sync::blocking_mutex::raw::{CriticalSectionRawMutex, NoopRawMutex};
 use embassy_sync::mutex::Mutex;
@@ -8,50 +11,12 @@ use remodaq_shared::discovery::{
     decode_info, decode_reply, decode_request, encode_request, info_flags, op, Effect, Identity, Request, Service,
     Status, Writer, MAX_DATAGRAM,
 };
-use remodaq_shared::module::SettingsAccess;
-use remodaq_shared::net::{NetConfig, NetRecord};
+use remodaq_shared::net::NetConfig;
 use remodaq_shared::password::PasswordHash;
 use remodaq_shared::ram_flash::RamFlash;
-use remodaq_shared::settings::{RecordReader, RecordWriter, Schema, SettingsStore};
+use remodaq_shared::settings::SettingsStore;
 
 type Flash = RamFlash<4096, 1024>;
-
-#[derive(Clone, Copy, PartialEq, Debug)]
-struct S {
-    net: NetConfig,
-    password: PasswordHash,
-    allow: AllowList,
-}
-
-impl Schema for S {
-    const VERSION: u8 = 1;
-    fn defaults() -> Self {
-        Self { net: NetConfig::FACTORY, password: PasswordHash::factory(), allow: AllowList::EMPTY }
-    }
-    fn encode(&self, w: &mut RecordWriter<'_>) {
-        self.net.encode(w);
-        self.password.encode(w);
-        remodaq_shared::access::encode(&self.allow, w);
-    }
-    fn decode(_: u8, r: &RecordReader<'_>) -> Self {
-        Self { net: NetConfig::decode(r), password: PasswordHash::decode(r), allow: remodaq_shared::access::decode(r) }
-    }
-}
-
-remodaq_shared::impl_common_settings!(S);
-
-/// A register map's copy of the settings in force.
-struct Live(S);
-
-impl SettingsAccess for Live {
-    type Settings = S;
-    fn settings(&self) -> &S {
-        &self.0
-    }
-    fn committed(&mut self, s: &S) {
-        self.0 = *s;
-    }
-}
 
 /// The map (behind its lock) and the store (behind its own).
 struct Module {

@@ -4,7 +4,12 @@
 use std::collections::VecDeque;
 use std::vec::Vec;
 
+use remodaq_shared::access::AllowList;
 use remodaq_shared::modbus::{Access, Exception, RegisterMap, Table, WriteValues};
+use remodaq_shared::module::SettingsAccess;
+use remodaq_shared::net::{NetConfig, NetRecord};
+use remodaq_shared::password::PasswordHash;
+use remodaq_shared::settings::{RecordReader, RecordWriter, Schema};
 
 /// Bits 0x00..0x20 readable, 0x10..0x16 writable, 0x1000..0x1800 read/write (a block large
 /// enough for the longest writes); registers 0x00..0x80 read/write, 0x100 read only, 0x101
@@ -114,4 +119,42 @@ impl embedded_io_async::Write for Script {
 /// Parses a hex string such as "01 04 00 01".
 pub fn hex(s: &str) -> Vec<u8> {
     s.split_whitespace().map(|b| u8::from_str_radix(b, 16).expect("hex byte")).collect()
+}
+
+/// Settings with what every module has: network, password, allow-list.
+#[derive(Clone, Copy, PartialEq, Debug)]
+pub struct S {
+    pub net: NetConfig,
+    pub password: PasswordHash,
+    pub allow: AllowList,
+}
+
+impl Schema for S {
+    const VERSION: u8 = 1;
+    fn defaults() -> Self {
+        Self { net: NetConfig::FACTORY, password: PasswordHash::factory(), allow: AllowList::EMPTY }
+    }
+    fn encode(&self, w: &mut RecordWriter<'_>) {
+        self.net.encode(w);
+        self.password.encode(w);
+        remodaq_shared::access::encode(&self.allow, w);
+    }
+    fn decode(_: u8, r: &RecordReader<'_>) -> Self {
+        Self { net: NetConfig::decode(r), password: PasswordHash::decode(r), allow: remodaq_shared::access::decode(r) }
+    }
+}
+
+remodaq_shared::impl_common_settings!(S);
+
+/// A register map's copy of the settings in force.
+pub struct Live(pub S);
+
+impl SettingsAccess for Live {
+    type Settings = S;
+    fn settings(&self) -> &S {
+        &self.0
+    }
+    fn committed(&mut self, s: &S) {
+        self.0 = *s;
+    }
 }

@@ -1,0 +1,200 @@
+//! The module side of the firmware update service (`remodaq_protocol::update`, re-exported):
+//! one session streams a signed image into the update (DFU) partition with a bounded buffer,
+//! then has it verified and marked for the bootloader. A session cut at any point leaves the
+//! running image, its state and the settings untouched, and can simply be started again.
+
+pub use remodaq_protocol::update::*;
+
+use embassy_sync::blocking_mutex::raw::RawMutex;
+use embassy_sync::mutex::Mutex;
+use embassy_time::{with_timeout, Duration};
+use embedded_io_async::{Read, Write};
+
+use crate::module::{CommonSettings, SettingsAccess};
+use crate::password::{Check, Limiter, MAX_LEN};
+
+/// Firmware bytes buffered per write to the update partition.
+pub const CHUNK: usize = 1024;
+/// A session whose peer sends nothing for this long ends (the image stays unmarked).
+pub const STALL: Duration = Duration::from_secs(10);
+
+/// Where an update goes: the bootloader's update partition and state (`embassy-boot`'s
+/// `FirmwareUpdater` on the boards).
+#[allow(async_fn_in_trait)]
+pub trait UpdateTarget {
+    /// Write granularity of the update partition: every write but the last is a multiple.
+    const WRITE_SIZE: usize;
+    /// Writes firmware bytes at `offset` (erasing sectors as it goes).
+    async fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Status>;
+    /// Verifies the `length` bytes written against `signature` and this module's key, and if
+    /// they match marks them for the bootloader to swap in at the next start.
+    async fn verify_and_mark(&mut self, signature: &[u8; 64], length: u32) -> Result<(), Status>;
+}
+
+/// How a session ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Outcome {
+    /// The image is verified and marked: restart into it.
+    Updated {
+        /// Its firmware version.
+        version: u16,
+    },
+    /// Refused (the status was sent), or cut or stalled: nothing is marked.
+    NotUpdated,
+}
+
+/// The update service of a module: its model, the size of its update partition, and its own
+/// wrong-password limiter (per source address, as discovery's).
+pub struct UpdateService {
+    model: u16,
+    capacity: u32,
+    limiter: Limiter,
+}
+
+impl UpdateService {
+    /// The service of a module with name register `model` and an update partition of
+    /// `capacity` bytes.
+    pub fn new(model: u16, capacity: u32) -> Self {
+        Self { model, capacity, limiter: Limiter::default() }
+    }
+
+    /// Serves one session from the client at `from` at `now_ms`. The map is locked only to
+    /// copy the password hash.
+    pub async fn session<T, R, A, U>(
+        &mut self,
+        io: &mut T,
+        from: [u8; 4],
+        now_ms: u64,
+        map: &Mutex<R, A>,
+        target: &mut U,
+    ) -> Outcome
+    where
+        T: Read + Write,
+        R: RawMutex,
+        A: SettingsAccess,
+        U: UpdateTarget,
+    {
+        let mut buf = [0u8; CHUNK];
+        // The password, then the image header.
+        let Some(()) = read_exact(io, &mut buf[..1]).await else { return Outcome::NotUpdated };
+        let len = usize::from(buf[0]);
+        if len > MAX_LEN {
+            return reply(io, Status::Invalid).await;
+        }
+        let mut password = [0u8; MAX_LEN];
+        let Some(()) = read_exact(io, &mut password[..len]).await else { return Outcome::NotUpdated };
+        let mut header = [0u8; HEADER_LEN];
+        let Some(()) = read_exact(io, &mut header).await else { return Outcome::NotUpdated };
+        let header = match Header::decode(&header) {
+            Some(h) if h.model == self.model && h.length > 0 && h.length <= self.capacity => h,
+            _ => return reply(io, Status::Invalid).await,
+        };
+        let hash = map.lock().await.settings().password();
+        match self.limiter.check(&hash, &password[..len], from, now_ms) {
+            Check::Ok => {}
+            Check::Wrong => {
+                crate::warn!("update: wrong configuration password");
+                return reply(io, Status::WrongPassword).await;
+            }
+            Check::Locked => return reply(io, Status::RateLimited).await,
+        }
+        if !send(io, Status::Ok).await {
+            return Outcome::NotUpdated;
+        }
+        crate::info!("update: receiving {} bytes, version {:04X}", header.length, header.version);
+
+        // The firmware, a chunk at a time; the last one padded to the write size.
+        let mut offset = 0u32;
+        while offset < header.length {
+            let n = ((header.length - offset) as usize).min(CHUNK);
+            let Some(()) = read_exact(io, &mut buf[..n]).await else {
+                crate::warn!("update: cut after {} bytes; nothing marked", offset);
+                return Outcome::NotUpdated;
+            };
+            let padded = n.next_multiple_of(U::WRITE_SIZE).min(CHUNK);
+            buf[n..padded].fill(0xFF);
+            if let Err(status) = target.write(offset, &buf[..padded]).await {
+                crate::error!("update: the update partition could not be written");
+                return reply(io, status).await;
+            }
+            offset += n as u32;
+        }
+        match target.verify_and_mark(&header.signature, header.length).await {
+            Ok(()) => {
+                crate::info!("update: version {:04X} verified and marked", header.version);
+                // Marked: the bootloader swaps it in at the next start, answer sent or not.
+                send(io, Status::Ok).await;
+                Outcome::Updated { version: header.version }
+            }
+            Err(status) => {
+                crate::warn!("update: refused after verification: {}", status as u8);
+                reply(io, status).await
+            }
+        }
+    }
+}
+
+/// Sends a refusal: the session ends with nothing updated.
+async fn reply<T: Write>(io: &mut T, status: Status) -> Outcome {
+    send(io, status).await;
+    Outcome::NotUpdated
+}
+
+/// Sends a status; false if it could not be sent in time.
+async fn send<T: Write>(io: &mut T, status: Status) -> bool {
+    let sent = with_timeout(STALL, async {
+        io.write_all(&[status as u8]).await?;
+        io.flush().await
+    })
+    .await;
+    let ok = matches!(sent, Ok(Ok(())));
+    if !ok {
+        crate::warn!("update: the answer could not be sent");
+    }
+    ok
+}
+
+/// Fills `buf`; `None` if the peer closed, failed or stalled first.
+async fn read_exact<T: Read>(io: &mut T, buf: &mut [u8]) -> Option<()> {
+    let mut filled = 0;
+    while filled < buf.len() {
+        match with_timeout(STALL, io.read(&mut buf[filled..])).await {
+            Ok(Ok(n)) if n > 0 => filled += n,
+            _ => return None,
+        }
+    }
+    Some(())
+}
+
+/// The update target of the boards: `embassy-boot`'s updater with this module's public key.
+pub struct BootUpdater<
+    'd,
+    DFU: embedded_storage_async::nor_flash::NorFlash,
+    STATE: embedded_storage_async::nor_flash::NorFlash,
+> {
+    /// The updater over the update and state partitions.
+    pub updater: embassy_boot::FirmwareUpdater<'d, DFU, STATE>,
+    /// The public key images are signed for.
+    pub public_key: [u8; 32],
+}
+
+impl<DFU, STATE> UpdateTarget for BootUpdater<'_, DFU, STATE>
+where
+    DFU: embedded_storage_async::nor_flash::NorFlash,
+    STATE: embedded_storage_async::nor_flash::NorFlash,
+{
+    const WRITE_SIZE: usize = DFU::WRITE_SIZE;
+
+    async fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Status> {
+        self.updater.write_firmware(offset as usize, data).await.map_err(|_| Status::Failed)
+    }
+
+    async fn verify_and_mark(&mut self, signature: &[u8; 64], length: u32) -> Result<(), Status> {
+        match self.updater.verify_and_mark_updated(&self.public_key, signature, length).await {
+            Ok(()) => Ok(()),
+            Err(embassy_boot::FirmwareUpdaterError::Signature(_)) => Err(Status::BadSignature),
+            Err(_) => Err(Status::Failed),
+        }
+    }
+}

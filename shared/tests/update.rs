@@ -1,0 +1,346 @@
+//! The firmware update service and the bootloader it feeds, over RAM flashes: a signed image
+//! streamed into the update partition and marked; refusals (password, model, signature,
+//! truncation) that change nothing; and embassy-boot's swap and revert with the power cut at
+//! every write and erase: after each cut, the old or the new image boots, never a mix.
+mod common;
+
+use core::cell::Cell;
+
+use common::{Live, Script, S};
+use ed25519_dalek::{Signer, SigningKey};
+use embassy_boot::{BootLoader, BootLoaderConfig, FirmwareUpdater, FirmwareUpdaterConfig, State};
+use embassy_sync::blocking_mutex::raw::NoopRawMutex;
+use embassy_sync::mutex::Mutex;
+use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
+use futures_executor::block_on;
+use remodaq_shared::ram_flash::{RamFlash, RamFlashError};
+use remodaq_shared::settings::Schema;
+use remodaq_shared::update::{BootUpdater, Header, Outcome, Status, UpdateService};
+use sha2::{Digest, Sha512};
+
+const PAGE: usize = 1024;
+/// The running image's partition: 4 pages.
+type Active = RamFlash<{ 4 * PAGE }, PAGE>;
+/// The update partition: one page more (the swap's scratch page).
+type Dfu = RamFlash<{ 5 * PAGE }, PAGE>;
+type StateFlash = RamFlash<PAGE, PAGE>;
+
+const MODEL: u16 = 0x8350;
+
+/// The key pair of these tests (the firmware takes its public key from a file at build time).
+fn key() -> SigningKey {
+    SigningKey::from_bytes(&[0x5A; 32])
+}
+
+fn image(seed: u8, len: usize) -> Vec<u8> {
+    (0..len).map(|i| (i as u8).wrapping_mul(31).wrapping_add(seed)).collect()
+}
+
+/// An image file: header (signed with `key`) and firmware.
+fn signed(firmware: &[u8], version: u16, key: &SigningKey) -> Vec<u8> {
+    let digest = Sha512::digest(firmware);
+    let signature = key.sign(&digest).to_bytes();
+    let header = Header { model: MODEL, version, length: firmware.len() as u32, signature };
+    [&header.encode()[..], firmware].concat()
+}
+
+/// The PC's side of a session: the password, then the image file (cut after `cut` bytes).
+fn session_bytes(password: &str, file: &[u8], cut: Option<usize>) -> Vec<Vec<u8>> {
+    let mut first = vec![password.len() as u8];
+    first.extend_from_slice(password.as_bytes());
+    let file = &file[..cut.unwrap_or(file.len()).min(file.len())];
+    // In segments of 300 bytes, as a TCP stream may deliver them.
+    std::iter::once(first).chain(file.chunks(300).map(<[u8]>::to_vec)).collect()
+}
+
+/// Runs one session against the update and state partitions; the module's answers and the
+/// outcome.
+fn session(dfu: &mut Dfu, state: &mut StateFlash, segments: Vec<Vec<u8>>) -> (Vec<u8>, Outcome) {
+    let map = Mutex::<NoopRawMutex, _>::new(Live(S::defaults()));
+    let mut io = Script::new(&[]);
+    io.incoming = segments.into();
+    let mut aligned = [0u8; 4];
+    let updater = FirmwareUpdater::new(FirmwareUpdaterConfig { dfu, state }, &mut aligned);
+    let mut target = BootUpdater { updater, public_key: key().verifying_key().to_bytes() };
+    let mut service = UpdateService::new(MODEL, 4 * PAGE as u32);
+    let outcome = block_on(service.session(&mut io, [127, 0, 0, 1], 0, &map, &mut target));
+    (io.outgoing, outcome)
+}
+
+/// A flash whose power is cut after a budget of erases and word writes shared with the other
+/// partitions (one power supply).
+struct Powered<'a, F> {
+    flash: &'a mut F,
+    budget: &'a Cell<Option<usize>>,
+}
+
+impl<F> Powered<'_, F> {
+    fn spend(&self, ops: usize) -> Result<(), RamFlashError> {
+        match self.budget.get() {
+            Some(left) if left < ops => {
+                self.budget.set(Some(0));
+                Err(RamFlashError::PowerCut)
+            }
+            Some(left) => {
+                self.budget.set(Some(left - ops));
+                Ok(())
+            }
+            None => Ok(()),
+        }
+    }
+}
+
+impl<F: ErrorType<Error = RamFlashError>> ErrorType for Powered<'_, F> {
+    type Error = RamFlashError;
+}
+
+impl<F: ReadNorFlash + ErrorType<Error = RamFlashError>> ReadNorFlash for Powered<'_, F> {
+    const READ_SIZE: usize = F::READ_SIZE;
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+        self.flash.read(offset, bytes)
+    }
+    fn capacity(&self) -> usize {
+        self.flash.capacity()
+    }
+}
+
+impl<F: NorFlash + ErrorType<Error = RamFlashError>> NorFlash for Powered<'_, F> {
+    const WRITE_SIZE: usize = F::WRITE_SIZE;
+    const ERASE_SIZE: usize = F::ERASE_SIZE;
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+        // Page by page, so a cut can fall between two pages of one erase.
+        for page in (from..to).step_by(F::ERASE_SIZE) {
+            self.spend(1)?;
+            self.flash.erase(page, page + F::ERASE_SIZE as u32)?;
+        }
+        Ok(())
+    }
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+        for (i, word) in bytes.chunks(4).enumerate() {
+            self.spend(1)?;
+            self.flash.write(offset + 4 * i as u32, word)?;
+        }
+        Ok(())
+    }
+}
+
+/// The three partitions of a module.
+struct Module {
+    active: Active,
+    dfu: Dfu,
+    state: StateFlash,
+}
+
+impl Module {
+    fn copy(&self) -> Self {
+        Self {
+            active: RamFlash::from_image(self.active.image()),
+            dfu: RamFlash::from_image(self.dfu.image()),
+            state: RamFlash::from_image(self.state.image()),
+        }
+    }
+
+    /// The bootloader at a start, with the power cut after `budget` operations.
+    fn boot(&mut self, budget: Option<usize>) -> Result<State, embassy_boot::BootError> {
+        let budget = Cell::new(budget);
+        let config = BootLoaderConfig {
+            active: Powered { flash: &mut self.active, budget: &budget },
+            dfu: Powered { flash: &mut self.dfu, budget: &budget },
+            state: Powered { flash: &mut self.state, budget: &budget },
+        };
+        let mut aligned = [0u8; 256];
+        BootLoader::new(config).prepare_boot(&mut aligned)
+    }
+
+    /// Which image is in the running partition.
+    fn running(&self, old: &[u8], new: &[u8]) -> &'static str {
+        let active = &self.active.image()[..];
+        if active.starts_with(new) {
+            "new"
+        } else if active.starts_with(old) {
+            "old"
+        } else {
+            "neither"
+        }
+    }
+
+    /// The new image confirms itself after its self-test.
+    fn confirm(&mut self) {
+        let mut aligned = [0u8; 4];
+        let mut state = embassy_boot::BlockingFirmwareState::new(&mut self.state, &mut aligned);
+        state.mark_booted().expect("mark booted");
+    }
+}
+
+fn module_with(old: &[u8]) -> Module {
+    Module { active: RamFlash::from_image(old), dfu: RamFlash::new(), state: RamFlash::new() }
+}
+
+#[test]
+fn a_signed_image_is_streamed_verified_and_marked() {
+    let (old, new) = (image(1, 3000), image(2, 3001));
+    let mut m = module_with(&old);
+    let file = signed(&new, 0xA101, &key());
+    let (answers, outcome) = session(&mut m.dfu, &mut m.state, session_bytes("remodaq", &file, None));
+    assert_eq!(answers, [Status::Ok as u8, Status::Ok as u8]);
+    assert_eq!(outcome, Outcome::Updated { version: 0xA101 });
+    assert_eq!(&m.dfu.image()[..new.len()], &new[..], "the firmware is in the update partition");
+    assert_eq!(m.boot(None), Ok(State::Swap), "the bootloader swaps it in");
+    assert_eq!(m.running(&old, &new), "new");
+    m.confirm();
+    assert_eq!(m.boot(None), Ok(State::Boot), "confirmed: it stays");
+    assert_eq!(m.running(&old, &new), "new");
+}
+
+#[test]
+fn refusals_change_nothing() {
+    let (old, new) = (image(1, 3000), image(2, 2048));
+    let file = signed(&new, 0xA101, &key());
+    /// What is refused, what the PC sends, what the module answers.
+    type Case = (&'static str, Vec<Vec<u8>>, Vec<u8>);
+    let cases: Vec<Case> = vec![
+        ("wrong password", session_bytes("guess", &file, None), vec![Status::WrongPassword as u8]),
+        (
+            "signed with another key",
+            session_bytes("remodaq", &signed(&new, 0xA101, &SigningKey::from_bytes(&[7; 32])), None),
+            vec![0, Status::BadSignature as u8],
+        ),
+        (
+            "a byte changed after signing",
+            session_bytes(
+                "remodaq",
+                &{
+                    let mut f = file.clone();
+                    let last = f.len() - 1;
+                    f[last] ^= 1;
+                    f
+                },
+                None,
+            ),
+            vec![0, Status::BadSignature as u8],
+        ),
+        ("truncated", session_bytes("remodaq", &file, Some(file.len() - 100)), vec![0]),
+        ("header only", session_bytes("remodaq", &file, Some(78)), vec![0]),
+        ("too large", session_bytes("remodaq", &signed(&image(3, 4 * PAGE + 4), 1, &key()), None), vec![3]),
+        (
+            "another model",
+            session_bytes(
+                "remodaq",
+                &{
+                    let mut f = file.clone();
+                    f[6..8].copy_from_slice(&0x8318u16.to_be_bytes());
+                    f
+                },
+                None,
+            ),
+            vec![3],
+        ),
+    ];
+    for (what, bytes, want) in cases {
+        let mut m = module_with(&old);
+        let (answers, outcome) = session(&mut m.dfu, &mut m.state, bytes);
+        assert_eq!((answers, outcome), (want, Outcome::NotUpdated), "{what}");
+        assert_eq!(m.boot(None), Ok(State::Boot), "{what}: no swap");
+        assert_eq!(m.running(&old, &new), "old", "{what}");
+        // And a full session afterwards works (a cut transfer can be started again).
+        let (answers, _) = session(&mut m.dfu, &mut m.state, session_bytes("remodaq", &file, None));
+        assert_eq!(answers, [0, 0], "{what}: then a good session");
+        assert_eq!(m.boot(None), Ok(State::Swap));
+        assert_eq!(m.running(&old, &new), "new");
+    }
+}
+
+#[test]
+fn power_cut_at_every_write_and_erase_of_the_marking() {
+    let (old, new) = (image(1, 4 * PAGE), image(2, 4 * PAGE));
+    let file = signed(&new, 0xA102, &key());
+    let mut booted = std::collections::BTreeMap::new();
+    for cut in 0.. {
+        let mut m = module_with(&old);
+        m.state.set_budget(Some(cut));
+        let (answers, outcome) = session(&mut m.dfu, &mut m.state, session_bytes("remodaq", &file, None));
+        m.state.set_budget(None);
+        let state = m.boot(None).expect("boots after the cut");
+        let running = m.running(&old, &new);
+        assert!(
+            (state == State::Boot && running == "old") || (state == State::Swap && running == "new"),
+            "cut {cut}: {state:?} with the {running} image"
+        );
+        *booted.entry(running).or_insert(0) += 1;
+        if outcome != Outcome::NotUpdated {
+            assert_eq!(answers, [0, 0]);
+            break;
+        }
+    }
+    eprintln!("cuts while marking the update: {booted:?}");
+    assert!(booted.get("old").copied().unwrap_or(0) > 0);
+
+    // Cut while the firmware streams into the update partition: refused, the old one boots.
+    let mut cuts = 0;
+    for cut in 0.. {
+        let mut m = module_with(&old);
+        m.dfu.set_budget(Some(cut));
+        let (answers, outcome) = session(&mut m.dfu, &mut m.state, session_bytes("remodaq", &file, None));
+        m.dfu.set_budget(None);
+        if outcome != Outcome::NotUpdated {
+            break;
+        }
+        assert_eq!(answers, [0, Status::Failed as u8], "cut {cut}");
+        assert_eq!((m.boot(None), m.running(&old, &new)), (Ok(State::Boot), "old"), "cut {cut}");
+        cuts += 1;
+    }
+    eprintln!("cuts while writing the update partition: {cuts}, each left the old image");
+    assert!(cuts > 1000);
+}
+
+#[test]
+fn power_cut_at_every_write_and_erase_of_the_swap_and_the_revert() {
+    let (old, new) = (image(1, 4 * PAGE), image(2, 4 * PAGE - 8));
+    let mut marked = module_with(&old);
+    let (answers, _) =
+        session(&mut marked.dfu, &mut marked.state, session_bytes("remodaq", &signed(&new, 3, &key()), None));
+    assert_eq!(answers, [0, 0]);
+
+    // The swap, cut after every operation, then the power comes back: the new image boots
+    // (on trial).
+    let mut swap_ops = 0;
+    for cut in 0.. {
+        let mut m = marked.copy();
+        match m.boot(Some(cut)) {
+            Ok(state) => {
+                assert_eq!((state, m.running(&old, &new)), (State::Swap, "new"));
+                swap_ops = cut;
+                break;
+            }
+            Err(_) => {
+                assert_eq!(m.boot(None), Ok(State::Swap), "cut {cut}: the swap completes at the next start");
+                assert_eq!(m.running(&old, &new), "new", "cut {cut}");
+            }
+        }
+    }
+    let mut swapped = marked.copy();
+    assert_eq!(swapped.boot(None), Ok(State::Swap));
+
+    // The new image never confirms: at the next start (the watchdog's reset) the bootloader
+    // reverts, cut after every operation too: the old image boots.
+    let mut revert_ops = 0;
+    for cut in 0.. {
+        let mut m = swapped.copy();
+        match m.boot(Some(cut)) {
+            Ok(state) => {
+                // prepare_boot answers the state it found (Swap) and leaves Revert behind.
+                assert_eq!((state, m.running(&old, &new)), (State::Swap, "old"), "reverted");
+                assert_eq!(m.boot(None), Ok(State::Revert), "the next start knows it reverted");
+                assert_eq!(m.running(&old, &new), "old");
+                revert_ops = cut;
+                break;
+            }
+            Err(_) => {
+                let state = m.boot(None).expect("boots");
+                assert_eq!(m.running(&old, &new), "old", "cut {cut}: {state:?}");
+            }
+        }
+    }
+    eprintln!("power cut at each of {swap_ops} operations of the swap and {revert_ops} of the revert");
+    assert!(swap_ops > 100 && revert_ops > 100, "every page copy was cut: {swap_ops} / {revert_ops}");
+}
