@@ -3,6 +3,7 @@
 
 mod io;
 mod lan;
+mod sign;
 
 use std::net::{Ipv4Addr, SocketAddr};
 use std::process::ExitCode;
@@ -85,6 +86,29 @@ enum Command {
         #[command(subcommand)]
         command: AccessCommand,
     },
+    /// Make a key pair for signing firmware images: the secret key in KEY, the public key
+    /// (what the firmware is built with) in KEY.pub.
+    Keygen {
+        /// The secret key file to create.
+        key: std::path::PathBuf,
+    },
+    /// Sign a firmware binary for the update service: writes the image file.
+    Sign {
+        /// The secret key file (from `remodaq keygen`).
+        #[arg(long)]
+        key: std::path::PathBuf,
+        /// The module the firmware is for: 8318 or 8350.
+        #[arg(long, value_parser = hex16)]
+        model: u16,
+        /// The firmware version (register 40213), in hex, e.g. A101.
+        #[arg(long, value_parser = hex16)]
+        version: u16,
+        /// The firmware binary (the application image, as the bootloader starts it).
+        firmware: std::path::PathBuf,
+        /// The image file to write.
+        #[arg(long)]
+        out: std::path::PathBuf,
+    },
     /// Configure a module's I/O (each maps to documented registers).
     Config {
         /// The module's Modbus/TCP address.
@@ -145,6 +169,12 @@ enum AccessCommand {
         #[command(flatten)]
         password: Auth,
     },
+}
+
+/// A 16-bit value in hex (8350, A101, 0xA101).
+fn hex16(s: &str) -> Result<u16, String> {
+    u16::from_str_radix(s.trim_start_matches("0x").trim_start_matches("0X"), 16)
+        .map_err(|_| format!("`{s}` is not 4 hex digits"))
 }
 
 /// Which module, by MAC address, and where to send the command.
@@ -262,6 +292,8 @@ async fn run(cli: Cli) -> Result<(), Error> {
             lan::command(target.to, target.mac, cmd, timeout, json).await
         }
         Command::Config { module, setting } => io::config(&module, setting, timeout, json).await,
+        Command::Keygen { key } => sign::keygen(&key),
+        Command::Sign { key, model, version, firmware, out } => sign::sign(&key, &firmware, model, version, &out),
     }
 }
 

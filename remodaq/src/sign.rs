@@ -1,0 +1,132 @@
+//! Signing firmware images for the update service (`remodaq keygen`, `remodaq sign`): ed25519
+//! over the SHA-512 digest of the firmware bytes, as the module's bootloader library
+//! (embassy-boot) verifies it. Keys are files of 64 hex digits: the secret key in `KEY`, the
+//! public key in `KEY.pub` (what the firmware is built with).
+
+use std::path::{Path, PathBuf};
+
+use ed25519_dalek::{Signer, SigningKey};
+use remodaq_protocol::update::Header;
+use sha2::{Digest, Sha512};
+
+use crate::Error;
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+fn unhex32(text: &str, what: &Path) -> Result<[u8; 32], Error> {
+    let text = text.trim();
+    let bad = || Error::Other(format!("{}: not a key (64 hex digits)", what.display()));
+    if text.len() != 64 {
+        return Err(bad());
+    }
+    let mut out = [0u8; 32];
+    for (i, byte) in out.iter_mut().enumerate() {
+        *byte = u8::from_str_radix(&text[2 * i..2 * i + 2], 16).map_err(|_| bad())?;
+    }
+    Ok(out)
+}
+
+/// The public key file of a key file.
+pub fn public_path(key: &Path) -> PathBuf {
+    let mut name = key.as_os_str().to_owned();
+    name.push(".pub");
+    PathBuf::from(name)
+}
+
+/// `remodaq keygen`: a new key pair in `key` and `key.pub` (never overwrites).
+pub fn keygen(key: &Path) -> Result<(), Error> {
+    let public = public_path(key);
+    for path in [key, public.as_path()] {
+        if path.exists() {
+            return Err(Error::Other(format!("{} exists: not overwritten", path.display())));
+        }
+    }
+    let mut secret = [0u8; 32];
+    getrandom::fill(&mut secret).map_err(|e| Error::Other(format!("no random numbers from the OS: {e}")))?;
+    let signing = SigningKey::from_bytes(&secret);
+    let write = |path: &Path, bytes: &[u8]| {
+        std::fs::write(path, format!("{}\n", hex(bytes)))
+            .map_err(|e| Error::Other(format!("cannot write {}: {e}", path.display())))
+    };
+    write(key, &secret)?;
+    write(&public, signing.verifying_key().as_bytes())?;
+    println!(
+        "secret key {} (keep it safe), public key {}: {}",
+        key.display(),
+        public.display(),
+        hex(signing.verifying_key().as_bytes())
+    );
+    Ok(())
+}
+
+/// The image file of `firmware` for `model` and `version`, signed with `key`.
+pub fn image_file(firmware: &[u8], model: u16, version: u16, key: &SigningKey) -> Result<Vec<u8>, Error> {
+    let length = u32::try_from(firmware.len()).map_err(|_| Error::Other("the firmware is too large".into()))?;
+    let signature = key.sign(&Sha512::digest(firmware)).to_bytes();
+    let header = Header { model, version, length, signature };
+    Ok([&header.encode()[..], firmware].concat())
+}
+
+/// `remodaq sign`: writes the signed image file of a firmware binary.
+pub fn sign(key: &Path, firmware: &Path, model: u16, version: u16, out: &Path) -> Result<(), Error> {
+    let text = std::fs::read_to_string(key).map_err(|e| Error::Other(format!("cannot read {}: {e}", key.display())))?;
+    let signing = SigningKey::from_bytes(&unhex32(&text, key)?);
+    let bytes =
+        std::fs::read(firmware).map_err(|e| Error::Other(format!("cannot read {}: {e}", firmware.display())))?;
+    let file = image_file(&bytes, model, version, &signing)?;
+    std::fs::write(out, &file).map_err(|e| Error::Other(format!("cannot write {}: {e}", out.display())))?;
+    println!(
+        "{}: {} bytes of firmware for {model:04X}, version {version:04X}, signed for public key {}",
+        out.display(),
+        bytes.len(),
+        hex(signing.verifying_key().as_bytes())
+    );
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use ed25519_dalek::VerifyingKey;
+
+    use super::*;
+
+    /// Whether an image file's signature is good for `public`.
+    fn verify(file: &[u8], public: &VerifyingKey) -> bool {
+        let Some((head, firmware)) = file.split_first_chunk::<{ remodaq_protocol::update::HEADER_LEN }>() else {
+            return false;
+        };
+        let Some(header) = Header::decode(head) else { return false };
+        firmware.len() == header.length as usize
+            && public
+                .verify_strict(&Sha512::digest(firmware), &ed25519_dalek::Signature::from_bytes(&header.signature))
+                .is_ok()
+    }
+
+    #[test]
+    fn keygen_sign_and_verify() {
+        let dir = std::env::temp_dir().join(format!("remodaq-sign-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let key = dir.join("vendor.key");
+        keygen(&key).unwrap();
+        assert!(keygen(&key).is_err(), "never overwrites a key");
+        let firmware = dir.join("fw.bin");
+        std::fs::write(&firmware, (0..5000u32).map(|i| i as u8).collect::<Vec<_>>()).unwrap();
+        let out = dir.join("fw.rdq");
+        sign(&key, &firmware, 0x8350, 0xA101, &out).unwrap();
+        let file = std::fs::read(&out).unwrap();
+        let public = unhex32(&std::fs::read_to_string(public_path(&key)).unwrap(), &key).unwrap();
+        let public = VerifyingKey::from_bytes(&public).unwrap();
+        assert!(verify(&file, &public));
+        let header = Header::decode(file.first_chunk().unwrap()).unwrap();
+        assert_eq!((header.model, header.version, header.length), (0x8350, 0xA101, 5000));
+        let mut tampered = file.clone();
+        tampered[100] ^= 1;
+        assert!(!verify(&tampered, &public), "a changed byte");
+        let other = SigningKey::from_bytes(&[9; 32]).verifying_key();
+        assert!(!verify(&file, &other), "another key");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
