@@ -51,8 +51,11 @@ pub enum Status {
     RateLimited = 2,
     /// The settings are not usable (mask, address, port, password length).
     Invalid = 3,
-    /// The settings could not be stored.
+    /// The settings (or the update) could not be stored.
     StoreFailed = 4,
+    /// Firmware update only: the image's signature does not match its firmware, or was not
+    /// made with this module's key. Nothing changed.
+    BadSignature = 5,
 }
 
 impl Status {
@@ -64,6 +67,7 @@ impl Status {
             2 => Status::RateLimited,
             3 => Status::Invalid,
             4 => Status::StoreFailed,
+            5 => Status::BadSignature,
             _ => return None,
         })
     }

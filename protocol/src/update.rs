@@ -59,41 +59,10 @@ impl Header {
     }
 }
 
-/// The module's answers in a session.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[repr(u8)]
-pub enum Status {
-    /// After the header: send the firmware. After the firmware: verified and marked; the
-    /// module restarts into it.
-    Ok = 0,
-    /// Wrong password: nothing changed.
-    WrongPassword = 1,
-    /// Too many wrong passwords from this address: not checked, try later.
-    RateLimited = 2,
-    /// Not an image for this module: bad header, another model, or larger than the update
-    /// partition.
-    Invalid = 3,
-    /// The update partition could not be written, or the running image is not confirmed yet.
-    Failed = 4,
-    /// The signature does not match the firmware (or was not made with this module's key):
-    /// nothing changed.
-    BadSignature = 5,
-}
-
-impl Status {
-    /// The status of a code.
-    pub fn from_code(code: u8) -> Option<Self> {
-        Some(match code {
-            0 => Status::Ok,
-            1 => Status::WrongPassword,
-            2 => Status::RateLimited,
-            3 => Status::Invalid,
-            4 => Status::Failed,
-            5 => Status::BadSignature,
-            _ => return None,
-        })
-    }
-}
+/// The module's answers in a session: the status codes of the discovery protocol's commands
+/// (0 ok, 1 wrong password, 2 rate limited, 3 not an image for this module, 4 the update
+/// partition could not be written), and 5 for a signature that does not match.
+pub use crate::discovery::Status;
 
 #[cfg(test)]
 mod tests {
@@ -108,9 +77,6 @@ mod tests {
         let mut bad = bytes;
         bad[4] = 2;
         assert_eq!(Header::decode(&bad), None);
-        for code in 0..=5 {
-            assert_eq!(Status::from_code(code).map(|s| s as u8), Some(code));
-        }
-        assert_eq!(Status::from_code(6), None);
+        assert_eq!(Status::from_code(5), Some(Status::BadSignature));
     }
 }

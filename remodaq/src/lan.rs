@@ -300,6 +300,7 @@ async fn exchange(to: SocketAddr, mac: Mac, cmd: &Command<'_>, timeout: Duration
             }
             Status::Invalid => "the module refused the settings (mask, address, port or password length)",
             Status::StoreFailed => "the module could not store the settings",
+            Status::BadSignature => "the module answered a status of the update service (bad signature)",
         };
         return Err(Error::Other(format!("{mac}: {message}")));
     }

@@ -187,14 +187,14 @@ where
     const WRITE_SIZE: usize = DFU::WRITE_SIZE;
 
     async fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Status> {
-        self.updater.write_firmware(offset as usize, data).await.map_err(|_| Status::Failed)
+        self.updater.write_firmware(offset as usize, data).await.map_err(|_| Status::StoreFailed)
     }
 
     async fn verify_and_mark(&mut self, signature: &[u8; 64], length: u32) -> Result<(), Status> {
         match self.updater.verify_and_mark_updated(&self.public_key, signature, length).await {
             Ok(()) => Ok(()),
             Err(embassy_boot::FirmwareUpdaterError::Signature(_)) => Err(Status::BadSignature),
-            Err(_) => Err(Status::Failed),
+            Err(_) => Err(Status::StoreFailed),
         }
     }
 }

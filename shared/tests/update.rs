@@ -285,7 +285,7 @@ fn power_cut_at_every_write_and_erase_of_the_marking() {
         if outcome != Outcome::NotUpdated {
             break;
         }
-        assert_eq!(answers, [0, Status::Failed as u8], "cut {cut}");
+        assert_eq!(answers, [0, Status::StoreFailed as u8], "cut {cut}");
         assert_eq!((m.boot(None), m.running(&old, &new)), (Ok(State::Boot), "old"), "cut {cut}");
         cuts += 1;
     }
