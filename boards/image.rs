@@ -36,13 +36,18 @@ async fn discovery(app: &'static Running) -> ! {
 }
 
 #[embassy_executor::task]
+async fn update(app: &'static Running) -> ! {
+    app.serve_update().await
+}
+
+#[embassy_executor::task]
 async fn application(app: &'static Running, io: Io) -> ! {
     app.run(io).await
 }
 
 async fn start(spawner: Spawner) {
     let (app, io) = remodaq_shared::board::start(spawner, &STATICS).await;
-    app.spawn(spawner, io, modbus, discovery, application);
+    app.spawn(spawner, io, modbus, discovery, update, application);
 }
 
 #[cfg(not(all(target_os = "none", feature = "board-qemu")))]

@@ -587,6 +587,13 @@ async fn read_once(m: &mut Module, at: &DiscoveryAt, json: bool) -> Result<(), E
     Ok(())
 }
 
+/// The module name and firmware version registers of a module, and its address.
+pub async fn identity(module: &str, timeout: Duration) -> Result<(SocketAddr, u16, u16), Error> {
+    let mut m = Module::connect(module, timeout).await?;
+    let version = m.reg(identity::REG_VERSION).await?;
+    Ok((m.addr, m.model, version))
+}
+
 /// `remodaq read`.
 pub async fn read(module: &str, at: DiscoveryAt, timeout: Duration, json: bool) -> Result<(), Error> {
     let mut m = Module::connect(module, timeout).await?;

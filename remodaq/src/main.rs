@@ -4,6 +4,7 @@
 mod io;
 mod lan;
 mod sign;
+mod update;
 
 use std::net::{Ipv4Addr, SocketAddr};
 use std::process::ExitCode;
@@ -85,6 +86,19 @@ enum Command {
     Access {
         #[command(subcommand)]
         command: AccessCommand,
+    },
+    /// Update a module's firmware with a signed image file (remodaq sign), over the network:
+    /// shows the progress and the version before and after.
+    Update {
+        /// The module's Modbus/TCP address (its version is read there).
+        module: String,
+        /// The signed image file.
+        image: std::path::PathBuf,
+        #[command(flatten)]
+        password: Auth,
+        /// The update service's TCP port.
+        #[arg(long, default_value_t = remodaq_protocol::update::PORT)]
+        port: u16,
     },
     /// Make a key pair for signing firmware images: the secret key in KEY, the public key
     /// (what the firmware is built with) in KEY.pub.
@@ -293,6 +307,9 @@ async fn run(cli: Cli) -> Result<(), Error> {
         }
         Command::Config { module, setting } => io::config(&module, setting, timeout, json).await,
         Command::Keygen { key } => sign::keygen(&key),
+        Command::Update { module, image, password, port } => {
+            update::update(&module, &image, &password.password, port, timeout, json).await
+        }
         Command::Sign { key, model, version, firmware, out } => sign::sign(&key, &firmware, model, version, &out),
     }
 }

@@ -22,6 +22,7 @@ use crate::modbus::RegisterMap;
 use crate::module::{CommonSettings, SettingsAccess, Store};
 use crate::net::NetConfig;
 use crate::settings::{Schema, SettingsStore};
+use crate::update::{UpdateService, UpdateTarget};
 
 /// The lock every task takes to reach the register map.
 pub type Shared<T> = Mutex<CriticalSectionRawMutex, T>;
@@ -36,8 +37,12 @@ pub trait Board: Sized + 'static {
     type Flash: NorFlash + 'static;
     /// Size of the settings region, bytes.
     const SETTINGS_SIZE: u32;
-    /// The running network (Modbus/TCP and discovery).
+    /// The running network (Modbus/TCP, discovery, firmware updates).
     type Net: Network;
+    /// The bootloader's update (DFU) partition (firmware updates, docs/update.md).
+    type Dfu: NorFlash + 'static;
+    /// The bootloader's state partition.
+    type BootState: NorFlash + 'static;
     /// What the board reserves for the modules' I/O (pins and peripherals; the scenario on the
     /// host), handed to [`IoFor::io`].
     type Resources;
@@ -46,6 +51,9 @@ pub trait Board: Sized + 'static {
     /// the board, its settings flash and the modules' I/O resources.
     /// The watchdog, where the board has one, starts here (tasks may be spawned).
     fn init(spawner: Spawner) -> (Self, Self::Flash, Self::Resources);
+    /// The bootloader's update and state partitions; `None` on a board without a bootloader
+    /// (the host), which then serves no firmware updates.
+    fn boot_partitions(&mut self) -> Option<(Self::Dfu, Self::BootState)>;
     /// Why this run started (diagnostics register 00F3h).
     fn reset_cause(&self) -> crate::diagnostics::ResetCause;
     /// Every setting must return to its factory default (the USER button held at power-up,
@@ -79,6 +87,18 @@ pub trait Network: 'static {
         store: &'static Store<F, A::Settings>,
         identity: Identity,
     ) -> !;
+    /// Serves firmware update sessions (TCP port 8301) into `target`, one at a time, forever;
+    /// restarts the module after an image was verified and marked.
+    async fn serve_update<A: SettingsAccess, U: UpdateTarget>(
+        &'static self,
+        map: &'static Shared<A>,
+        service: &mut UpdateService,
+        target: &mut U,
+    ) -> !;
+    /// Whether the network is up (the link, and an address), for the self-test.
+    fn is_up(&self) -> bool;
+    /// Restarts the module (as discovery's restart command does).
+    async fn restart(&self) -> !;
 }
 
 /// How a board carries out what the discovery service asks, after the reply was sent: blink
@@ -139,6 +159,7 @@ pub trait IoFor<M: Module>: Board {
 pub struct App<B: Board, M: Module> {
     map: Shared<M::Map<B::Flash>>,
     store: &'static Store<B::Flash, M::Settings>,
+    boot: Shared<Option<(B::Dfu, B::BootState)>>,
     net: B::Net,
     slots: ModbusSlots,
     identity: Identity,
@@ -174,7 +195,8 @@ where
     B: IoFor<M>,
     M: Module,
 {
-    let (board, flash, resources) = B::init(spawner);
+    let (mut board, flash, resources) = B::init(spawner);
+    let boot = Mutex::new(board.boot_partitions());
     let reset_cause = board.reset_cause();
     crate::diagnostics::DIAGNOSTICS.start(reset_cause);
     let mut store = SettingsStore::<B::Flash, M::Settings>::open(
@@ -201,7 +223,7 @@ where
     let (net, running) = board.start_network(spawner, stored);
     let identity = Identity { model: M::MODULE_NAME, name: M::MODEL, version: FIRMWARE_VERSION, mac, running };
     crate::info!("{} running, firmware {:04X}", M::MODEL, FIRMWARE_VERSION);
-    let app = statics.app.init(App { map, store, net, slots: Slots::new(MAX_CONNECTIONS), identity, state });
+    let app = statics.app.init(App { map, store, boot, net, slots: Slots::new(MAX_CONNECTIONS), identity, state });
     (app, io)
 }
 
@@ -216,6 +238,16 @@ impl<B: Board, M: Module> App<B, M> {
         self.net.serve_discovery(&self.map, self.store, self.identity).await
     }
 
+    /// Confirms a new image after its self-test, then serves firmware updates, forever (on a
+    /// board without a bootloader: waits forever).
+    pub async fn serve_update(&'static self) -> ! {
+        let parts = self.boot.lock().await.take();
+        match parts {
+            Some((dfu, state)) => crate::update::run(&self.net, &self.map, M::MODULE_NAME, dfu, state).await,
+            None => core::future::pending().await,
+        }
+    }
+
     /// Runs the module's application over the board's I/O, forever.
     pub async fn run<Io>(&'static self, io: Io) -> !
     where
@@ -224,20 +256,22 @@ impl<B: Board, M: Module> App<B, M> {
         M::run(io, self.state, &self.map, B::app_alive).await
     }
 
-    /// Spawns the module's tasks: `modbus` once per connection slot, `discovery`, and `app`
-    /// with the I/O. A task that cannot be spawned is logged, not a panic.
-    pub fn spawn<Io, S1, S2, S3>(
+    /// Spawns the module's tasks: `modbus` once per connection slot, `discovery`, `update`,
+    /// and `app` with the I/O. A task that cannot be spawned is logged, not a panic.
+    pub fn spawn<Io, S1, S2, S3, S4>(
         &'static self,
         spawner: Spawner,
         io: Io,
         modbus: impl Fn(&'static Self, usize) -> Result<SpawnToken<S1>, SpawnError>,
         discovery: impl FnOnce(&'static Self) -> Result<SpawnToken<S2>, SpawnError>,
+        update: impl FnOnce(&'static Self) -> Result<SpawnToken<S4>, SpawnError>,
         app: impl FnOnce(&'static Self, Io) -> Result<SpawnToken<S3>, SpawnError>,
     ) {
         for slot in 0..SOCKETS {
             spawn(spawner, modbus(self, slot), "modbus");
         }
         spawn(spawner, discovery(self), "discovery");
+        spawn(spawner, update(self), "update");
         spawn(spawner, app(self, io), "app");
     }
 }

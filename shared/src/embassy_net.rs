@@ -7,10 +7,11 @@ use embassy_net::{IpAddress, IpEndpoint, Stack};
 use embassy_time::{with_timeout, Duration, Timer};
 
 use crate::board::{Effects, ModbusSlots, Network, Shared};
-use crate::discovery::{serve, Datagrams, Identity, MAX_DATAGRAM, PORT};
+use crate::discovery::{serve, Datagrams, Effect, Identity, MAX_DATAGRAM, PORT};
 use crate::modbus::server::{serve as serve_modbus, Ended};
 use crate::modbus::RegisterMap;
 use crate::module::{SettingsAccess, Store};
+use crate::update::{Outcome, UpdateService, UpdateTarget};
 use crate::{debug, error, warn};
 use embedded_storage_async::nor_flash::NorFlash;
 
@@ -46,10 +47,7 @@ impl<E: Effects> Network for EmbassyNet<E> {
                 continue;
             }
             debug!("modbus: slot {} connected", slot);
-            let from = match socket.remote_endpoint() {
-                Some(IpEndpoint { addr: IpAddress::Ipv4(ip), .. }) => ip.octets(),
-                None => [0; 4],
-            };
+            let from = peer(&socket);
             let ended = serve_modbus(&mut socket, from, map, slots, slot).await;
             debug!("modbus: slot {} closed: {:?}", slot, ended);
             // Back to accepting at once, so that a newcomer finds a listening socket even in a
@@ -80,6 +78,50 @@ impl<E: Effects> Network for EmbassyNet<E> {
         }
         let mut datagrams = NetDatagrams(socket);
         serve(&mut datagrams, map, store, identity, async |effect| self.effects.apply(effect).await).await
+    }
+
+    async fn serve_update<A: SettingsAccess, U: UpdateTarget>(
+        &'static self,
+        map: &'static Shared<A>,
+        service: &mut UpdateService,
+        target: &mut U,
+    ) -> ! {
+        // Bounded: one session at a time, through these buffers and the service's 1 KiB chunk.
+        let mut rx = [0u8; 2048];
+        let mut tx = [0u8; 64];
+        loop {
+            let mut socket = TcpSocket::new(self.stack, &mut rx, &mut tx);
+            if let Err(e) = socket.accept(crate::update::PORT).await {
+                warn!("update: accept failed: {:?}", e);
+                continue;
+            }
+            let now_ms = embassy_time::Instant::now().as_millis();
+            let from = peer(&socket);
+            let outcome = service.session(&mut socket, from, now_ms, map, target).await;
+            socket.close();
+            let _ = with_timeout(CLOSE_WAIT, socket.flush()).await;
+            socket.abort();
+            if let Outcome::Updated { .. } = outcome {
+                self.restart().await;
+            }
+        }
+    }
+
+    fn is_up(&self) -> bool {
+        self.stack.is_config_up()
+    }
+
+    async fn restart(&self) -> ! {
+        self.effects.apply(Effect::Restart).await;
+        core::future::pending().await
+    }
+}
+
+/// The client's IPv4 address (0.0.0.0 if unknown).
+fn peer(socket: &TcpSocket<'_>) -> [u8; 4] {
+    match socket.remote_endpoint() {
+        Some(IpEndpoint { addr: IpAddress::Ipv4(ip), .. }) => ip.octets(),
+        None => [0; 4],
     }
 }
 

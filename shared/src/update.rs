@@ -13,6 +13,12 @@ use embedded_io_async::{Read, Write};
 use crate::module::{CommonSettings, SettingsAccess};
 use crate::password::{Check, Limiter, MAX_LEN};
 
+include!(concat!(env!("OUT_DIR"), "/update_key.rs"));
+
+/// How long a new image may take to pass its self-test before the module restarts (and the
+/// bootloader reverts to the previous image).
+pub const TRIAL: Duration = Duration::from_secs(20);
+
 /// Firmware bytes buffered per write to the update partition.
 pub const CHUNK: usize = 1024;
 /// A session whose peer sends nothing for this long ends (the image stays unmarked).
@@ -24,6 +30,8 @@ pub const STALL: Duration = Duration::from_secs(10);
 pub trait UpdateTarget {
     /// Write granularity of the update partition: every write but the last is a multiple.
     const WRITE_SIZE: usize;
+    /// Starts a session: erases the update partition (whatever an earlier, cut session left).
+    async fn begin(&mut self) -> Result<(), Status>;
     /// Writes firmware bytes at `offset` (erasing sectors as it goes).
     async fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Status>;
     /// Verifies the `length` bytes written against `signature` and this module's key, and if
@@ -98,6 +106,10 @@ impl UpdateService {
                 return reply(io, Status::WrongPassword).await;
             }
             Check::Locked => return reply(io, Status::RateLimited).await,
+        }
+        if let Err(status) = target.begin().await {
+            crate::error!("update: the update partition could not be erased");
+            return reply(io, status).await;
         }
         if !send(io, Status::Ok).await {
             return Outcome::NotUpdated;
@@ -186,6 +198,11 @@ where
 {
     const WRITE_SIZE: usize = DFU::WRITE_SIZE;
 
+    async fn begin(&mut self) -> Result<(), Status> {
+        // Fails too when the running image is not confirmed yet (no update on top of a trial).
+        self.updater.prepare_update().await.map(|_| ()).map_err(|_| Status::StoreFailed)
+    }
+
     async fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Status> {
         self.updater.write_firmware(offset as usize, data).await.map_err(|_| Status::StoreFailed)
     }
@@ -196,5 +213,80 @@ where
             Err(embassy_boot::FirmwareUpdaterError::Signature(_)) => Err(Status::BadSignature),
             Err(_) => Err(Status::StoreFailed),
         }
+    }
+}
+
+/// The self-test a new image must pass to confirm itself: the network up, the inputs valid
+/// (the front end answers: first acquisition done, no front-end fault), and the settings store
+/// working (no failed commit).
+pub fn self_test_passed(network_up: bool) -> bool {
+    use crate::diagnostics::{status, DIAGNOSTICS};
+    let s = DIAGNOSTICS.status();
+    network_up && s & (status::INPUTS_PENDING | status::FRONT_END_FAULT | status::STORE_FAULT) == 0
+}
+
+/// The update task of a board with a bootloader: confirms a new (or reverted-to) image once its
+/// self-test passes, or restarts it (the bootloader then reverts) when it has not passed after
+/// [`TRIAL`]; then serves update sessions forever on `net`.
+pub async fn run<N, A, DFU, STATE>(
+    net: &'static N,
+    map: &'static crate::board::Shared<A>,
+    model: u16,
+    dfu: DFU,
+    state: STATE,
+) -> !
+where
+    N: crate::board::Network,
+    A: SettingsAccess,
+    DFU: embedded_storage_async::nor_flash::NorFlash,
+    STATE: embedded_storage_async::nor_flash::NorFlash,
+{
+    // The updater's state buffer is STATE::WRITE_SIZE long: at most 32 bytes on the targets.
+    const { assert!(STATE::WRITE_SIZE <= 32) };
+    let mut aligned = [0u8; 32];
+    // The update partition is the running one plus a page for the swap.
+    let capacity = (dfu.capacity() - DFU::ERASE_SIZE) as u32;
+    let updater = embassy_boot::FirmwareUpdater::new(
+        embassy_boot::FirmwareUpdaterConfig { dfu, state },
+        &mut aligned[..STATE::WRITE_SIZE],
+    );
+    let mut target = BootUpdater { updater, public_key: UPDATE_KEY };
+    confirm(net, &mut target).await;
+    let mut service = UpdateService::new(model, capacity);
+    net.serve_update(map, &mut service, &mut target).await
+}
+
+async fn confirm<N, DFU, STATE>(net: &N, target: &mut BootUpdater<'_, DFU, STATE>)
+where
+    N: crate::board::Network,
+    DFU: embedded_storage_async::nor_flash::NorFlash,
+    STATE: embedded_storage_async::nor_flash::NorFlash,
+{
+    use embassy_boot::State;
+    let state = target.updater.get_state().await;
+    let what = match state {
+        Ok(State::Swap) => "a new image",
+        Ok(State::Revert) => "the previous image (the new one did not confirm itself)",
+        Ok(_) => return,
+        Err(_) => {
+            crate::error!("update: the bootloader's state cannot be read");
+            return;
+        }
+    };
+    crate::info!("update: running {} on trial", what);
+    let deadline = embassy_time::Instant::now() + TRIAL;
+    loop {
+        if self_test_passed(net.is_up()) && !cfg!(feature = "never-confirm") {
+            match target.updater.mark_booted().await {
+                Ok(()) => crate::info!("update: self-test passed, image confirmed"),
+                Err(_) => crate::error!("update: the image could not be confirmed"),
+            }
+            return;
+        }
+        if embassy_time::Instant::now() > deadline {
+            crate::error!("update: self-test not passed in time: restarting (the bootloader reverts)");
+            net.restart().await;
+        }
+        embassy_time::Timer::after_millis(100).await;
     }
 }

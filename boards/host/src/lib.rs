@@ -18,11 +18,12 @@ use std::path::PathBuf;
 use clap::Parser;
 use embassy_executor::Spawner;
 use embedded_storage_async::nor_flash::NorFlash;
-use remodaq_shared::board::{Board, ModbusSlots, Network, Shared};
+use remodaq_shared::board::{Board, Effects, ModbusSlots, Network, Shared};
 use remodaq_shared::discovery::Identity;
 use remodaq_shared::modbus::RegisterMap;
 use remodaq_shared::module::{SettingsAccess, Store};
 use remodaq_shared::net::{mac_from_uid, NetConfig};
+use remodaq_shared::update::{UpdateService, UpdateTarget};
 
 /// Logging to stderr through `log`; `RUST_LOG` overrides the default level (info).
 pub fn init_logging() {
@@ -68,6 +69,9 @@ impl Board for HostBoard {
     type Flash = flash::FileFlash;
     const SETTINGS_SIZE: u32 = flash::SIZE as u32;
     type Net = HostNet;
+    /// No bootloader on a PC (placeholders: `boot_partitions` gives none).
+    type Dfu = remodaq_shared::ram_flash::RamFlash<4, 4>;
+    type BootState = remodaq_shared::ram_flash::RamFlash<4, 4>;
     type Resources = Scenario;
 
     /// Logging, the command line and the flash image; a flash image that cannot be used ends
@@ -123,6 +127,10 @@ impl Board for HostBoard {
     fn app_alive() {}
 
     /// Power-on, or a software restart when this process was started by a restart.
+    fn boot_partitions(&mut self) -> Option<(Self::Dfu, Self::BootState)> {
+        None
+    }
+
     fn reset_cause(&self) -> remodaq_shared::diagnostics::ResetCause {
         if std::env::var_os(discovery::RESTARTED).is_some() {
             remodaq_shared::diagnostics::ResetCause::Software
@@ -149,5 +157,24 @@ impl Network for HostNet {
         identity: Identity,
     ) -> ! {
         discovery::run(&self.discovery, map, store, identity, &discovery::HostEffects).await
+    }
+
+    /// The simulated module has no bootloader: it serves no firmware updates.
+    async fn serve_update<A: SettingsAccess, U: UpdateTarget>(
+        &'static self,
+        _: &'static Shared<A>,
+        _: &mut UpdateService,
+        _: &mut U,
+    ) -> ! {
+        core::future::pending().await
+    }
+
+    fn is_up(&self) -> bool {
+        true
+    }
+
+    async fn restart(&self) -> ! {
+        discovery::HostEffects.apply(remodaq_shared::discovery::Effect::Restart).await;
+        fail("restart failed")
     }
 }

@@ -8,8 +8,9 @@
 //! - Network: the LAN9118 driver, interrupt-driven receive; QEMU's user network gives the
 //!   guest 10.0.2.15/24 with gateway 10.0.2.2, used instead of the stored IP settings (the
 //!   Modbus port still comes from the settings).
-//! - Settings: the RAM-backed region after the code, as a NOR flash through the same settings
-//!   store.
+//! - Flash: regions of QEMU's writable code memory driven as NOR flash (`remodaq-ram-nor`):
+//!   the settings, and the update and state partitions of the bootloader (`bootloader/`),
+//!   which starts the application (layout.x).
 //! - Logs are dropped (no RTT here); a panic prints over semihosting and ends QEMU.
 #![no_std]
 #![cfg(target_os = "none")]
@@ -87,12 +88,15 @@ const STACK_SOCKETS: usize = remodaq_shared::modbus::server::SOCKETS + 3;
 /// The MPS2 AN386 as QEMU emulates it.
 pub struct QemuBoard {
     mac: [u8; 6],
+    boot: Option<(flash::DfuFlash, flash::StateFlash)>,
 }
 
 impl Board for QemuBoard {
     type Flash = flash::SettingsFlash;
     const SETTINGS_SIZE: u32 = flash::SIZE as u32;
     type Net = EmbassyNet<QemuEffects>;
+    type Dfu = flash::DfuFlash;
+    type BootState = flash::StateFlash;
     /// The modules' I/O is simulated: nothing to reserve.
     type Resources = ();
 
@@ -100,7 +104,14 @@ impl Board for QemuBoard {
     fn init(_spawner: Spawner) -> (Self, flash::SettingsFlash, ()) {
         let Some(mut core) = cortex_m::Peripherals::take() else { panic!("init twice") };
         time::start(&mut core.SYST);
-        (QemuBoard { mac: mac_from_uid(b"qemu-mps2-an") }, flash::SettingsFlash::take(), ())
+        let regions = flash::Regions::take();
+        let board = QemuBoard { mac: mac_from_uid(b"qemu-mps2-an"), boot: Some((regions.dfu, regions.state)) };
+        (board, regions.settings, ())
+    }
+
+    /// The partitions the bootloader (`bootloader/`) swaps from.
+    fn boot_partitions(&mut self) -> Option<(flash::DfuFlash, flash::StateFlash)> {
+        self.boot.take()
     }
 
     /// The machine has no reset-cause register: a restart leaves a mark in RAM that a system

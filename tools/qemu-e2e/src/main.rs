@@ -34,22 +34,36 @@ impl Drop for Qemu {
     }
 }
 
-/// QEMU's user network with the Modbus port forwarded (and discovery's, unless `udp` is 0).
-fn nic(port: u16, udp: u16) -> String {
+/// QEMU's user network with the Modbus port forwarded, and discovery's and the update
+/// service's (`udp` and `update`) unless 0.
+fn nic(port: u16, udp: u16, update: u16) -> String {
     let mut nic = format!("user,model=lan9118,hostfwd=tcp:127.0.0.1:{port}-:8000");
     if udp != 0 {
         nic += &format!(",hostfwd=udp:127.0.0.1:{udp}-:8300");
     }
+    if update != 0 {
+        nic += &format!(",hostfwd=tcp:127.0.0.1:{update}-:8301");
+    }
     nic
 }
 
-fn start_qemu(image: &str, port: u16, udp: u16) -> Result<Qemu, String> {
+/// A free TCP port on the loopback (or `fallback`).
+fn free_port(fallback: u16) -> u16 {
+    TcpListener::bind("127.0.0.1:0").and_then(|l| l.local_addr()).map(|a| a.port()).unwrap_or(fallback)
+}
+
+/// QEMU started as the module starts: the board's bootloader (next to the image) as QEMU's
+/// image, the application's raw binary (`IMAGE.bin`, from scripts/qemu build) as its seed.
+fn start_qemu(image: &str, port: u16, udp: u16, update: u16) -> Result<Qemu, String> {
     let log = std::fs::File::create(format!("{image}.qemu.log")).map_err(|e| e.to_string())?;
+    let bootloader = std::path::Path::new(image).with_file_name("remodaq-qemu-bootloader");
     let child = Command::new("qemu-system-arm")
         .args(["-M", "mps2-an386", "-nographic", "-monitor", "none", "-serial", "null"])
         .args(["-semihosting-config", "enable=on,target=native"])
-        .args(["-nic", &nic(port, udp)])
-        .args(["-kernel", image])
+        .args(["-nic", &nic(port, udp, update)])
+        .arg("-kernel")
+        .arg(&bootloader)
+        .args(["-device", &format!("loader,file={image}.bin,addr=0x300000")])
         .stdin(Stdio::null())
         .stdout(log.try_clone().map_err(|e| e.to_string())?)
         .stderr(log)
@@ -380,7 +394,7 @@ async fn latency(image: &str) -> Result<(), String> {
     let port =
         TcpListener::bind("127.0.0.1:0").and_then(|l| l.local_addr()).map(|a| a.port()).map_err(|e| e.to_string())?;
     let addr = SocketAddr::from(([127, 0, 0, 1], port));
-    let qemu = start_qemu(image, port, 0)?;
+    let qemu = start_qemu(image, port, 0, 0)?;
     drop(wait_ready(addr).await?);
     println!("{image}:");
     let _ = pipelining(addr, f64::INFINITY).await?;
@@ -472,10 +486,11 @@ async fn eight_clients(addr: SocketAddr, model: u16) -> Result<(), String> {
 async fn run(model: &str, image: &str) -> Report {
     let mut report = Report { model: model.to_string(), passed: 0, failed: 0 };
     let name = u16::from_str_radix(model, 16).unwrap_or(0);
-    let port = TcpListener::bind("127.0.0.1:0").and_then(|l| l.local_addr()).map(|a| a.port()).unwrap_or(18000);
+    let port = free_port(18000);
     let udp = std::net::UdpSocket::bind("127.0.0.1:0").and_then(|s| s.local_addr()).map(|a| a.port()).unwrap_or(18300);
     let addr = SocketAddr::from(([127, 0, 0, 1], port));
-    let qemu = match start_qemu(image, port, udp) {
+    let update_port = free_port(18301);
+    let qemu = match start_qemu(image, port, udp, update_port) {
         Ok(q) => q,
         Err(e) => {
             report.check("boot", Err(e));
@@ -520,8 +535,136 @@ async fn run(model: &str, image: &str) -> Report {
     report.check("diagnostics: injected front-end fault, set and cleared", diagnostics(addr).await);
     let discovery = SocketAddr::from(([127, 0, 0, 1], udp));
     report.check("discovery: search, network settings, restart", discovery_and_restart(discovery, addr, name).await);
+    if name == 0x8350 {
+        let update = SocketAddr::from(([127, 0, 0, 1], update_port));
+        updates(&mut report, image, addr, update).await;
+    }
     drop(qemu);
     report
+}
+
+/// The firmware version register, once the module answers (after a restart: up to 60 s).
+async fn version(addr: SocketAddr) -> Result<u16, String> {
+    let started = Instant::now();
+    loop {
+        if let Ok(mut ctx) = connect(addr).await {
+            if let Ok(v) = regs(&mut ctx, REG_VERSION, 1).await {
+                return Ok(v[0]);
+            }
+        }
+        if started.elapsed() > Duration::from_secs(60) {
+            return Err("the module did not answer within 60 s".into());
+        }
+        sleep(Duration::from_millis(500)).await;
+    }
+}
+
+/// An update session by hand: the password, `file` (cut after `send` bytes), the answers.
+async fn session(update: SocketAddr, file: &[u8], send: usize) -> Result<Vec<u8>, String> {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut stream = timeout(STEP, tokio::net::TcpStream::connect(update))
+        .await
+        .map_err(|_| "update service: connect timed out".to_string())?
+        .map_err(|e| e.to_string())?;
+    let mut bytes = vec![7u8];
+    bytes.extend_from_slice(b"remodaq");
+    bytes.extend_from_slice(&file[..send.min(file.len())]);
+    stream.write_all(&bytes).await.map_err(|e| e.to_string())?;
+    if send < file.len() {
+        // Cut: the module answered the header (or not); close without the rest.
+        let mut first = [0u8; 1];
+        let _ = timeout(STEP, stream.read_exact(&mut first)).await;
+        return Ok(vec![first[0]]);
+    }
+    let mut answers = Vec::new();
+    let _ = timeout(Duration::from_secs(60), stream.read_to_end(&mut answers)).await;
+    Ok(answers)
+}
+
+/// Issue #12 through the emulated NIC: a bad signature and a truncated image are refused with
+/// nothing changed; `remodaq update` takes v1 to v2 (A101), which answers after the reset; a
+/// v3 (A102) that never confirms itself is reverted to v2 after its trial's reset; the
+/// setting written before (DO0's pulse low width, `setting written and read back`) is intact
+/// after every step.
+async fn updates(report: &mut Report, image: &str, addr: SocketAddr, update: SocketAddr) {
+    let pulse_low = Point::Pulse(PulseField::Low, 0, Word::Low).addr().1;
+    let setting_intact = async |when: &str| -> Result<(), String> {
+        let mut ctx = connect(addr).await?;
+        match regs(&mut ctx, pulse_low, 2).await? {
+            v if v == [25, 0] => Ok(()),
+            v => Err(format!("{when}: DO0's pulse low width reads {v:?}, written [25, 0]")),
+        }
+    };
+    let (Ok(v2), Ok(v3)) = (std::fs::read(format!("{image}-v2.rdq")), std::fs::read(format!("{image}-v3.rdq"))) else {
+        report.check("update images", Err("the v2/v3 images are missing: run scripts/qemu variants".into()));
+        return;
+    };
+    let refused = async |what: &str, file: &[u8], send: usize, want: &[u8]| -> Result<(), String> {
+        let answers = session(update, file, send).await?;
+        if answers != want {
+            return Err(format!("{what}: the module answered {answers:?}, expected {want:?}"));
+        }
+        match version(addr).await? {
+            0xA100 => setting_intact(what).await,
+            v => Err(format!("{what}: version {v:04X} afterwards, expected A100 (nothing changed)")),
+        }
+    };
+    let mut tampered = v2.clone();
+    let last = tampered.len() - 1;
+    tampered[last] ^= 0x01;
+    report.check(
+        "update: a bad signature is refused, nothing changed",
+        refused("bad signature", &tampered, usize::MAX, &[0, 5]).await,
+    );
+    report.check(
+        "update: a truncated image is refused, nothing changed",
+        refused("truncated", &v2, v2.len() / 2, &[0]).await,
+    );
+
+    // v1 -> v2 with the tool.
+    let started = Instant::now();
+    let tool = Command::new(std::env::var("REMODAQ").unwrap_or_else(|_| "target/debug/remodaq".into()))
+        .args(["update", &addr.to_string(), &format!("{image}-v2.rdq"), "--password", "remodaq"])
+        .args(["--port", &update.port().to_string()])
+        .output();
+    let v1_to_v2 = match tool {
+        Ok(out) if out.status.success() => {
+            let text = String::from_utf8_lossy(&out.stdout).into_owned();
+            print!("{text}");
+            match (text.contains("A100 -> A101"), version(addr).await) {
+                (true, Ok(0xA101)) => setting_intact("after v2").await,
+                (_, v) => Err(format!("after the update: {text:?}, version {v:?}")),
+            }
+        }
+        Ok(out) => Err(format!("remodaq update failed: {}", String::from_utf8_lossy(&out.stderr))),
+        Err(e) => Err(format!("cannot run remodaq: {e}")),
+    };
+    println!("qemu-8350: v1 -> v2 in {:.1} s", started.elapsed().as_secs_f64());
+    report.check("update: v1 -> v2 through the emulated NIC, v2 answers after the reset", v1_to_v2);
+
+    // v3 never confirms: it runs on trial, then the reset reverts to v2.
+    let rollback = async {
+        let answers = session(update, &v3, usize::MAX).await?;
+        if answers != [0, 0] {
+            return Err(format!("v3: the module answered {answers:?}"));
+        }
+        let started = Instant::now();
+        let mut saw_v3 = false;
+        loop {
+            match version(addr).await? {
+                0xA102 => saw_v3 = true,
+                0xA101 if saw_v3 => break,
+                _ => {}
+            }
+            if started.elapsed() > Duration::from_secs(90) {
+                return Err(format!("no return to v2 within 90 s (v3 seen: {saw_v3})"));
+            }
+            sleep(Duration::from_secs(1)).await;
+        }
+        println!("qemu-8350: v3 ran on trial and was reverted to v2 after {:.1} s", started.elapsed().as_secs_f64());
+        setting_intact("after the rollback").await
+    };
+    report.check("update: a v3 that never confirms rolls back to v2 after its reset", rollback.await);
 }
 
 fn main() -> ExitCode {

@@ -1,0 +1,93 @@
+//! The bootloader of the QEMU board (`-kernel` image): at every start, embassy-boot finishes or
+//! starts a swap (a marked update) or a revert (an update that did not confirm itself), then the
+//! application in ACTIVE runs. At QEMU's power-on the code memory is all zeros: the bootloader
+//! then copies the first application from SEED into ACTIVE and erases the state and update
+//! partitions, as a factory would program the module's flash. The flash layout is in
+//! `../layout.x`; docs/update.md explains it.
+#![cfg_attr(target_os = "none", no_std, no_main)]
+
+#[cfg(not(target_os = "none"))]
+fn main() {
+    eprintln!("the QEMU board's bootloader runs under QEMU: see scripts/qemu");
+}
+
+#[cfg(target_os = "none")]
+mod boot {
+    use embassy_boot::{BootLoader, BootLoaderConfig};
+    use embedded_storage::nor_flash::{NorFlash, ReadNorFlash};
+    use remodaq_ram_nor::RamNor;
+
+    /// The swap's page: as the STM32F429's 128 KiB sectors of ACTIVE and DFU.
+    const PAGE: usize = 128 * 1024;
+    /// The state partition's erase page (a 16 KiB sector on the STM32).
+    const STATE_PAGE: usize = 16 * 1024;
+
+    unsafe extern "C" {
+        static mut __bootloader_state_start: u8;
+        static __bootloader_state_end: u8;
+        static mut __bootloader_active_start: u8;
+        static __bootloader_active_end: u8;
+        static mut __bootloader_dfu_start: u8;
+        static __bootloader_dfu_end: u8;
+        static mut __seed_start: u8;
+    }
+
+    fn region<const ERASE: usize>(start: *mut u8, end: *const u8) -> RamNor<ERASE> {
+        // SAFETY: the linker symbols bound disjoint regions of QEMU's code memory (layout.x);
+        // each is taken once, here, and the bootloader is the only code running.
+        unsafe { RamNor::new(start, end as usize - start as usize) }
+    }
+
+    #[cortex_m_rt::entry]
+    fn main() -> ! {
+        use core::ptr::{addr_of, addr_of_mut};
+        let mut state = region::<STATE_PAGE>(addr_of_mut!(__bootloader_state_start), addr_of!(__bootloader_state_end));
+        let mut active = region::<PAGE>(addr_of_mut!(__bootloader_active_start), addr_of!(__bootloader_active_end));
+        let mut dfu = region::<PAGE>(addr_of_mut!(__bootloader_dfu_start), addr_of!(__bootloader_dfu_end));
+        let size = active.capacity();
+        if active.untouched() {
+            // Power-on: program ACTIVE from SEED; erased state and update partitions.
+            let seed_end = (addr_of!(__seed_start) as usize + size) as *const u8;
+            let mut seed = region::<PAGE>(addr_of_mut!(__seed_start), seed_end);
+            let mut buf = [0u8; 1024];
+            let mut ok = active.erase(0, size as u32).is_ok();
+            for at in (0..size as u32).step_by(buf.len()) {
+                ok = ok && seed.read(at, &mut buf).is_ok() && active.write(at, &buf).is_ok();
+            }
+            ok = ok && dfu.erase(0, dfu.capacity() as u32).is_ok() && state.erase(0, state.capacity() as u32).is_ok();
+            if !ok {
+                fail("programming the first application failed");
+            }
+        }
+        let mut aligned = [0u8; 1024];
+        let config = BootLoaderConfig { active: &mut active, dfu: &mut dfu, state: &mut state };
+        if BootLoader::new(config).prepare_boot(&mut aligned).is_err() {
+            fail("the swap or revert failed");
+        }
+        let vectors = addr_of!(__bootloader_active_start) as *const u32;
+        // SAFETY: ACTIVE holds an application linked there (its vector table first); VTOR takes
+        // its address so its interrupts go to its own handlers; nothing of the bootloader is
+        // used after the jump.
+        unsafe {
+            (*cortex_m::peripheral::SCB::PTR).vtor.write(vectors as u32);
+            cortex_m::asm::bootload(vectors)
+        }
+    }
+
+    fn fail(why: &str) -> ! {
+        cortex_m_semihosting::hprintln!("bootloader: {}", why);
+        cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_FAILURE);
+        loop {
+            cortex_m::asm::wfi();
+        }
+    }
+
+    #[panic_handler]
+    fn panic(info: &core::panic::PanicInfo) -> ! {
+        cortex_m_semihosting::hprintln!("bootloader panic: {}", info);
+        cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_FAILURE);
+        loop {
+            cortex_m::asm::wfi();
+        }
+    }
+}
