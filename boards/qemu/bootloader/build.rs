@@ -1,5 +1,5 @@
 //! Target builds: cortex-m-rt's linker script (which includes this crate's memory.x: the
-//! build links from this directory, see ../ld).
+//! build links from this directory, see boards/ld).
 fn main() {
     println!("cargo:rerun-if-changed=memory.x");
     println!("cargo:rerun-if-changed=../layout.x");

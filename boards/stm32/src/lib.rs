@@ -11,10 +11,11 @@ pub mod phy;
 use defmt_rtt as _;
 use panic_probe as _;
 
+use embassy_embedded_hal::flash::partition::Partition;
 use embassy_executor::Spawner;
 use embassy_net::{Ipv4Address, Ipv4Cidr, StackResources, StaticConfigV4};
 use embassy_stm32::eth::{Ethernet, PacketQueue, Sma};
-use embassy_stm32::flash::{Async, Bank2Region1, Flash};
+use embassy_stm32::flash::{Async, Bank1Region1, Bank2Region1, Bank2Region3, Flash};
 use embassy_stm32::gpio::{Flex, Input, Level, Output, Pull, Speed};
 use embassy_stm32::peripherals::{ETH, ETH_SMA, IWDG};
 use embassy_stm32::rng::Rng;
@@ -42,6 +43,15 @@ bind_interrupts!(struct Irqs {
 pub type Device = Ethernet<'static, ETH, phy::Lan8742a<Sma<'static, ETH_SMA>>>;
 /// The settings flash: bank 2, sectors 12-15 (16 KiB each, 0x0810_0000), see `memory.x`.
 pub type SettingsFlash = Bank2Region1<'static, Async>;
+/// The update partition (DFU): bank 2 sectors 17-23 (128 KiB each, 0x0812_0000), all of the
+/// region, see `memory.x`.
+pub type DfuFlash = Bank2Region3<'static, Async>;
+/// The bootloader's state: sector 2 (0x0800_8000, 16 KiB) of bank 1 region 1 (sectors 0-3; the
+/// bootloader's own code is in sectors 0-1 and is never erased by the application).
+pub type BootStateFlash = Partition<'static, CriticalSectionRawMutex, Bank1Region1<'static, Async>>;
+/// Offset and size of the state partition in bank 1 region 1.
+const STATE_OFFSET: u32 = 0x8000;
+const STATE_SIZE: u32 = 16 * 1024;
 
 /// Sockets: Modbus connection tasks plus the discovery socket, plus slack.
 const STACK_SOCKETS: usize = remodaq_shared::modbus::server::SOCKETS + 3;
@@ -80,6 +90,7 @@ pub struct Stm32Board {
     /// reads on silicon before revision 3 (REV_ID < 0x2001, errata ES0206 2.2.11) unless it
     /// finds PA12 so (`flash/f4.rs`). PA12 is the Nucleo's USB OTG FS D+, unused here.
     _pa12: Flex<'static>,
+    boot: Option<(DfuFlash, BootStateFlash)>,
 }
 
 /// The peripherals reserved for the modules' I/O; each module's image starts its own part
@@ -167,7 +178,13 @@ fn init(spawner: Spawner) -> (Stm32Board, SettingsFlash, Io) {
         phy::Lan8742a::new(Sma::new(p.ETH_SMA, p.PA2, p.PC1)),
     );
 
-    let settings_flash = Flash::new(p.FLASH, Irqs).into_regions().bank2_region1;
+    let regions = Flash::new(p.FLASH, Irqs).into_regions();
+    let settings_flash = regions.bank2_region1;
+    static BANK1_REGION1: StaticCell<
+        embassy_sync::mutex::Mutex<CriticalSectionRawMutex, Bank1Region1<'static, Async>>,
+    > = StaticCell::new();
+    let region1 = BANK1_REGION1.init(embassy_sync::mutex::Mutex::new(regions.bank1_region1));
+    let boot = Some((regions.bank2_region3, Partition::new(region1, STATE_OFFSET, STATE_SIZE)));
     // LD1 (green, PB0): the "identify" LED.
     let led = Output::new(p.PB0, Level::Low, Speed::Low);
     let factory_reset = Input::new(p.PC13, Pull::Down).is_high();
@@ -206,7 +223,8 @@ fn init(spawner: Spawner) -> (Stm32Board, SettingsFlash, Io) {
             outputs: [p.PF12.into(), p.PF13.into(), p.PF14.into(), p.PF15.into(), p.PF3.into(), p.PF5.into()],
         },
     };
-    let board = Stm32Board { mac, factory_reset, eth, seed: u64::from_le_bytes(seed), led, reset_cause, _pa12: pa12 };
+    let board =
+        Stm32Board { mac, factory_reset, eth, seed: u64::from_le_bytes(seed), led, reset_cause, _pa12: pa12, boot };
     (board, settings_flash, io)
 }
 
@@ -238,13 +256,12 @@ impl Board for Stm32Board {
     type Flash = SettingsFlash;
     const SETTINGS_SIZE: u32 = 64 * 1024;
     type Net = EmbassyNet<Stm32Effects>;
-    /// Not yet: the bootloader and its partitions on this board are still to come
-    /// (docs/update.md); placeholders, `boot_partitions` gives none.
-    type Dfu = remodaq_shared::ram_flash::RamFlash<4, 4>;
-    type BootState = remodaq_shared::ram_flash::RamFlash<4, 4>;
+    type Dfu = DfuFlash;
+    type BootState = BootStateFlash;
 
-    fn boot_partitions(&mut self) -> Option<(Self::Dfu, Self::BootState)> {
-        None
+    /// The partitions of memory.x that the bootloader (`bootloader/`) swaps from.
+    fn boot_partitions(&mut self) -> Option<(DfuFlash, BootStateFlash)> {
+        self.boot.take()
     }
     type Resources = Io;
 

@@ -1,0 +1,76 @@
+//! The bootloader of the STM32 board (Nucleo-F429ZI, docs/update.md): at every start,
+//! embassy-boot finishes or starts a swap (a marked update) or a revert (an update that did not
+//! confirm itself), then starts the application in ACTIVE. The layout is the workspace's
+//! memory.x (RM0090 §3.3, Table 6, the sectors of the 2 MiB part):
+//! - bootloader: bank 1 sectors 0-1 (0x0800_0000, 32 KiB); state: sector 2 (0x0800_8000, 16 KiB);
+//! - ACTIVE: sectors 5-10 (0x0802_0000, 6 x 128 KiB);
+//! - settings: bank 2 sectors 12-15 (0x0810_0000, untouched by updates);
+//! - DFU: bank 2 sectors 17-23 (0x0812_0000, 7 x 128 KiB: ACTIVE and one page for the swap).
+//!
+//! Each partition lies inside one of embassy-stm32's flash regions, whose erase size is that of
+//! its sectors (16 KiB in region 1, 128 KiB in region 3), so every erase is a whole sector.
+#![cfg_attr(target_os = "none", no_std, no_main)]
+
+#[cfg(not(target_os = "none"))]
+fn main() {
+    eprintln!("the STM32 board's bootloader runs on the Nucleo-F429ZI: see the README");
+}
+
+#[cfg(target_os = "none")]
+mod boot {
+    use core::cell::RefCell;
+
+    use embassy_boot_stm32::{BootLoader, BootLoaderConfig};
+    use embassy_embedded_hal::flash::partition::BlockingPartition;
+    use embassy_stm32::flash::{Flash, FLASH_BASE};
+    use embassy_stm32::gpio::{Flex, Pull, Speed};
+    use embassy_sync::blocking_mutex::raw::NoopRawMutex;
+    use embassy_sync::blocking_mutex::Mutex;
+
+    /// ACTIVE: the start of bank 1 region 3 (sector 5), six sectors.
+    const ACTIVE_OFFSET: u32 = 0;
+    const ACTIVE_SIZE: u32 = 6 * 128 * 1024;
+    /// DFU: all of bank 2 region 3 (sectors 17-23).
+    const DFU_SIZE: u32 = 7 * 128 * 1024;
+    /// State: sector 2, inside bank 1 region 1 (sectors 0-3, 16 KiB each).
+    const STATE_OFFSET: u32 = 0x8000;
+    const STATE_SIZE: u32 = 16 * 1024;
+    /// Bank 1 region 3 starts at sector 5.
+    const REGION3: u32 = 0x0802_0000;
+
+    #[cortex_m_rt::entry]
+    fn main() -> ! {
+        // Reset clocks (HSI 16 MHz): programming and erasing work at any clock (RM0090 §3.5.1
+        // relates the wait states to HCLK only).
+        let p = embassy_stm32::init(Default::default());
+        // Bank 2 (DFU) reads need PA12 held low with a pull-down on silicon before revision 3
+        // (errata ES0206 2.2.11; embassy-stm32 0.6 refuses the read otherwise, `flash/f4.rs`),
+        // as the application does (boards/stm32).
+        let mut pa12 = Flex::new(p.PA12);
+        pa12.set_low();
+        pa12.set_as_input_output_pull(Speed::Low, Pull::Down);
+        let layout = Flash::new_blocking(p.FLASH).into_blocking_regions();
+        let active = Mutex::<NoopRawMutex, _>::new(RefCell::new(layout.bank1_region3));
+        let dfu = Mutex::<NoopRawMutex, _>::new(RefCell::new(layout.bank2_region3));
+        let state = Mutex::<NoopRawMutex, _>::new(RefCell::new(layout.bank1_region1));
+        let config = BootLoaderConfig {
+            active: BlockingPartition::new(&active, ACTIVE_OFFSET, ACTIVE_SIZE),
+            dfu: BlockingPartition::new(&dfu, 0, DFU_SIZE),
+            state: BlockingPartition::new(&state, STATE_OFFSET, STATE_SIZE),
+        };
+        match BootLoader::try_prepare::<_, _, _, 2048>(config) {
+            // SAFETY: ACTIVE holds an application linked at REGION3 (memory.x): its vector
+            // table first; `load` points VTOR at it and jumps to its reset vector.
+            Ok(loader) => unsafe { loader.load(REGION3) },
+            // A flash error: start again (a swap resumes where it stopped, docs/update.md).
+            Err(_) => cortex_m::peripheral::SCB::sys_reset(),
+        }
+    }
+
+    const _: () = assert!(FLASH_BASE as u32 + 0x2_0000 == REGION3);
+
+    #[panic_handler]
+    fn panic(_: &core::panic::PanicInfo) -> ! {
+        cortex_m::peripheral::SCB::sys_reset()
+    }
+}
