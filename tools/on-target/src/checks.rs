@@ -69,7 +69,7 @@ async fn ticker() -> ! {
 /// Runs every check, prints the summary and exits with its status.
 pub async fn run(spawner: Spawner) {
     let mut report = Report { passed: 0, failed: 0 };
-    let (board, flash, resources) = B::init(spawner);
+    let (mut board, flash, resources) = B::init(spawner);
     spawn(spawner, ticker(), "ticker");
     say!("on-target: reset cause {}", board.reset_cause() as u16);
 
@@ -80,10 +80,43 @@ pub async fn run(spawner: Spawner) {
         settings_store(flash, original).await,
     );
     report.check("time base: a 1 s timer", time_base().await);
+    report.check(
+        "update partitions: the bootloader's state reads Boot, a DFU sector erased, written, read back",
+        update_partitions(board.boot_partitions()).await,
+    );
     board_checks(&mut report, spawner, board, resources).await;
 
     say!("on-target: {} passed, {} failed", report.passed, report.failed);
     exit(report.failed == 0);
+}
+
+/// The bootloader's partitions (docs/update.md), through embassy-boot's updater as the update
+/// service uses them: the state reads Boot (this image was started by the bootloader and is
+/// confirmed, or the partition is erased), and the first DFU sector takes a pattern and reads it
+/// back. Nothing is marked: the next start boots this image again.
+async fn update_partitions<D: NorFlash, S: NorFlash>(parts: Option<(D, S)>) -> Result<(), &'static str> {
+    let (dfu, state) = parts.ok_or("the board gives no update partitions")?;
+    // The state buffer is STATE::WRITE_SIZE long (at most 32 bytes on the targets).
+    let mut aligned = [0u8; 32];
+    let mut updater = embassy_boot::FirmwareUpdater::new(
+        embassy_boot::FirmwareUpdaterConfig { dfu, state },
+        &mut aligned[..S::WRITE_SIZE.min(32)],
+    );
+    match updater.get_state().await {
+        Ok(embassy_boot::State::Boot) => {}
+        Ok(_) => return Err("the bootloader's state is not Boot"),
+        Err(_) => return Err("the bootloader's state cannot be read"),
+    }
+    let pattern: [u8; 256] = core::array::from_fn(|i| (i as u8).wrapping_mul(7) ^ 0x5A);
+    let start = Instant::now();
+    updater.write_firmware(0, &pattern).await.map_err(|_| "erasing or writing the first DFU sector failed")?;
+    say!("on-target: first DFU sector erased and written in {} ms", start.elapsed().as_millis());
+    let mut back = [0u8; 256];
+    updater.read_dfu(0, &mut back).await.map_err(|_| "reading the DFU back failed")?;
+    if back != pattern {
+        return Err("the DFU did not read back what was written");
+    }
+    Ok(())
 }
 
 /// The settings region of the board.
