@@ -1,8 +1,8 @@
 //! The board contract and the one start-up path of every module on every board.
 //!
 //! A board (the STM32 Nucleo, the QEMU machine, the host PC) implements [`Board`]: its settings
-//! flash, its network and identity, the factory-reset input, restart (inside its [`Network`]'s
-//! discovery effects) and the watchdog heartbeat; and, for each module it can run, [`IoFor`]:
+//! flash, its bootloader's partitions, its network and identity, the factory-reset input,
+//! restart (inside its [`Network`]) and the watchdog heartbeat; and, for each module it can run, [`IoFor`]:
 //! the module's I/O resources. A module (8318, 8350) implements [`Module`]: its settings
 //! schema, its register map over the settings store, and ([`Runs`]) its application over the
 //! board's I/O. [`start`] then brings up any module on any board the same way: settings, factory
