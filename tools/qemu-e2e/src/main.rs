@@ -227,7 +227,9 @@ async fn setting_round_trip(model: u16, ctx: &mut Context) -> Result<(), String>
 /// outputs answers exception 04; writing 0 to the status clears it. The timing comes from the
 /// module's clock (SysTick under QEMU).
 async fn host_watchdog(addr: SocketAddr) -> Result<Duration, String> {
-    let mut ctx = connect(addr).await?;
+    // Right after the 64-connection flood QEMU's user network may still reset a new connection:
+    // the first exchange is retried as at boot.
+    let mut ctx = wait_ready(addr).await?;
     write(&mut ctx, REG_SAFE_VALUES, &[0b00_0101]).await?;
     write(&mut ctx, REG_WD_MODE, &[wd_mode::WRITES_ONLY]).await?;
     let armed = Instant::now();
