@@ -115,8 +115,8 @@ pub const DRAIN_INTERVAL: Duration = Duration::from_millis(2);
 pub const DRAIN_BATCH: usize = 512;
 /// Input samples processed per lock of the I/O state, and output ticks computed per lock. The
 /// lock is a critical section (interrupts off on the target): at most 58 instructions a
-/// sample with edges on all 12 inputs and 201 a tick for 6 pulse trains (`tools/m4-cost`),
-/// 32 samples are about 1 900 and 16 ticks about 3 200 instructions, under 20 µs at 180 MHz.
+/// sample with edges on all 12 inputs and 225 a tick for 6 pulse trains (`tools/m4-cost`),
+/// 32 samples are about 1 900 and 16 ticks about 3 600 instructions: 20 µs at 180 MHz at most.
 pub const LOCKED_SAMPLES: usize = 32;
 /// See [`LOCKED_SAMPLES`].
 pub const LOCKED_TICKS: usize = 16;
