@@ -542,7 +542,7 @@ async fn run(model: &str, image: &str) -> Report {
     report.check("discovery: search, network settings, restart", discovery_and_restart(discovery, addr, name).await);
     if name == 0x8350 {
         let update = SocketAddr::from(([127, 0, 0, 1], update_port));
-        updates(&mut report, image, addr, update).await;
+        updates(&mut report, image, addr, update, discovery).await;
     }
     drop(qemu);
     report
@@ -591,7 +591,7 @@ async fn session(update: SocketAddr, file: &[u8], send: usize) -> Result<Vec<u8>
 /// v3 (A102) that never confirms itself is reverted to v2 after its trial's reset; the
 /// setting written before (DO0's pulse low width, `setting written and read back`) is intact
 /// after every step.
-async fn updates(report: &mut Report, image: &str, addr: SocketAddr, update: SocketAddr) {
+async fn updates(report: &mut Report, image: &str, addr: SocketAddr, update: SocketAddr, discovery: SocketAddr) {
     let pulse_low = Point::Pulse(PulseField::Low, 0, Word::Low).addr().1;
     let setting_intact = async |when: &str| -> Result<(), String> {
         let mut ctx = connect(addr).await?;
@@ -637,7 +637,15 @@ async fn updates(report: &mut Report, image: &str, addr: SocketAddr, update: Soc
             let text = String::from_utf8_lossy(&out.stdout).into_owned();
             print!("{text}");
             match (text.contains("A100 -> A101"), version(addr).await) {
-                (true, Ok(0xA101)) => setting_intact("after v2").await,
+                (true, Ok(0xA101)) => {
+                    // A search shows the running version too.
+                    let mut buf = [0u8; MAX_DATAGRAM];
+                    let n = encode_request(11, &Request::Search, &mut buf).unwrap_or(0);
+                    match discover(discovery, &buf[..n]).await.map(|reply| decode_info(&reply).map(|i| i.version)) {
+                        Ok(Some(0xA101)) => setting_intact("after v2").await,
+                        other => Err(format!("a search after the update: version {other:?}")),
+                    }
+                }
                 (_, v) => Err(format!("after the update: {text:?}, version {v:?}")),
             }
         }
@@ -645,7 +653,7 @@ async fn updates(report: &mut Report, image: &str, addr: SocketAddr, update: Soc
         Err(e) => Err(format!("cannot run remodaq: {e}")),
     };
     println!("qemu-8350: v1 -> v2 in {:.1} s", started.elapsed().as_secs_f64());
-    report.check("update: v1 -> v2 through the emulated NIC, v2 answers after the reset", v1_to_v2);
+    report.check("update: v1 -> v2 through the emulated NIC, v2 answers (Modbus, search) after the reset", v1_to_v2);
 
     // v3 never confirms: it runs on trial, then the reset reverts to v2.
     let rollback = async {
