@@ -2,8 +2,9 @@
 //! same code serves embassy-net sockets on the target and std sockets on the host.
 //!
 //! Connection policy (spec §1.1): at most [`MAX_CONNECTIONS`] clients are served at once. A
-//! board runs [`SOCKETS`] = `MAX_CONNECTIONS + 1` connection tasks, so a newcomer is always
-//! accepted; when that makes one too many, [`Slots`] closes the connection idle the longest.
+//! board runs [`SOCKETS`] = `MAX_CONNECTIONS + 2` connection tasks, so a newcomer is always
+//! accepted, even one right behind another; when that makes one too many, [`Slots`] closes the
+//! connection idle the longest.
 //! A connection idle for [`IDLE_TIMEOUT`] is closed.
 
 use core::cell::RefCell;
@@ -24,8 +25,10 @@ use super::RegisterMap;
 
 /// Clients served at once.
 pub const MAX_CONNECTIONS: usize = 8;
-/// Connection tasks a board runs: one more than [`MAX_CONNECTIONS`], to accept a newcomer.
-pub const SOCKETS: usize = MAX_CONNECTIONS + 1;
+/// Connection tasks a board runs: two more than [`MAX_CONNECTIONS`], so that while one accepts a
+/// newcomer (and the connection idle the longest is being closed to make room) another still
+/// listens: a TCP stack without a listen backlog (smoltcp) refuses a SYN no socket listens for.
+pub const SOCKETS: usize = MAX_CONNECTIONS + 2;
 /// A connection without a byte received for this long is closed.
 pub const IDLE_TIMEOUT: Duration = Duration::from_secs(300);
 
