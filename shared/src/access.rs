@@ -23,7 +23,10 @@ pub fn decode(r: &RecordReader<'_>) -> AllowList {
 
 /// Whether a Modbus function code writes (05, 06, 15, 16).
 pub fn is_write(function: u8) -> bool {
-    matches!(function, 0x05 | 0x06 | 0x0F | 0x10)
+    use crate::modbus::pdu::{
+        WRITE_MULTIPLE_COILS, WRITE_MULTIPLE_REGISTERS, WRITE_SINGLE_COIL, WRITE_SINGLE_REGISTER,
+    };
+    matches!(function, WRITE_SINGLE_COIL | WRITE_SINGLE_REGISTER | WRITE_MULTIPLE_COILS | WRITE_MULTIPLE_REGISTERS)
 }
 
 /// The rule of extensions §4: a write request from a client outside every listed network

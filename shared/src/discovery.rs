@@ -9,7 +9,7 @@ use embassy_sync::mutex::Mutex;
 use embedded_storage_async::nor_flash::NorFlash;
 
 use crate::access::AllowList;
-use crate::module::{update, CommonSettings, SettingsAccess, Store};
+use crate::module::{commit_change, CommonSettings, SettingsAccess, Store};
 use crate::net::NetConfig;
 use crate::password::{self, Check, Limiter, PasswordHash};
 
@@ -127,11 +127,7 @@ async fn commit<R: RawMutex, A: SettingsAccess, F: NorFlash>(
     store: &Store<F, A::Settings>,
     change: impl FnOnce(&mut A::Settings),
 ) -> Status {
-    let change = |s: &mut A::Settings| {
-        change(s);
-        Ok::<(), ()>(())
-    };
-    match update(map, store, change).await {
+    match commit_change(map, store, change).await {
         Ok(()) => Status::Ok,
         Err(_) => Status::StoreFailed,
     }

@@ -54,8 +54,7 @@ impl<E: Effects> Network for EmbassyNet<E> {
             // flood of connections: a peer that closed gets our FIN (every answer was flushed
             // already), briefly; an evicted, idle or broken connection is reset.
             if ended == Ended::PeerClosed {
-                socket.close();
-                let _ = with_timeout(CLOSE_WAIT, socket.flush()).await;
+                close(&mut socket).await;
             }
             socket.abort();
         }
@@ -98,8 +97,7 @@ impl<E: Effects> Network for EmbassyNet<E> {
             let now_ms = embassy_time::Instant::now().as_millis();
             let from = peer(&socket);
             let outcome = service.session(&mut socket, from, now_ms, map, target).await;
-            socket.close();
-            let _ = with_timeout(CLOSE_WAIT, socket.flush()).await;
+            close(&mut socket).await;
             socket.abort();
             if let Outcome::Updated { .. } = outcome {
                 self.restart().await;
@@ -115,6 +113,12 @@ impl<E: Effects> Network for EmbassyNet<E> {
         self.effects.apply(Effect::Restart).await;
         core::future::pending().await
     }
+}
+
+/// Sends our FIN after the last answer, waiting for it at most [`CLOSE_WAIT`].
+async fn close(socket: &mut TcpSocket<'_>) {
+    socket.close();
+    let _ = with_timeout(CLOSE_WAIT, socket.flush()).await;
 }
 
 /// The client's IPv4 address (0.0.0.0 if unknown).

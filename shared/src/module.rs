@@ -100,3 +100,24 @@ macro_rules! impl_common_settings {
         }
     };
 }
+
+/// [`update`] for a change that cannot refuse: the store's error, if the commit failed.
+pub async fn commit_change<R, A, F>(
+    map: &Mutex<R, A>,
+    store: &Store<F, A::Settings>,
+    change: impl FnOnce(&mut A::Settings),
+) -> Result<(), StoreError>
+where
+    R: RawMutex,
+    A: SettingsAccess,
+    F: NorFlash,
+{
+    let change = |s: &mut A::Settings| {
+        change(s);
+        Ok::<(), core::convert::Infallible>(())
+    };
+    update(map, store, change).await.map_err(|e| match e {
+        UpdateError::Store(e) => e,
+        UpdateError::Refused(never) => match never {},
+    })
+}

@@ -9,6 +9,7 @@ use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::mutex::Mutex;
 use embassy_time::{with_timeout, Duration};
 use embedded_io_async::{Read, Write};
+use embedded_storage_async::nor_flash::NorFlash;
 
 use crate::module::{CommonSettings, SettingsAccess};
 use crate::password::{Check, Limiter, MAX_LEN};
@@ -180,11 +181,7 @@ async fn read_exact<T: Read>(io: &mut T, buf: &mut [u8]) -> Option<()> {
 }
 
 /// The update target of the boards: `embassy-boot`'s updater with this module's public key.
-pub struct BootUpdater<
-    'd,
-    DFU: embedded_storage_async::nor_flash::NorFlash,
-    STATE: embedded_storage_async::nor_flash::NorFlash,
-> {
+pub struct BootUpdater<'d, DFU: NorFlash, STATE: NorFlash> {
     /// The updater over the update and state partitions.
     pub updater: embassy_boot::FirmwareUpdater<'d, DFU, STATE>,
     /// The public key images are signed for.
@@ -193,8 +190,8 @@ pub struct BootUpdater<
 
 impl<DFU, STATE> UpdateTarget for BootUpdater<'_, DFU, STATE>
 where
-    DFU: embedded_storage_async::nor_flash::NorFlash,
-    STATE: embedded_storage_async::nor_flash::NorFlash,
+    DFU: NorFlash,
+    STATE: NorFlash,
 {
     const WRITE_SIZE: usize = DFU::WRITE_SIZE;
 
@@ -238,8 +235,8 @@ pub async fn run<N, A, DFU, STATE>(
 where
     N: crate::board::Network,
     A: SettingsAccess,
-    DFU: embedded_storage_async::nor_flash::NorFlash,
-    STATE: embedded_storage_async::nor_flash::NorFlash,
+    DFU: NorFlash,
+    STATE: NorFlash,
 {
     // The updater's state buffer is STATE::WRITE_SIZE long: at most 32 bytes on the targets.
     const { assert!(STATE::WRITE_SIZE <= 32) };
@@ -259,8 +256,8 @@ where
 async fn confirm<N, DFU, STATE>(net: &N, target: &mut BootUpdater<'_, DFU, STATE>)
 where
     N: crate::board::Network,
-    DFU: embedded_storage_async::nor_flash::NorFlash,
-    STATE: embedded_storage_async::nor_flash::NorFlash,
+    DFU: NorFlash,
+    STATE: NorFlash,
 {
     use embassy_boot::State;
     let state = target.updater.get_state().await;

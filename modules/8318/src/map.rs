@@ -8,8 +8,7 @@ use remodaq_shared::access;
 use remodaq_shared::diagnostics::DIAGNOSTICS;
 use remodaq_shared::identity::FIRMWARE_VERSION;
 use remodaq_shared::modbus::{Access, Exception, RegisterMap, Table, WriteValues};
-use remodaq_shared::module::{update, SettingsAccess, Store, UpdateError};
-use remodaq_shared::settings::StoreError;
+use remodaq_shared::module::{commit_change, SettingsAccess, Store};
 use remodaq_shared::warn;
 
 use crate::acquisition::Snapshot;
@@ -94,12 +93,7 @@ impl<F: NorFlash> RegisterMap for Map8318<'_, F> {
     /// Every writable register is persisted: committed without the map's lock.
     async fn write<R: RawMutex>(map: &Mutex<R, Self>, start: u16, values: &WriteValues<'_>) -> Result<(), Exception> {
         let store = map.lock().await.store;
-        let change = |s: &mut Settings| {
-            written(s, start, values);
-            Ok::<(), StoreError>(())
-        };
-        update(map, store, change).await.map_err(|e| {
-            let (UpdateError::Refused(e) | UpdateError::Store(e)) = e;
+        commit_change(map, store, |s| written(s, start, values)).await.map_err(|e| {
             warn!("8318: settings commit failed: {:?}", e);
             Exception::ServerDeviceFailure
         })

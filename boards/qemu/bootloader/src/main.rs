@@ -75,7 +75,12 @@ mod boot {
     }
 
     fn fail(why: &str) -> ! {
-        cortex_m_semihosting::hprintln!("bootloader: {}", why);
+        stop(format_args!("bootloader: {}", why))
+    }
+
+    /// Prints over semihosting and ends QEMU with a failure.
+    fn stop(message: core::fmt::Arguments<'_>) -> ! {
+        cortex_m_semihosting::hprintln!("{}", message);
         cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_FAILURE);
         loop {
             cortex_m::asm::wfi();
@@ -84,10 +89,6 @@ mod boot {
 
     #[panic_handler]
     fn panic(info: &core::panic::PanicInfo) -> ! {
-        cortex_m_semihosting::hprintln!("bootloader panic: {}", info);
-        cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_FAILURE);
-        loop {
-            cortex_m::asm::wfi();
-        }
+        stop(format_args!("bootloader panic: {}", info))
     }
 }
