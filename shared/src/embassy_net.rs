@@ -1,11 +1,15 @@
 //! The network services on embassy-net sockets, for every board that runs embassy-net (the
 //! STM32 and QEMU boards): the board contract's [`Network`] over a [`Stack`].
 
-use embassy_net::tcp::TcpSocket;
+use core::future::{poll_fn, Future};
+use core::pin::pin;
+
+use embassy_net::tcp::{AcceptError, TcpSocket};
 use embassy_net::udp::{PacketMetadata, UdpSocket};
 use embassy_net::{IpAddress, IpEndpoint, Stack};
 use embassy_time::{with_timeout, Duration, Timer};
 
+use crate::backlog::{Peer, MODBUS_BACKLOG};
 use crate::board::{Effects, ModbusSlots, Network, Shared};
 use crate::discovery::{serve, Datagrams, Effect, Identity, MAX_DATAGRAM, PORT};
 use crate::modbus::server::{serve as serve_modbus, Ended};
@@ -42,7 +46,7 @@ impl<E: Effects> Network for EmbassyNet<E> {
         let mut tx = [0u8; SOCKET_BUF];
         loop {
             let mut socket = TcpSocket::new(self.stack, &mut rx, &mut tx);
-            if let Err(e) = socket.accept(self.port).await {
+            if let Err(e) = accept(&mut socket, self.port).await {
                 warn!("modbus: accept failed: {:?}", e);
                 continue;
             }
@@ -52,11 +56,12 @@ impl<E: Effects> Network for EmbassyNet<E> {
             debug!("modbus: slot {} closed: {:?}", slot, ended);
             // Back to accepting at once, so that a newcomer finds a listening socket even in a
             // flood of connections: a peer that closed gets our FIN (every answer was flushed
-            // already), briefly; an evicted, idle or broken connection is reset.
+            // already), briefly; an evicted, idle or broken connection is reset (the RST is
+            // out within one pass of the network runner).
             if ended == Ended::PeerClosed {
                 close(&mut socket).await;
             }
-            socket.abort();
+            reset(&mut socket).await;
         }
     }
 
@@ -98,7 +103,7 @@ impl<E: Effects> Network for EmbassyNet<E> {
             let from = peer(&socket);
             let outcome = service.session(&mut socket, from, now_ms, map, target).await;
             close(&mut socket).await;
-            socket.abort();
+            reset(&mut socket).await;
             if let Outcome::Updated { .. } = outcome {
                 self.restart().await;
             }
@@ -115,9 +120,46 @@ impl<E: Effects> Network for EmbassyNet<E> {
     }
 }
 
+/// Accepts a connection on the Modbus port through its backlog ([`MODBUS_BACKLOG`]): the gate
+/// learns the socket listens only once it does (the accept's first poll puts it in LISTEN),
+/// and which client it took.
+async fn accept(socket: &mut TcpSocket<'_>, port: u16) -> Result<(), AcceptError> {
+    let mut listening = false;
+    let result = {
+        let mut accepting = pin!(socket.accept(port));
+        poll_fn(|cx| {
+            let poll = accepting.as_mut().poll(cx);
+            if poll.is_pending() && !listening {
+                listening = true;
+                MODBUS_BACKLOG.listening(port);
+            }
+            poll
+        })
+        .await
+    };
+    if listening {
+        let from = match socket.remote_endpoint() {
+            Some(IpEndpoint { addr: IpAddress::Ipv4(ip), port }) if result.is_ok() => {
+                Some(Peer { ip: ip.octets(), port })
+            }
+            _ => None,
+        };
+        MODBUS_BACKLOG.accepted(from);
+    }
+    result
+}
+
 /// Sends our FIN after the last answer, waiting for it at most [`CLOSE_WAIT`].
 async fn close(socket: &mut TcpSocket<'_>) {
     socket.close();
+    let _ = with_timeout(CLOSE_WAIT, socket.flush()).await;
+}
+
+/// Resets the connection (nothing, if it is closed already), and waits, at most
+/// [`CLOSE_WAIT`], for the RST to leave: a socket dropped at once leaves the stack before it
+/// sends it, and its peer learns only from the RST answering its next request.
+async fn reset(socket: &mut TcpSocket<'_>) {
+    socket.abort();
     let _ = with_timeout(CLOSE_WAIT, socket.flush()).await;
 }
 

@@ -9,6 +9,7 @@ extern crate std;
 pub mod fmt;
 
 pub mod access;
+pub mod backlog;
 pub mod board;
 pub mod diagnostics;
 pub mod discovery;

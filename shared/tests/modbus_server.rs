@@ -129,6 +129,26 @@ fn slots_evict_the_longest_idle() {
     assert_eq!(slots.active(), 2);
 }
 
+/// A flood opens connections faster than any clock ticks: the order of opening still decides,
+/// so the newest (the newcomer) is never the one closed, whatever its slot number.
+#[test]
+fn slots_opened_in_one_tick_evict_in_the_order_they_opened() {
+    let slots = Slots::<NoopRawMutex, 10>::new(8);
+    let order = [9, 4, 0, 7, 2, 5, 8, 1];
+    for slot in order {
+        assert_eq!(slots.open(slot), None);
+    }
+    // No time passes: slots 3 and 6 open, each closing the one opened first of the rest.
+    assert_eq!(slots.open(3), Some(9));
+    assert_eq!(slots.open(6), Some(4));
+    // Slot 0 receives a request: 7 is now the one idle longest; the newest, 6, stays.
+    slots.touch(0);
+    assert_eq!(slots.open(9), Some(7));
+    assert_eq!(slots.open(4), Some(2));
+    assert_eq!(slots.open(7), Some(5));
+    assert_eq!(slots.active(), 8);
+}
+
 /// A peer that sends one request and then never reads: every write waits forever.
 struct Stalled(Option<Vec<u8>>);
 

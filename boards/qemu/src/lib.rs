@@ -28,6 +28,7 @@ use cortex_m::peripheral::NVIC;
 use embassy_executor::Spawner;
 use embassy_net::{Ipv4Address, Ipv4Cidr, StackResources, StaticConfigV4};
 use remodaq_lan9118::{Lan9118, Registers};
+use remodaq_shared::backlog::{Backlogged, MODBUS_BACKLOG};
 use remodaq_shared::board::{spawn, Board, Effects};
 use remodaq_shared::discovery::Effect;
 use remodaq_shared::embassy_net::EmbassyNet;
@@ -155,7 +156,12 @@ impl Board for QemuBoard {
             dns_servers: heapless::Vec::new(),
         });
         static RESOURCES: StaticCell<StackResources<STACK_SOCKETS>> = StaticCell::new();
-        let (stack, runner) = embassy_net::new(device, config, RESOURCES.init(StackResources::new()), 0x5EED_8300);
+        let (stack, runner) = embassy_net::new(
+            Backlogged::new(device, &MODBUS_BACKLOG),
+            config,
+            RESOURCES.init(StackResources::new()),
+            0x5EED_8300,
+        );
         spawn(spawner, net_task(runner), "net");
         info!("network: 10.0.2.15/24 (QEMU user network)");
         let running = NetConfig { ip: GUEST_IP, mask: [255, 255, 255, 0], gateway: GATEWAY, port: stored.port };
@@ -193,7 +199,7 @@ const GUEST_IP: [u8; 4] = [10, 0, 2, 15];
 const GATEWAY: [u8; 4] = [10, 0, 2, 2];
 
 #[embassy_executor::task]
-async fn net_task(mut runner: embassy_net::Runner<'static, Device>) -> ! {
+async fn net_task(mut runner: embassy_net::Runner<'static, Backlogged<Device>>) -> ! {
     runner.run().await
 }
 

@@ -25,6 +25,7 @@ use embassy_stm32::{bind_interrupts, eth, flash, peripherals, rng, Config};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Instant, Timer};
+use remodaq_shared::backlog::{Backlogged, MODBUS_BACKLOG};
 use remodaq_shared::board::{spawn, Board, Effects};
 use remodaq_shared::discovery::Effect;
 use remodaq_shared::embassy_net::EmbassyNet;
@@ -293,7 +294,12 @@ impl Board for Stm32Board {
             dns_servers: heapless::Vec::new(),
         });
         static RESOURCES: StaticCell<StackResources<STACK_SOCKETS>> = StaticCell::new();
-        let (stack, runner) = embassy_net::new(eth, config, RESOURCES.init(StackResources::new()), seed);
+        let (stack, runner) = embassy_net::new(
+            Backlogged::new(eth, &MODBUS_BACKLOG),
+            config,
+            RESOURCES.init(StackResources::new()),
+            seed,
+        );
         spawn(spawner, net_task(runner), "net");
         spawn(spawner, identify_task(led), "identify");
         info!("network: {}.{}.{}.{}/{} port {}", net.ip[0], net.ip[1], net.ip[2], net.ip[3], prefix, net.port);
@@ -324,7 +330,7 @@ impl Effects for Stm32Effects {
 }
 
 #[embassy_executor::task]
-async fn net_task(mut runner: embassy_net::Runner<'static, Device>) -> ! {
+async fn net_task(mut runner: embassy_net::Runner<'static, Backlogged<Device>>) -> ! {
     // The network beats while its task runs and the Ethernet DMA has not stopped on a fatal
     // bus error (ETH_DMASR FBES, RM0090 §33.8.2: the DMA then stops until reset), so a wedged
     // MAC ends in a watchdog reset instead of a module that never answers again.

@@ -14,7 +14,7 @@ use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::blocking_mutex::Mutex as BlockingMutex;
 use embassy_sync::mutex::Mutex;
 use embassy_sync::signal::Signal;
-use embassy_time::{with_timeout, Duration, Instant};
+use embassy_time::{with_timeout, Duration};
 use embedded_io_async::{Read, Write};
 
 use core::future::Future;
@@ -54,7 +54,11 @@ pub enum Ended {
 /// Book-keeping of the connection tasks: which are serving a client, since when idle, and a
 /// signal to close each one.
 pub struct Slots<R: RawMutex, const N: usize> {
-    last_activity: BlockingMutex<R, RefCell<[Option<Instant>; N]>>,
+    /// For each slot serving a client, when it was last active, as a count of activity events
+    /// (opens and received data) of all slots: the order of events is exact where a clock tick
+    /// (1 ms on the QEMU board) would tie connections opened together in a flood, and a tie
+    /// could close the newcomer instead of the one idle longest.
+    last_activity: BlockingMutex<R, RefCell<([Option<u64>; N], u64)>>,
     evict: [Signal<R, ()>; N],
     max_active: usize,
 }
@@ -63,7 +67,7 @@ impl<R: RawMutex, const N: usize> Slots<R, N> {
     /// `N` connection tasks of which at most `max_active` may serve a client at once.
     pub const fn new(max_active: usize) -> Self {
         Self {
-            last_activity: BlockingMutex::new(RefCell::new([None; N])),
+            last_activity: BlockingMutex::new(RefCell::new(([None; N], 0))),
             evict: [const { Signal::new() }; N],
             max_active,
         }
@@ -73,8 +77,9 @@ impl<R: RawMutex, const N: usize> Slots<R, N> {
     pub fn open(&self, slot: usize) -> Option<usize> {
         self.evict[slot].reset();
         self.last_activity.lock(|cell| {
-            let mut slots = cell.borrow_mut();
-            slots[slot] = Some(Instant::now());
+            let (slots, events) = &mut *cell.borrow_mut();
+            *events += 1;
+            slots[slot] = Some(*events);
             let active = slots.iter().filter(|s| s.is_some()).count();
             if active <= self.max_active {
                 return None;
@@ -95,20 +100,22 @@ impl<R: RawMutex, const N: usize> Slots<R, N> {
     /// Records traffic on `slot`.
     pub fn touch(&self, slot: usize) {
         self.last_activity.lock(|cell| {
-            if let Some(t) = cell.borrow_mut()[slot].as_mut() {
-                *t = Instant::now();
+            let (slots, events) = &mut *cell.borrow_mut();
+            if let Some(t) = slots[slot].as_mut() {
+                *events += 1;
+                *t = *events;
             }
         });
     }
 
     /// Marks `slot` free.
     pub fn close(&self, slot: usize) {
-        self.last_activity.lock(|cell| cell.borrow_mut()[slot] = None);
+        self.last_activity.lock(|cell| cell.borrow_mut().0[slot] = None);
     }
 
     /// Number of slots serving a client.
     pub fn active(&self) -> usize {
-        self.last_activity.lock(|cell| cell.borrow().iter().filter(|s| s.is_some()).count())
+        self.last_activity.lock(|cell| cell.borrow().0.iter().filter(|s| s.is_some()).count())
     }
 }
 

@@ -76,7 +76,7 @@ impl Ports {
     /// QEMU's user network with these forwards.
     fn nic(&self) -> String {
         let mut nic = format!(
-            "user,model=lan9118,hostfwd=tcp:127.0.0.1:{}-:8000,hostfwd=udp:127.0.0.1:{}-:8300,hostfwd=tcp:127.0.0.1:{}-:8301",
+            "user,id=nic0,model=lan9118,hostfwd=tcp:127.0.0.1:{}-:8000,hostfwd=udp:127.0.0.1:{}-:8300,hostfwd=tcp:127.0.0.1:{}-:8301",
             self.modbus, self.udp, self.update
         );
         for port in &self.flood {
@@ -91,18 +91,23 @@ impl Ports {
 fn start_qemu(image: &str, ports: &Ports) -> Result<Qemu, String> {
     let log = std::fs::File::create(format!("{image}.qemu.log")).map_err(|e| e.to_string())?;
     let bootloader = std::path::Path::new(image).with_file_name("remodaq-qemu-bootloader");
-    let child = Command::new("qemu-system-arm")
-        .args(["-M", "mps2-an386", "-nographic", "-monitor", "none", "-serial", "null"])
-        .args(["-semihosting-config", "enable=on,target=native"])
-        .args(["-nic", &ports.nic()])
-        .arg("-kernel")
-        .arg(&bootloader)
-        .args(["-device", &format!("loader,file={image}.bin,addr=0x300000")])
-        .stdin(Stdio::null())
-        .stdout(log.try_clone().map_err(|e| e.to_string())?)
-        .stderr(log)
-        .spawn()
-        .map_err(|e| format!("cannot start qemu-system-arm: {e}"))?;
+    let child =
+        Command::new("qemu-system-arm")
+            .args(["-M", "mps2-an386", "-nographic", "-monitor", "none", "-serial", "null"])
+            .args(["-semihosting-config", "enable=on,target=native"])
+            .args(["-nic", &ports.nic()])
+            // A packet capture of the emulated NIC, for diagnosis: REMODAQ_QEMU_PCAP=FILE.
+            .args(std::env::var("REMODAQ_QEMU_PCAP").map_or(vec![], |file| {
+                vec!["-object".to_string(), format!("filter-dump,id=dump,netdev=nic0,file={file}")]
+            }))
+            .arg("-kernel")
+            .arg(&bootloader)
+            .args(["-device", &format!("loader,file={image}.bin,addr=0x300000")])
+            .stdin(Stdio::null())
+            .stdout(log.try_clone().map_err(|e| e.to_string())?)
+            .stderr(log)
+            .spawn()
+            .map_err(|e| format!("cannot start qemu-system-arm: {e}"))?;
     Ok(Qemu(child))
 }
 
@@ -415,8 +420,8 @@ async fn newcomer(ports: &Ports, limit: Duration) -> Result<Duration, String> {
     }
     let started = Instant::now();
     let answer = async {
-        let mut ctx = connect(ports.modbus()).await?;
-        regs(&mut ctx, REG_NAME, 1).await
+        let mut ctx = connect(ports.modbus()).await.map_err(|e| format!("connect: {e}"))?;
+        regs(&mut ctx, REG_NAME, 1).await.map_err(|e| format!("read after {:?}: {e}", started.elapsed()))
     };
     let name = answer.await.map_err(|e| format!("the newcomer was not answered: {e}"))?;
     let took = started.elapsed();
@@ -566,7 +571,10 @@ async fn run(model: &str, image: &str) -> Report {
     drop(ctx);
     report.check("8 clients at once", eight_clients(addr, name).await);
     report.check("pipelined burst of 10 within 3x one request", pipelining(addr, 3.0).await.map(|_| ()));
-    report.check("newcomer answered during a 64-connection flood", newcomer(&ports, Duration::from_secs(10)).await.map(|_| ()));
+    report.check(
+        "newcomer answered during a 64-connection flood",
+        newcomer(&ports, Duration::from_secs(10)).await.map(|_| ()),
+    );
     // The flood's last connections reach the guest (and are evicted or closed) for a while
     // after the newcomer's answer: let them drain before the next check.
     sleep(Duration::from_secs(3)).await;

@@ -1,0 +1,638 @@
+//! A listen backlog for the Modbus/TCP port, for a TCP stack that has none (smoltcp).
+//!
+//! smoltcp gives each connection a socket of its own and answers a SYN that finds no socket
+//! listening with a RST. Under a flood (64 clients connecting at once, spec §1.1's newcomer
+//! behind them), the connection tasks' listening sockets are taken by the flood's first SYNs
+//! within microseconds, and every later SYN, the newcomer's among them, is refused before an
+//! evicted task can listen again. A capture under QEMU showed exactly that: 65 SYNs in 1.4 ms,
+//! 9 SYN-ACKs, 56 RSTs.
+//!
+//! The backlog sits between the Ethernet driver and the stack ([`Backlogged`], one wrapper for
+//! every board's driver). A SYN for the Modbus port goes through to the stack only while a
+//! connection task is listening for it; otherwise the frame is held (up to [`HELD`], in
+//! arrival order) and given to the stack as soon as a task listens again, so each newcomer is
+//! accepted, and spec §1.1's eviction (the connection idle longest) makes room, as a backlog on
+//! a desktop TCP stack would. The tasks say when they listen and when they have accepted
+//! ([`SynGate::listening`], [`SynGate::accepted`]); the gate counts the SYNs it let through
+//! whose handshakes are under way, so it never lets through more than the tasks can take.
+//!
+//! Bounds: a held SYN older than [`HOLD_MS`] is dropped (its client sends it again after its
+//! retransmission timeout, 1 s on Linux and Windows); when the backlog is full the oldest held
+//! SYN is dropped for the new one (a newcomer is never the one refused); a SYN let through
+//! whose handshake has not completed after [`HANDSHAKE_MS`] no longer counts (the client gave
+//! up: smoltcp puts that socket back to listening).
+
+use core::cell::RefCell;
+use core::task::{Context, Waker};
+
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::blocking_mutex::Mutex;
+use heapless::{Deque, Vec};
+
+use crate::modbus::server::SOCKETS;
+
+/// SYN frames held at most.
+pub const HELD: usize = 64;
+/// The longest SYN frame held: Ethernet (14) + IPv4 without options (20) + TCP with the full 40
+/// bytes of options (60). A longer one (IP options) goes to the stack at once.
+pub const MAX_SYN_FRAME: usize = 94;
+/// A held SYN is dropped after this long (ms).
+pub const HOLD_MS: u64 = 1000;
+/// A SYN let through counts against the listening tasks for at most this long (ms).
+pub const HANDSHAKE_MS: u64 = 500;
+
+/// A TCP client: IPv4 address and port.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Peer {
+    /// IPv4 address.
+    pub ip: [u8; 4],
+    /// TCP port.
+    pub port: u16,
+}
+
+/// The client of `frame` if it is an Ethernet II frame carrying an IPv4 TCP segment to
+/// `port` with SYN set and ACK clear (a connection request, RFC 9293 §3.5); `None` for
+/// anything else, a fragment or a truncated frame included.
+pub fn syn_to(frame: &[u8], port: u16) -> Option<Peer> {
+    // Ethernet II: destination (6), source (6), EtherType (2) = 0x0800 IPv4.
+    let ip = frame.get(14..).filter(|_| frame.get(12..14) == Some(&[0x08, 0x00]))?;
+    // IPv4 (RFC 791): version 4, IHL in 32-bit words (at least 5), protocol 6 = TCP, and not
+    // a fragment past the first (fragment offset 0; a first fragment with MF is not a whole
+    // segment either).
+    let (&version_ihl, _) = ip.split_first()?;
+    let ihl = usize::from(version_ihl & 0x0F) * 4;
+    if version_ihl >> 4 != 4 || ihl < 20 || *ip.get(9)? != 6 {
+        return None;
+    }
+    let flags_offset = u16::from_be_bytes([*ip.get(6)?, *ip.get(7)?]);
+    if flags_offset & 0x3FFF != 0 {
+        return None;
+    }
+    let source = [*ip.get(12)?, *ip.get(13)?, *ip.get(14)?, *ip.get(15)?];
+    // TCP (RFC 9293 §3.1): source port, destination port, ..., flags at byte 13.
+    let tcp = ip.get(ihl..)?;
+    let source_port = u16::from_be_bytes([*tcp.first()?, *tcp.get(1)?]);
+    let destination_port = u16::from_be_bytes([*tcp.get(2)?, *tcp.get(3)?]);
+    let flags = *tcp.get(13)?;
+    const SYN: u8 = 0x02;
+    const RST: u8 = 0x04;
+    const ACK: u8 = 0x10;
+    (destination_port == port && flags & (SYN | ACK | RST) == SYN).then_some(Peer { ip: source, port: source_port })
+}
+
+/// What becomes of a received frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Verdict {
+    /// To the stack now.
+    Pass,
+    /// Kept in the backlog (or dropped: a repeat of a SYN already held); the stack gets nothing.
+    Hold,
+}
+
+struct HeldSyn {
+    peer: Peer,
+    at_ms: u64,
+    len: usize,
+    frame: [u8; MAX_SYN_FRAME],
+}
+
+/// The backlog's state: plain logic over a millisecond clock the caller passes in.
+pub struct Backlog {
+    port: u16,
+    /// Connection tasks listening on `port` (or in a handshake they have not finished).
+    accepting: usize,
+    /// SYNs let through whose handshakes are under way, and when.
+    in_flight: Vec<(Peer, u64), SOCKETS>,
+    held: Deque<HeldSyn, HELD>,
+}
+
+impl Default for Backlog {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Backlog {
+    /// Empty, no task listening.
+    pub const fn new() -> Self {
+        Self { port: 0, accepting: 0, in_flight: Vec::new(), held: Deque::new() }
+    }
+
+    /// SYN frames held now.
+    pub fn held(&self) -> usize {
+        self.held.len()
+    }
+
+    /// Listening tasks not yet promised to a SYN.
+    fn free(&self) -> usize {
+        self.accepting.saturating_sub(self.in_flight.len())
+    }
+
+    fn expire(&mut self, now_ms: u64) {
+        self.in_flight.retain(|&(_, at)| now_ms.saturating_sub(at) < HANDSHAKE_MS);
+        while self.held.front().is_some_and(|h| now_ms.saturating_sub(h.at_ms) >= HOLD_MS) {
+            self.held.pop_front();
+        }
+    }
+
+    /// A connection task listens on `port`.
+    pub fn listening(&mut self, port: u16) {
+        self.port = port;
+        self.accepting += 1;
+    }
+
+    /// A connection task's accept ended: with a connection from `peer`, or without (an
+    /// error, `None`).
+    pub fn accepted(&mut self, peer: Option<Peer>) {
+        self.accepting = self.accepting.saturating_sub(1);
+        if let Some(i) = peer.and_then(|peer| self.in_flight.iter().position(|&(p, _)| p == peer)) {
+            self.in_flight.swap_remove(i);
+        }
+    }
+
+    /// A frame from the wire at `now_ms`: to the stack, or held.
+    pub fn arrive(&mut self, frame: &[u8], now_ms: u64) -> Verdict {
+        let Some(peer) = syn_to(frame, self.port).filter(|_| self.port != 0) else { return Verdict::Pass };
+        self.expire(now_ms);
+        // A SYN sent again while its handshake is under way: the stack answers it.
+        if self.in_flight.iter().any(|&(p, _)| p == peer) {
+            return Verdict::Pass;
+        }
+        if self.held.is_empty() && self.free() > 0 {
+            // `free() > 0` means fewer entries than listening tasks, at most SOCKETS.
+            let _ = self.in_flight.push((peer, now_ms));
+            return Verdict::Pass;
+        }
+        if self.held.iter().any(|h| h.peer == peer) {
+            return Verdict::Hold;
+        }
+        let Some(bytes) = frame.get(..MAX_SYN_FRAME.min(frame.len())).filter(|b| b.len() == frame.len()) else {
+            return Verdict::Pass;
+        };
+        if self.held.is_full() {
+            self.held.pop_front();
+        }
+        let mut held = HeldSyn { peer, at_ms: now_ms, len: bytes.len(), frame: [0; MAX_SYN_FRAME] };
+        held.frame[..bytes.len()].copy_from_slice(bytes);
+        let _ = self.held.push_back(held);
+        Verdict::Hold
+    }
+
+    /// Whether a SYN is held and a task listens for it now.
+    pub fn ready(&mut self, now_ms: u64) -> bool {
+        if self.held.is_empty() {
+            return false;
+        }
+        self.expire(now_ms);
+        !self.held.is_empty() && self.free() > 0
+    }
+
+    /// The oldest held SYN, copied into `out`, if a task listens for it now: its length.
+    pub fn release(&mut self, now_ms: u64, out: &mut [u8; MAX_SYN_FRAME]) -> Option<usize> {
+        if !self.ready(now_ms) {
+            return None;
+        }
+        let held = self.held.pop_front()?;
+        let _ = self.in_flight.push((held.peer, now_ms));
+        out[..held.len].copy_from_slice(&held.frame[..held.len]);
+        Some(held.len)
+    }
+}
+
+/// The backlog shared by the network runner (through [`Backlogged`]) and the connection tasks.
+pub struct SynGate {
+    state: Mutex<CriticalSectionRawMutex, RefCell<(Backlog, Option<Waker>)>>,
+}
+
+impl Default for SynGate {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// The Modbus port's backlog on the boards that run embassy-net.
+pub static MODBUS_BACKLOG: SynGate = SynGate::new();
+
+impl SynGate {
+    /// Empty.
+    pub const fn new() -> Self {
+        Self { state: Mutex::new(RefCell::new((Backlog::new(), None))) }
+    }
+
+    fn with<T>(&self, f: impl FnOnce(&mut Backlog, &mut Option<Waker>) -> T) -> T {
+        self.state.lock(|cell| {
+            let mut state = cell.borrow_mut();
+            let (backlog, waker) = &mut *state;
+            f(backlog, waker)
+        })
+    }
+
+    /// A connection task listens on `port` (its socket already in LISTEN): a held SYN may go
+    /// to the stack now, so the network runner is woken.
+    pub fn listening(&self, port: u16) {
+        let waker = self.with(|backlog, waker| {
+            backlog.listening(port);
+            if backlog.held() > 0 {
+                waker.take()
+            } else {
+                None
+            }
+        });
+        if let Some(waker) = waker {
+            waker.wake();
+        }
+    }
+
+    /// A connection task's accept ended, with a connection from `peer` or without.
+    pub fn accepted(&self, peer: Option<Peer>) {
+        self.with(|backlog, _| backlog.accepted(peer));
+    }
+
+    fn arrive(&self, frame: &[u8], now_ms: u64) -> Verdict {
+        self.with(|backlog, _| backlog.arrive(frame, now_ms))
+    }
+
+    /// Whether a held SYN can go to the stack now; if one is held but no task listens, the
+    /// runner's waker is kept for when one does.
+    fn ready(&self, now_ms: u64, cx: &Context<'_>) -> bool {
+        self.with(|backlog, waker| {
+            let ready = backlog.ready(now_ms);
+            if !ready && backlog.held() > 0 {
+                *waker = Some(cx.waker().clone());
+            }
+            ready
+        })
+    }
+
+    fn release(&self, now_ms: u64, out: &mut [u8; MAX_SYN_FRAME]) -> Option<usize> {
+        self.with(|backlog, _| backlog.release(now_ms, out))
+    }
+}
+
+pub use driver::{Backlogged, Rx};
+
+mod driver {
+    use core::task::Context;
+
+    use embassy_net_driver::{Capabilities, Driver, HardwareAddress, LinkState, RxToken};
+
+    use super::{SynGate, Verdict, MAX_SYN_FRAME};
+
+    fn now_ms() -> u64 {
+        embassy_time::Instant::now().as_millis()
+    }
+
+    /// A board's Ethernet driver behind the Modbus port's backlog: every received frame is
+    /// seen by the gate first; a held SYN reaches the stack later, from the gate's copy.
+    pub struct Backlogged<D> {
+        inner: D,
+        gate: &'static SynGate,
+        released: [u8; MAX_SYN_FRAME],
+    }
+
+    impl<D: Driver> Backlogged<D> {
+        /// `inner` behind `gate`.
+        pub fn new(inner: D, gate: &'static SynGate) -> Self {
+            Self { inner, gate, released: [0; MAX_SYN_FRAME] }
+        }
+    }
+
+    /// A received frame: the driver's own (the gate looks at it as the stack takes it), or a
+    /// held SYN the gate released.
+    pub enum Rx<'a, T> {
+        /// From the driver.
+        Wire(T, &'static SynGate),
+        /// A released SYN.
+        Released(&'a mut [u8]),
+    }
+
+    impl<T: RxToken> RxToken for Rx<'_, T> {
+        fn consume<R, F: FnOnce(&mut [u8]) -> R>(self, f: F) -> R {
+            match self {
+                Rx::Wire(token, gate) => token.consume(|frame| match gate.arrive(frame, now_ms()) {
+                    Verdict::Pass => f(frame),
+                    // The stack drops an empty frame (too short for Ethernet) without a word.
+                    Verdict::Hold => f(&mut []),
+                }),
+                Rx::Released(frame) => f(frame),
+            }
+        }
+    }
+
+    impl<D: Driver> Driver for Backlogged<D> {
+        type RxToken<'a>
+            = Rx<'a, D::RxToken<'a>>
+        where
+            Self: 'a;
+        type TxToken<'a>
+            = D::TxToken<'a>
+        where
+            Self: 'a;
+
+        fn receive(&mut self, cx: &mut Context) -> Option<(Self::RxToken<'_>, Self::TxToken<'_>)> {
+            // Held SYNs first, in order, whenever a task listens for them (and the driver can
+            // send the answer).
+            let now = now_ms();
+            if self.gate.ready(now, cx) {
+                // The answer needs a transmit buffer: without one, the SYN stays held (the driver
+                // wakes the runner when one frees).
+                let tx = self.inner.transmit(cx)?;
+                if let Some(len) = self.gate.release(now, &mut self.released) {
+                    return Some((Rx::Released(&mut self.released[..len]), tx));
+                }
+                return None;
+            }
+            let (rx, tx) = self.inner.receive(cx)?;
+            Some((Rx::Wire(rx, self.gate), tx))
+        }
+
+        fn transmit(&mut self, cx: &mut Context) -> Option<Self::TxToken<'_>> {
+            self.inner.transmit(cx)
+        }
+
+        fn link_state(&mut self, cx: &mut Context) -> LinkState {
+            self.inner.link_state(cx)
+        }
+
+        fn capabilities(&self) -> Capabilities {
+            self.inner.capabilities()
+        }
+
+        fn hardware_address(&self) -> HardwareAddress {
+            self.inner.hardware_address()
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::vec::Vec as StdVec;
+
+    const PORT: u16 = 8000;
+
+    /// An Ethernet II frame with an IPv4 header (no options) and a TCP header with `options`
+    /// bytes of options, from 10.0.2.2:`from` to 10.0.2.15:`to`, with TCP `flags`. Laid out by
+    /// hand from RFC 791 §3.1 and RFC 9293 §3.1 (checksums left 0: the backlog reads none).
+    fn segment(from: u16, to: u16, flags: u8, options: usize) -> StdVec<u8> {
+        let tcp_len = 20 + options;
+        let total = 20 + tcp_len;
+        let mut f = StdVec::new();
+        f.extend_from_slice(&[0x02, 0, 0, 0, 0, 0x15, 0x52, 0x55, 10, 0, 2, 2, 0x08, 0x00]);
+        f.extend_from_slice(&[0x45, 0, (total >> 8) as u8, total as u8, 0, 1, 0x40, 0, 64, 6, 0, 0]);
+        f.extend_from_slice(&[10, 0, 2, 2, 10, 0, 2, 15]);
+        f.extend_from_slice(&from.to_be_bytes());
+        f.extend_from_slice(&to.to_be_bytes());
+        f.extend_from_slice(&[0, 0, 0, 1, 0, 0, 0, 0, ((tcp_len / 4) << 4) as u8, flags, 0xFA, 0xF0, 0, 0, 0, 0]);
+        f.resize(14 + total, 1); // option bytes: NOP (1)
+        f
+    }
+
+    const SYN: u8 = 0x02;
+
+    fn syn(from: u16) -> StdVec<u8> {
+        segment(from, PORT, SYN, 20)
+    }
+
+    fn peer(port: u16) -> Peer {
+        Peer { ip: [10, 0, 2, 2], port }
+    }
+
+    #[test]
+    fn recognises_only_a_connection_request_to_the_port() {
+        assert_eq!(syn_to(&syn(40000), PORT), Some(peer(40000)));
+        assert_eq!(syn_to(&segment(40000, PORT, SYN, 0), PORT), Some(peer(40000)));
+        // SYN-ACK, ACK, RST+SYN, FIN, another port: not a request to the Modbus port.
+        for flags in [0x12, 0x10, 0x06, 0x01, 0x18] {
+            assert_eq!(syn_to(&segment(40000, PORT, flags, 0), PORT), None, "flags {flags:02x}");
+        }
+        assert_eq!(syn_to(&segment(40000, 8301, SYN, 0), PORT), None);
+        // UDP (protocol 17), IPv6 EtherType, IPv4 with version 6, a later fragment.
+        let mut udp = syn(40000);
+        udp[14 + 9] = 17;
+        assert_eq!(syn_to(&udp, PORT), None);
+        let mut v6 = syn(40000);
+        v6[12..14].copy_from_slice(&[0x86, 0xDD]);
+        assert_eq!(syn_to(&v6, PORT), None);
+        let mut bad_version = syn(40000);
+        bad_version[14] = 0x65;
+        assert_eq!(syn_to(&bad_version, PORT), None);
+        let mut fragment = syn(40000);
+        fragment[14 + 6..14 + 8].copy_from_slice(&[0x20, 0x00]); // more fragments
+        assert_eq!(syn_to(&fragment, PORT), None);
+    }
+
+    #[test]
+    fn an_ip_header_with_options_moves_the_tcp_header() {
+        // IHL 6: four option bytes (NOP x4) before TCP.
+        let plain = segment(40001, PORT, SYN, 0);
+        let mut f = plain[..34].to_vec();
+        f[14] = 0x46;
+        f.extend_from_slice(&[1, 1, 1, 1]);
+        f.extend_from_slice(&plain[34..]);
+        assert_eq!(syn_to(&f, PORT), Some(peer(40001)));
+    }
+
+    #[test]
+    fn a_truncated_frame_is_never_a_request_and_never_panics() {
+        let f = syn(40000);
+        for len in 0..f.len() {
+            // The TCP flags are at byte 14 + 20 + 13 = 47: anything shorter is not a SYN.
+            let expected = if len > 47 { Some(peer(40000)) } else { None };
+            assert_eq!(syn_to(&f[..len], PORT), expected, "length {len}");
+            let mut b = Backlog::new();
+            b.listening(PORT);
+            let _ = b.arrive(&f[..len], 0);
+        }
+    }
+
+    #[test]
+    fn a_syn_passes_while_a_task_listens_and_is_held_after() {
+        let mut b = Backlog::new();
+        // No task has listened yet: the port is unknown, everything passes.
+        assert_eq!(b.arrive(&syn(1), 0), Verdict::Pass);
+        b.listening(PORT);
+        b.listening(PORT);
+        assert_eq!(b.arrive(&syn(2), 0), Verdict::Pass);
+        assert_eq!(b.arrive(&syn(3), 0), Verdict::Pass);
+        assert_eq!(b.arrive(&syn(4), 0), Verdict::Hold);
+        assert_eq!(b.arrive(&syn(5), 0), Verdict::Hold);
+        // Other traffic is never held.
+        assert_eq!(b.arrive(&segment(2, PORT, 0x10, 0), 0), Verdict::Pass);
+        assert_eq!(b.held(), 2);
+        // A SYN sent again during its handshake goes to the stack (which answers it again).
+        assert_eq!(b.arrive(&syn(2), 1), Verdict::Pass);
+        // A SYN already held, sent again: still one held.
+        assert_eq!(b.arrive(&syn(4), 1), Verdict::Hold);
+        assert_eq!(b.held(), 2);
+    }
+
+    #[test]
+    fn held_syns_go_in_arrival_order_as_tasks_listen_again() {
+        let mut b = Backlog::new();
+        b.listening(PORT);
+        assert_eq!(b.arrive(&syn(10), 0), Verdict::Pass);
+        for port in 11..15 {
+            assert_eq!(b.arrive(&syn(port), 0), Verdict::Hold);
+        }
+        let mut out = [0u8; MAX_SYN_FRAME];
+        assert_eq!(b.release(1, &mut out), None, "the one task is in a handshake");
+        // Its handshake completes; it accepts, then listens again (an evicted task as well).
+        b.accepted(Some(peer(10)));
+        assert_eq!(b.release(1, &mut out), None, "no task listens");
+        b.listening(PORT);
+        b.listening(PORT);
+        for expected in [11, 12] {
+            let len = b.release(2, &mut out).expect("a task listens");
+            assert_eq!(&out[..len], &syn(expected)[..]);
+        }
+        assert_eq!(b.release(2, &mut out), None, "both tasks are promised");
+        // A SYN arriving now queues behind the held ones even when a task listens.
+        b.accepted(Some(peer(11)));
+        b.listening(PORT);
+        assert_eq!(b.arrive(&syn(15), 3), Verdict::Hold);
+        let len = b.release(3, &mut out).expect("a task listens");
+        assert_eq!(&out[..len], &syn(13)[..]);
+    }
+
+    #[test]
+    fn a_full_backlog_drops_its_oldest_syn_for_the_newcomer() {
+        let mut b = Backlog::new();
+        b.listening(PORT);
+        assert_eq!(b.arrive(&syn(100), 0), Verdict::Pass);
+        for i in 0..HELD as u16 + 1 {
+            assert_eq!(b.arrive(&syn(200 + i), 0), Verdict::Hold);
+        }
+        assert_eq!(b.held(), HELD);
+        b.accepted(Some(peer(100)));
+        b.listening(PORT);
+        let mut out = [0u8; MAX_SYN_FRAME];
+        let len = b.release(0, &mut out).expect("a task listens");
+        assert_eq!(&out[..len], &syn(201)[..], "the oldest (200) was dropped");
+        // The newcomer, last in, is still there.
+        let mut last = None;
+        for _ in 0..HELD {
+            b.accepted(None);
+            b.listening(PORT);
+            b.in_flight.clear();
+            if let Some(len) = b.release(0, &mut out) {
+                last = Some(out[..len].to_vec());
+            }
+        }
+        assert_eq!(last, Some(syn(200 + HELD as u16)));
+    }
+
+    #[test]
+    fn old_syns_and_stalled_handshakes_expire() {
+        let mut b = Backlog::new();
+        b.listening(PORT);
+        assert_eq!(b.arrive(&syn(1), 0), Verdict::Pass);
+        assert_eq!(b.arrive(&syn(2), 0), Verdict::Hold);
+        assert_eq!(b.arrive(&syn(3), 400), Verdict::Hold);
+        let mut out = [0u8; MAX_SYN_FRAME];
+        assert_eq!(b.release(HANDSHAKE_MS - 1, &mut out), None);
+        // The first handshake never completed (the client gave up): the task listens again
+        // (smoltcp puts its socket back in LISTEN), and after HANDSHAKE_MS the backlog knows.
+        assert_eq!(b.release(HOLD_MS, &mut out), Some(syn(3).len()));
+        assert_eq!(&out[..syn(3).len()], &syn(3)[..], "SYN 2 was held for HOLD_MS and dropped");
+        assert_eq!(b.held(), 0);
+    }
+
+    #[test]
+    fn a_syn_too_long_to_hold_goes_to_the_stack() {
+        let mut b = Backlog::new();
+        b.listening(PORT);
+        assert_eq!(b.arrive(&syn(1), 0), Verdict::Pass);
+        // The longest TCP header (60 bytes) is held; a frame longer than that (here TCP
+        // options beyond the limit, as IP options would make it) goes to the stack.
+        let longest = segment(2, PORT, SYN, 40);
+        assert_eq!(longest.len(), MAX_SYN_FRAME);
+        assert_eq!(b.arrive(&longest, 0), Verdict::Hold);
+        assert_eq!(b.arrive(&segment(3, PORT, SYN, 44), 0), Verdict::Pass);
+        assert_eq!(b.held(), 1);
+    }
+
+    /// A fake driver: frames to receive, and the frames the stack sent.
+    struct Wire {
+        inbox: std::collections::VecDeque<StdVec<u8>>,
+    }
+
+    struct FakeRx(StdVec<u8>);
+    struct FakeTx;
+
+    impl RxToken for FakeRx {
+        fn consume<R, F: FnOnce(&mut [u8]) -> R>(mut self, f: F) -> R {
+            f(&mut self.0)
+        }
+    }
+
+    impl embassy_net_driver::TxToken for FakeTx {
+        fn consume<R, F: FnOnce(&mut [u8]) -> R>(self, len: usize, f: F) -> R {
+            f(&mut std::vec![0; len])
+        }
+    }
+
+    use embassy_net_driver::{Capabilities, Driver, HardwareAddress, LinkState, RxToken};
+
+    impl Driver for Wire {
+        type RxToken<'a> = FakeRx;
+        type TxToken<'a> = FakeTx;
+        fn receive(&mut self, _: &mut Context) -> Option<(FakeRx, FakeTx)> {
+            self.inbox.pop_front().map(|f| (FakeRx(f), FakeTx))
+        }
+        fn transmit(&mut self, _: &mut Context) -> Option<FakeTx> {
+            Some(FakeTx)
+        }
+        fn link_state(&mut self, _: &mut Context) -> LinkState {
+            LinkState::Up
+        }
+        fn capabilities(&self) -> Capabilities {
+            Capabilities::default()
+        }
+        fn hardware_address(&self) -> HardwareAddress {
+            HardwareAddress::Ethernet([2, 0, 0, 0, 0, 0x15])
+        }
+    }
+
+    /// What the stack would see: the frames it gets from the driver, in order.
+    fn drain(driver: &mut Backlogged<Wire>, cx: &mut Context) -> StdVec<StdVec<u8>> {
+        let mut seen = StdVec::new();
+        while let Some((rx, _tx)) = driver.receive(cx) {
+            rx.consume(|frame| seen.push(frame.to_vec()));
+        }
+        seen
+    }
+
+    #[test]
+    fn the_driver_wrapper_holds_and_releases_syns_and_wakes_the_runner() {
+        use std::sync::atomic::{AtomicUsize, Ordering};
+        use std::sync::Arc;
+        use std::task::Wake;
+        struct Count(AtomicUsize);
+        impl Wake for Count {
+            fn wake(self: Arc<Self>) {
+                self.0.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+        static GATE: SynGate = SynGate::new();
+        let count = Arc::new(Count(AtomicUsize::new(0)));
+        let waker = Waker::from(count.clone());
+        let mut cx = Context::from_waker(&waker);
+        let ack = segment(9, PORT, 0x10, 0);
+        let mut driver =
+            Backlogged::new(Wire { inbox: [syn(1), syn(2), ack.clone(), syn(3)].into_iter().collect() }, &GATE);
+        GATE.listening(PORT);
+        // The stack sees the first SYN and the ACK; the other SYNs reach it as empty frames.
+        assert_eq!(drain(&mut driver, &mut cx), [syn(1), StdVec::new(), ack, StdVec::new()]);
+        assert_eq!(count.0.load(Ordering::Relaxed), 0);
+        // A task accepts the first and another listens: the runner is woken, gets SYN 2 only.
+        GATE.accepted(Some(peer(1)));
+        GATE.listening(PORT);
+        assert_eq!(count.0.load(Ordering::Relaxed), 1);
+        assert_eq!(drain(&mut driver, &mut cx), [syn(2)]);
+        GATE.accepted(Some(peer(2)));
+        GATE.listening(PORT);
+        assert_eq!(count.0.load(Ordering::Relaxed), 2);
+        assert_eq!(drain(&mut driver, &mut cx), [syn(3)]);
+    }
+}
