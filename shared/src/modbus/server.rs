@@ -58,16 +58,30 @@ pub struct Slots<R: RawMutex, const N: usize> {
     /// (opens and received data) of all slots: the order of events is exact where a clock tick
     /// (1 ms on the QEMU board) would tie connections opened together in a flood, and a tie
     /// could close the newcomer instead of the one idle longest.
-    last_activity: BlockingMutex<R, RefCell<([Option<u64>; N], u64)>>,
+    last_activity: BlockingMutex<R, RefCell<Activity<N>>>,
     evict: [Signal<R, ()>; N],
     max_active: usize,
+}
+
+/// Each slot's last activity, and the count of activity events so far.
+struct Activity<const N: usize> {
+    last: [Option<u64>; N],
+    events: u64,
+}
+
+impl<const N: usize> Activity<N> {
+    /// One more event, on `slot`.
+    fn event(&mut self, slot: usize) {
+        self.events += 1;
+        self.last[slot] = Some(self.events);
+    }
 }
 
 impl<R: RawMutex, const N: usize> Slots<R, N> {
     /// `N` connection tasks of which at most `max_active` may serve a client at once.
     pub const fn new(max_active: usize) -> Self {
         Self {
-            last_activity: BlockingMutex::new(RefCell::new(([None; N], 0))),
+            last_activity: BlockingMutex::new(RefCell::new(Activity { last: [None; N], events: 0 })),
             evict: [const { Signal::new() }; N],
             max_active,
         }
@@ -77,9 +91,9 @@ impl<R: RawMutex, const N: usize> Slots<R, N> {
     pub fn open(&self, slot: usize) -> Option<usize> {
         self.evict[slot].reset();
         self.last_activity.lock(|cell| {
-            let (slots, events) = &mut *cell.borrow_mut();
-            *events += 1;
-            slots[slot] = Some(*events);
+            let mut activity = cell.borrow_mut();
+            activity.event(slot);
+            let slots = &mut activity.last;
             let active = slots.iter().filter(|s| s.is_some()).count();
             if active <= self.max_active {
                 return None;
@@ -100,22 +114,21 @@ impl<R: RawMutex, const N: usize> Slots<R, N> {
     /// Records traffic on `slot`.
     pub fn touch(&self, slot: usize) {
         self.last_activity.lock(|cell| {
-            let (slots, events) = &mut *cell.borrow_mut();
-            if let Some(t) = slots[slot].as_mut() {
-                *events += 1;
-                *t = *events;
+            let mut activity = cell.borrow_mut();
+            if activity.last[slot].is_some() {
+                activity.event(slot);
             }
         });
     }
 
     /// Marks `slot` free.
     pub fn close(&self, slot: usize) {
-        self.last_activity.lock(|cell| cell.borrow_mut().0[slot] = None);
+        self.last_activity.lock(|cell| cell.borrow_mut().last[slot] = None);
     }
 
     /// Number of slots serving a client.
     pub fn active(&self) -> usize {
-        self.last_activity.lock(|cell| cell.borrow().0.iter().filter(|s| s.is_some()).count())
+        self.last_activity.lock(|cell| cell.borrow().last.iter().filter(|s| s.is_some()).count())
     }
 }
 
