@@ -1,6 +1,6 @@
 //! The Modbus port's SYN backlog (shared::backlog), fed what any peer on the LAN can send,
 //! against a model of the frames it holds. The input is a list of operations: a frame arrives
-//! (arbitrary bytes, or a well-formed SYN to the Modbus port from one of 8 clients), a
+//! (arbitrary bytes, or well-formed SYNs to the Modbus port from 80 clients, one or a flood), a
 //! connection task listens, a task accepts (a client, or fails), the clock moves on, the stack
 //! takes the next held SYN. Invariants: nothing panics; only a SYN to the port is ever held, at
 //! most HELD of them, one per client; the held count is the model's (a full backlog drops its
@@ -70,6 +70,8 @@ fuzz_target!(|data: &[u8]| {
     let mut accepting = 0usize;
     let mut out = [0u8; MAX_SYN_FRAME];
     let mut ops = data;
+    // At most one flood an input, so that an input stays cheap.
+    let mut flooded = false;
     while let Some((&op, rest)) = ops.split_first() {
         ops = rest;
         let arg = op / 6;
@@ -90,16 +92,26 @@ fuzz_target!(|data: &[u8]| {
                 model.arrived(&backlog, frame, now, verdict);
             }
             1 => {
-                let frame = syn(arg % 8);
-                let verdict = backlog.arrive(&frame, now);
-                model.arrived(&backlog, &frame, now, verdict);
+                // The next byte: below 80, one of 80 clients (more than the backlog holds);
+                // above, a flood of 66 from consecutive clients (once an input at most): two more than
+                // the backlog holds.
+                let Some((&n, rest)) = ops.split_first() else { return };
+                ops = rest;
+                let clients = if n < 80 || flooded { n..n + 1 } else { n..n + 66 };
+                flooded |= clients.len() > 1;
+                for c in clients {
+                    let frame = syn(c % 80);
+                    let verdict = backlog.arrive(&frame, now);
+                    model.arrived(&backlog, &frame, now, verdict);
+                }
             }
             2 if accepting < SOCKETS => {
                 backlog.listening(PORT);
                 accepting += 1;
             }
             3 if accepting > 0 => {
-                backlog.accepted((arg % 9 < 8).then(|| client(arg % 9)));
+                // One of the first 42 clients, or none (an accept that failed).
+                backlog.accepted((arg < 42).then(|| client(arg)));
                 accepting -= 1;
             }
             4 => now += u64::from(arg) * 25,
