@@ -18,9 +18,13 @@
 //!
 //! Bounds: a held SYN older than [`HOLD_MS`] is dropped (its client sends it again after its
 //! retransmission timeout, 1 s on Linux and Windows); when the backlog is full the oldest held
-//! SYN is dropped for the new one (a newcomer is never the one refused); a SYN let through
-//! whose handshake has not completed after [`HANDSHAKE_MS`] no longer counts (the client gave
-//! up: smoltcp puts that socket back to listening).
+//! SYN is dropped for the new one (a newcomer is never the one refused). A SYN let through
+//! counts until its task accepts, its client resets the handshake, or [`HANDSHAKE_MS`] passes:
+//! the connection tasks give a handshake [`HANDSHAKE_TIMEOUT_MS`] (smoltcp has no limit of its
+//! own, and a SYN from a host that went away would hold a task for ever), then listen again.
+//! A SYN sent again while its handshake is under way is dropped: the socket in SYN-RECEIVED
+//! sends its SYN-ACK again on its own timer, and a second listening socket taking the copy
+//! would reset the client when its ACK reached the first.
 
 use core::cell::RefCell;
 use core::task::{Context, Waker};
@@ -34,12 +38,18 @@ use crate::modbus::server::SOCKETS;
 /// SYN frames held at most.
 pub const HELD: usize = 64;
 /// The longest SYN frame held: Ethernet (14) + IPv4 without options (20) + TCP with the full 40
-/// bytes of options (60). A longer one (IP options) goes to the stack at once.
-pub const MAX_SYN_FRAME: usize = 94;
+/// bytes of options (60) + the frame check sequence (4), which some MACs hand over with the
+/// frame (the STM32's, RM0090 §33.6.1: CSTF is not set). A longer one (IP options) goes to the
+/// stack at once.
+pub const MAX_SYN_FRAME: usize = 98;
 /// A held SYN is dropped after this long (ms).
 pub const HOLD_MS: u64 = 1000;
-/// A SYN let through counts against the listening tasks for at most this long (ms).
-pub const HANDSHAKE_MS: u64 = 500;
+/// How long a connection task waits for a handshake it has answered (ms): smoltcp's first
+/// SYN-ACK retransmission comes after 1 s, a second after 3 s in all.
+pub const HANDSHAKE_TIMEOUT_MS: u64 = 4000;
+/// A SYN let through counts against the listening tasks for at most this long (ms): longer
+/// than a task's wait for its handshake.
+pub const HANDSHAKE_MS: u64 = HANDSHAKE_TIMEOUT_MS + 1000;
 
 /// A TCP client: IPv4 address and port.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -51,9 +61,22 @@ pub struct Peer {
 }
 
 /// The client of `frame` if it is an Ethernet II frame carrying an IPv4 TCP segment to
-/// `port` with SYN set and ACK clear (a connection request, RFC 9293 §3.5); `None` for
-/// anything else, a fragment or a truncated frame included.
+/// `port` with SYN set and ACK, RST and FIN clear (a connection request, RFC 9293 §3.5);
+/// `None` for anything else, a fragment or a truncated frame included.
 pub fn syn_to(frame: &[u8], port: u16) -> Option<Peer> {
+    let (peer, flags) = segment_to(frame, port)?;
+    (flags & (SYN | ACK | RST | FIN) == SYN).then_some(peer)
+}
+
+/// TCP flags (RFC 9293 §3.1).
+const FIN: u8 = 0x01;
+const SYN: u8 = 0x02;
+const RST: u8 = 0x04;
+const ACK: u8 = 0x10;
+
+/// The client and TCP flags of `frame` if it is an Ethernet II frame carrying a whole IPv4 TCP
+/// segment to `port`.
+fn segment_to(frame: &[u8], port: u16) -> Option<(Peer, u8)> {
     // Ethernet II: destination (6), source (6), EtherType (2) = 0x0800 IPv4.
     let ip = frame.get(14..).filter(|_| frame.get(12..14) == Some(&[0x08, 0x00]))?;
     // IPv4 (RFC 791): version 4, IHL in 32-bit words (at least 5), protocol 6 = TCP, and not
@@ -74,10 +97,7 @@ pub fn syn_to(frame: &[u8], port: u16) -> Option<Peer> {
     let source_port = u16::from_be_bytes([*tcp.first()?, *tcp.get(1)?]);
     let destination_port = u16::from_be_bytes([*tcp.get(2)?, *tcp.get(3)?]);
     let flags = *tcp.get(13)?;
-    const SYN: u8 = 0x02;
-    const RST: u8 = 0x04;
-    const ACK: u8 = 0x10;
-    (destination_port == port && flags & (SYN | ACK | RST) == SYN).then_some(Peer { ip: source, port: source_port })
+    (destination_port == port).then_some((Peer { ip: source, port: source_port }, flags))
 }
 
 /// What becomes of a received frame.
@@ -152,11 +172,25 @@ impl Backlog {
 
     /// A frame from the wire at `now_ms`: to the stack, or held.
     pub fn arrive(&mut self, frame: &[u8], now_ms: u64) -> Verdict {
-        let Some(peer) = syn_to(frame, self.port).filter(|_| self.port != 0) else { return Verdict::Pass };
-        self.expire(now_ms);
-        // A SYN sent again while its handshake is under way: the stack answers it.
-        if self.in_flight.iter().any(|&(p, _)| p == peer) {
+        if self.port == 0 {
             return Verdict::Pass;
+        }
+        let Some((peer, flags)) = segment_to(frame, self.port) else { return Verdict::Pass };
+        self.expire(now_ms);
+        let in_flight = self.in_flight.iter().position(|&(p, _)| p == peer);
+        if flags & RST != 0 {
+            // The client reset its handshake: smoltcp puts that socket back in LISTEN.
+            if let Some(i) = in_flight {
+                self.in_flight.swap_remove(i);
+            }
+            return Verdict::Pass;
+        }
+        if flags & (SYN | ACK | FIN) != SYN {
+            return Verdict::Pass;
+        }
+        if in_flight.is_some() {
+            // Sent again during its handshake: dropped (see the module's notes).
+            return Verdict::Hold;
         }
         if self.held.is_empty() && self.free() > 0 {
             // `free() > 0` means fewer entries than listening tasks, at most SOCKETS.
@@ -166,16 +200,27 @@ impl Backlog {
         if self.held.iter().any(|h| h.peer == peer) {
             return Verdict::Hold;
         }
-        let Some(bytes) = frame.get(..MAX_SYN_FRAME.min(frame.len())).filter(|b| b.len() == frame.len()) else {
+        if frame.len() > MAX_SYN_FRAME {
+            // Too long to hold: the stack takes it now, or refuses it.
+            if self.free() > 0 {
+                let _ = self.in_flight.push((peer, now_ms));
+            }
             return Verdict::Pass;
-        };
+        }
         if self.held.is_full() {
             self.held.pop_front();
         }
-        let mut held = HeldSyn { peer, at_ms: now_ms, len: bytes.len(), frame: [0; MAX_SYN_FRAME] };
-        held.frame[..bytes.len()].copy_from_slice(bytes);
+        let mut held = HeldSyn { peer, at_ms: now_ms, len: frame.len(), frame: [0; MAX_SYN_FRAME] };
+        held.frame[..frame.len()].copy_from_slice(frame);
         let _ = self.held.push_back(held);
         Verdict::Hold
+    }
+
+    /// When the backlog changes by itself next (a held SYN or a handshake lapses), while SYNs
+    /// wait: the runner must look again then.
+    pub fn next_change(&self) -> Option<u64> {
+        let held = self.held.front()?.at_ms + HOLD_MS;
+        Some(self.in_flight.iter().map(|&(_, at)| at + HANDSHAKE_MS).fold(held, u64::min))
     }
 
     /// Whether a SYN is held and a task listens for it now.
@@ -252,15 +297,17 @@ impl SynGate {
         self.with(|backlog, _| backlog.arrive(frame, now_ms))
     }
 
-    /// Whether a held SYN can go to the stack now; if one is held but no task listens, the
-    /// runner's waker is kept for when one does.
-    fn ready(&self, now_ms: u64, cx: &Context<'_>) -> bool {
+    /// Whether a held SYN can go to the stack now: `Ok`, or when to look again if one waits
+    /// (the runner's waker is kept for when a task listens).
+    fn ready(&self, now_ms: u64, cx: &Context<'_>) -> Result<(), Option<u64>> {
         self.with(|backlog, waker| {
-            let ready = backlog.ready(now_ms);
-            if !ready && backlog.held() > 0 {
+            if backlog.ready(now_ms) {
+                return Ok(());
+            }
+            if backlog.held() > 0 {
                 *waker = Some(cx.waker().clone());
             }
-            ready
+            Err(backlog.next_change())
         })
     }
 
@@ -272,14 +319,18 @@ impl SynGate {
 pub use driver::{Backlogged, Rx};
 
 mod driver {
+    use core::future::Future;
+    use core::pin::Pin;
     use core::task::Context;
 
     use embassy_net_driver::{Capabilities, Driver, HardwareAddress, LinkState, RxToken};
 
     use super::{SynGate, Verdict, MAX_SYN_FRAME};
 
+    use embassy_time::{Instant, Timer};
+
     fn now_ms() -> u64 {
-        embassy_time::Instant::now().as_millis()
+        Instant::now().as_millis()
     }
 
     /// A board's Ethernet driver behind the Modbus port's backlog: every received frame is
@@ -333,14 +384,21 @@ mod driver {
             // Held SYNs first, in order, whenever a task listens for them (and the driver can
             // send the answer).
             let now = now_ms();
-            if self.gate.ready(now, cx) {
-                // The answer needs a transmit buffer: without one, the SYN stays held (the driver
-                // wakes the runner when one frees).
-                let tx = self.inner.transmit(cx)?;
-                if let Some(len) = self.gate.release(now, &mut self.released) {
+            match self.gate.ready(now, cx) {
+                Ok(()) => {
+                    // The answer needs a transmit buffer: without one, the SYN stays held (the
+                    // driver wakes the runner when one frees). `release` cannot fail after
+                    // `ready` (nothing runs between).
+                    let tx = self.inner.transmit(cx)?;
+                    let len = self.gate.release(now, &mut self.released)?;
                     return Some((Rx::Released(&mut self.released[..len]), tx));
                 }
-                return None;
+                // SYNs wait; nothing may wake the runner when one lapses: a timer does.
+                Err(Some(at)) => {
+                    let mut timer = Timer::at(Instant::from_millis(at));
+                    let _ = Pin::new(&mut timer).poll(cx);
+                }
+                Err(None) => {}
             }
             let (rx, tx) = self.inner.receive(cx)?;
             Some((Rx::Wire(rx, self.gate), tx))
@@ -402,8 +460,8 @@ mod tests {
     fn recognises_only_a_connection_request_to_the_port() {
         assert_eq!(syn_to(&syn(40000), PORT), Some(peer(40000)));
         assert_eq!(syn_to(&segment(40000, PORT, SYN, 0), PORT), Some(peer(40000)));
-        // SYN-ACK, ACK, RST+SYN, FIN, another port: not a request to the Modbus port.
-        for flags in [0x12, 0x10, 0x06, 0x01, 0x18] {
+        // SYN-ACK, ACK, RST+SYN, SYN+FIN, FIN, another port: not a request to the Modbus port.
+        for flags in [0x12, 0x10, 0x06, 0x03, 0x01, 0x18] {
             assert_eq!(syn_to(&segment(40000, PORT, flags, 0), PORT), None, "flags {flags:02x}");
         }
         assert_eq!(syn_to(&segment(40000, 8301, SYN, 0), PORT), None);
@@ -460,8 +518,9 @@ mod tests {
         // Other traffic is never held.
         assert_eq!(b.arrive(&segment(2, PORT, 0x10, 0), 0), Verdict::Pass);
         assert_eq!(b.held(), 2);
-        // A SYN sent again during its handshake goes to the stack (which answers it again).
-        assert_eq!(b.arrive(&syn(2), 1), Verdict::Pass);
+        // A SYN sent again during its handshake is dropped (its socket sends the SYN-ACK again).
+        assert_eq!(b.arrive(&syn(2), 1), Verdict::Hold);
+        assert_eq!(b.held(), 2);
         // A SYN already held, sent again: still one held.
         assert_eq!(b.arrive(&syn(4), 1), Verdict::Hold);
         assert_eq!(b.held(), 2);
@@ -528,14 +587,34 @@ mod tests {
         b.listening(PORT);
         assert_eq!(b.arrive(&syn(1), 0), Verdict::Pass);
         assert_eq!(b.arrive(&syn(2), 0), Verdict::Hold);
-        assert_eq!(b.arrive(&syn(3), 400), Verdict::Hold);
+        assert_eq!(b.next_change(), Some(HOLD_MS), "SYN 2 lapses first");
+        assert_eq!(b.arrive(&syn(3), HOLD_MS - 1), Verdict::Hold);
         let mut out = [0u8; MAX_SYN_FRAME];
-        assert_eq!(b.release(HANDSHAKE_MS - 1, &mut out), None);
-        // The first handshake never completed (the client gave up): the task listens again
-        // (smoltcp puts its socket back in LISTEN), and after HANDSHAKE_MS the backlog knows.
-        assert_eq!(b.release(HOLD_MS, &mut out), Some(syn(3).len()));
-        assert_eq!(&out[..syn(3).len()], &syn(3)[..], "SYN 2 was held for HOLD_MS and dropped");
-        assert_eq!(b.held(), 0);
+        assert_eq!(b.release(HANDSHAKE_MS - 1, &mut out), None, "the one task is in a handshake");
+        assert_eq!(b.held(), 0, "both SYNs were held for HOLD_MS and dropped");
+        assert_eq!(b.next_change(), None);
+        // The first handshake never completed: after HANDSHAKE_MS (longer than the task waits
+        // for it) the task counts as listening again.
+        assert_eq!(b.arrive(&syn(4), HANDSHAKE_MS - 1), Verdict::Hold);
+        assert_eq!(b.next_change(), Some(HANDSHAKE_MS), "the handshake lapses before SYN 4");
+        assert_eq!(b.release(HANDSHAKE_MS, &mut out), Some(syn(4).len()));
+        assert_eq!(&out[..syn(4).len()], &syn(4)[..]);
+    }
+
+    #[test]
+    fn a_client_that_resets_its_handshake_frees_the_task() {
+        let mut b = Backlog::new();
+        b.listening(PORT);
+        assert_eq!(b.arrive(&syn(1), 0), Verdict::Pass);
+        assert_eq!(b.arrive(&syn(2), 0), Verdict::Hold);
+        let mut out = [0u8; MAX_SYN_FRAME];
+        assert_eq!(b.release(1, &mut out), None);
+        // A RST from another client changes nothing; one from client 1 frees its task (smoltcp
+        // puts the socket in SYN-RECEIVED back in LISTEN).
+        assert_eq!(b.arrive(&segment(9, PORT, 0x04, 0), 1), Verdict::Pass);
+        assert_eq!(b.release(1, &mut out), None);
+        assert_eq!(b.arrive(&segment(1, PORT, 0x14, 0), 2), Verdict::Pass);
+        assert_eq!(b.release(2, &mut out), Some(syn(2).len()));
     }
 
     #[test]
@@ -543,12 +622,14 @@ mod tests {
         let mut b = Backlog::new();
         b.listening(PORT);
         assert_eq!(b.arrive(&syn(1), 0), Verdict::Pass);
-        // The longest TCP header (60 bytes) is held; a frame longer than that (here TCP
-        // options beyond the limit, as IP options would make it) goes to the stack.
-        let longest = segment(2, PORT, SYN, 40);
+        // The longest TCP header (60 bytes) with a frame check sequence after it is held; a
+        // frame longer than that (here TCP options beyond the limit, as IP options would make
+        // it) goes to the stack.
+        let mut longest = segment(2, PORT, SYN, 40);
+        longest.extend_from_slice(&[0xDE, 0xAD, 0xBE, 0xEF]);
         assert_eq!(longest.len(), MAX_SYN_FRAME);
         assert_eq!(b.arrive(&longest, 0), Verdict::Hold);
-        assert_eq!(b.arrive(&segment(3, PORT, SYN, 44), 0), Verdict::Pass);
+        assert_eq!(b.arrive(&segment(3, PORT, SYN, 48), 0), Verdict::Pass);
         assert_eq!(b.held(), 1);
     }
 

@@ -4,12 +4,12 @@
 use core::future::{poll_fn, Future};
 use core::pin::pin;
 
-use embassy_net::tcp::{AcceptError, TcpSocket};
+use embassy_net::tcp::{AcceptError, State, TcpSocket};
 use embassy_net::udp::{PacketMetadata, UdpSocket};
 use embassy_net::{IpAddress, IpEndpoint, Stack};
 use embassy_time::{with_timeout, Duration, Timer};
 
-use crate::backlog::{Peer, MODBUS_BACKLOG};
+use crate::backlog::{Peer, HANDSHAKE_TIMEOUT_MS, MODBUS_BACKLOG};
 use crate::board::{Effects, ModbusSlots, Network, Shared};
 use crate::discovery::{serve, Datagrams, Effect, Identity, MAX_DATAGRAM, PORT};
 use crate::modbus::server::{serve as serve_modbus, Ended};
@@ -46,9 +46,17 @@ impl<E: Effects> Network for EmbassyNet<E> {
         let mut tx = [0u8; SOCKET_BUF];
         loop {
             let mut socket = TcpSocket::new(self.stack, &mut rx, &mut tx);
-            if let Err(e) = accept(&mut socket, self.port).await {
-                warn!("modbus: accept failed: {:?}", e);
-                continue;
+            match accept(&mut socket, self.port).await {
+                Ok(()) => {}
+                Err(AcceptError::ConnectionReset) => {
+                    debug!("modbus: slot {}: a handshake did not complete", slot);
+                    reset(&mut socket).await;
+                    continue;
+                }
+                Err(e) => {
+                    warn!("modbus: accept failed: {:?}", e);
+                    continue;
+                }
             }
             debug!("modbus: slot {} connected", slot);
             let from = peer(&socket);
@@ -122,8 +130,11 @@ impl<E: Effects> Network for EmbassyNet<E> {
 
 /// Accepts a connection on the Modbus port through its backlog ([`MODBUS_BACKLOG`]): the gate
 /// learns the socket listens only once it does (the accept's first poll puts it in LISTEN),
-/// and which client it took.
+/// and which client it took. A handshake that does not complete within
+/// [`HANDSHAKE_TIMEOUT_MS`] (smoltcp would wait for ever: a SYN from a host gone, or spoofed)
+/// ends it with `ConnectionReset`.
 async fn accept(socket: &mut TcpSocket<'_>, port: u16) -> Result<(), AcceptError> {
+    socket.set_timeout(Some(Duration::from_millis(HANDSHAKE_TIMEOUT_MS)));
     let mut listening = false;
     let result = {
         let mut accepting = pin!(socket.accept(port));
@@ -137,6 +148,12 @@ async fn accept(socket: &mut TcpSocket<'_>, port: u16) -> Result<(), AcceptError
         })
         .await
     };
+    socket.set_timeout(None);
+    // smoltcp ends a handshake that timed out in CLOSED, which the accept takes for done.
+    let result = result.and_then(|()| match socket.state() {
+        State::Closed => Err(AcceptError::ConnectionReset),
+        _ => Ok(()),
+    });
     if listening {
         let from = match socket.remote_endpoint() {
             Some(IpEndpoint { addr: IpAddress::Ipv4(ip), port }) if result.is_ok() => {
