@@ -39,8 +39,9 @@ use crate::modbus::server::SOCKETS;
 pub const HELD: usize = 64;
 /// The longest SYN frame held: Ethernet (14) + IPv4 without options (20) + TCP with the full 40
 /// bytes of options (60) + the frame check sequence (4), which some MACs hand over with the
-/// frame (the STM32's, RM0090 §33.6.1: CSTF is not set). A longer one (IP options) goes to the
-/// stack at once.
+/// frame: the STM32's ETH_MACCR APCS strips it only from frames whose length/type field is
+/// at most 1500, and embassy-stm32 leaves CSTF (bit 25, stripping for type frames such as
+/// IPv4) clear. A longer one (IP options) goes to the stack at once.
 pub const MAX_SYN_FRAME: usize = 98;
 /// A held SYN is dropped after this long (ms).
 pub const HOLD_MS: u64 = 1000;
