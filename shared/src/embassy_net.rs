@@ -155,13 +155,7 @@ async fn accept(socket: &mut TcpSocket<'_>, port: u16) -> Result<(), AcceptError
         _ => Ok(()),
     });
     if listening {
-        let from = match socket.remote_endpoint() {
-            Some(IpEndpoint { addr: IpAddress::Ipv4(ip), port }) if result.is_ok() => {
-                Some(Peer { ip: ip.octets(), port })
-            }
-            _ => None,
-        };
-        MODBUS_BACKLOG.accepted(from);
+        MODBUS_BACKLOG.accepted(result.ok().and_then(|()| client(socket)));
     }
     result
 }
@@ -180,12 +174,16 @@ async fn reset(socket: &mut TcpSocket<'_>) {
     let _ = with_timeout(CLOSE_WAIT, socket.flush()).await;
 }
 
+/// The client: IPv4 address and port, if connected.
+fn client(socket: &TcpSocket<'_>) -> Option<Peer> {
+    match socket.remote_endpoint()? {
+        IpEndpoint { addr: IpAddress::Ipv4(ip), port } => Some(Peer { ip: ip.octets(), port }),
+    }
+}
+
 /// The client's IPv4 address (0.0.0.0 if unknown).
 fn peer(socket: &TcpSocket<'_>) -> [u8; 4] {
-    match socket.remote_endpoint() {
-        Some(IpEndpoint { addr: IpAddress::Ipv4(ip), .. }) => ip.octets(),
-        None => [0; 4],
-    }
+    client(socket).map_or([0; 4], |client| client.ip)
 }
 
 struct NetDatagrams<'a>(UdpSocket<'a>);

@@ -60,12 +60,10 @@ impl Ports {
         let udp =
             std::net::UdpSocket::bind("127.0.0.1:0").and_then(|s| s.local_addr()).map_err(|e| e.to_string())?.port();
         // Held together while chosen, so that they differ.
-        let tcp = (0..FLOOD + 2)
-            .map(|_| TcpListener::bind("127.0.0.1:0"))
-            .collect::<Result<Vec<_>, _>>()
+        let held = (0..FLOOD + 2).map(|_| TcpListener::bind("127.0.0.1:0")).collect::<Result<Vec<_>, _>>();
+        let tcp = held
+            .and_then(|held| held.iter().map(|l| l.local_addr().map(|a| a.port())).collect::<Result<Vec<_>, _>>())
             .map_err(|e| e.to_string())?;
-        let mut tcp = tcp.iter().map(|l| l.local_addr().map(|a| a.port())).collect::<Result<Vec<_>, _>>();
-        let tcp = tcp.as_mut().map_err(|e| e.to_string())?;
         Ok(Self { modbus: tcp[0], udp, update: tcp[1], flood: tcp[2..].to_vec() })
     }
 
