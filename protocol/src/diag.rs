@@ -15,6 +15,27 @@ pub const REG_REQUESTS: u16 = 0x00F5;
 /// 40248: exception responses sent since start, 16 bits, wrapping.
 pub const REG_EXCEPTIONS: u16 = 0x00F7;
 
+/// 40249: security flags ([`security`]).
+pub const REG_SECURITY: u16 = 0x00F8;
+/// 40250: failed authentications (wrong proofs) since start, 16 bits, wrapping.
+pub const REG_AUTH_FAILURES: u16 = 0x00F9;
+/// 40251-40252: the source address of the last failed authentication (a.b, then c.d).
+pub const REG_LAST_FAILED_SOURCE: u16 = 0x00FA;
+/// 40253: proofs not checked because the guessing budget was spent, 16 bits, wrapping.
+pub const REG_BUDGET_REFUSALS: u16 = 0x00FC;
+/// 40254: Modbus writes refused by the allow-list, 16 bits, wrapping.
+pub const REG_ACCESS_REFUSALS: u16 = 0x00FD;
+/// 40255: firmware updates refused (authentication, signature, model, password), 16 bits.
+pub const REG_UPDATE_REFUSALS: u16 = 0x00FE;
+/// 40321-40324: the first 8 bytes of the SHA-256 of the firmware update key, high byte first.
+pub const REG_UPDATE_KEY: u16 = 0x0140;
+
+/// Security flag bits (register 40249).
+pub mod security {
+    /// The factory password is in force (firmware updates and allow-list changes refused).
+    pub const FACTORY_PASSWORD: u16 = 1 << 0;
+}
+
 /// Module status bits.
 pub mod status {
     /// 8318: the ADC does not answer or a conversion timed out; 8350: input samples were lost
@@ -85,6 +106,20 @@ pub enum Diag {
     Requests(Word),
     /// Exceptions sent.
     Exceptions,
+    /// Security flags.
+    Security,
+    /// Failed authentications.
+    AuthFailures,
+    /// A word of the last failed source address.
+    LastFailedSource(Word),
+    /// Proofs refused by the budget.
+    BudgetRefusals,
+    /// Writes refused by the allow-list.
+    AccessRefusals,
+    /// Updates refused.
+    UpdateRefusals,
+    /// Word 0-3 of the update key's fingerprint.
+    UpdateKey(u8),
 }
 
 /// The diagnostics register at `addr` (4X table), if it is one.
@@ -96,6 +131,15 @@ pub fn decode(addr: u16) -> Option<Diag> {
         REG_CONNECTIONS => Diag::Connections,
         a if (REG_REQUESTS..REG_REQUESTS + 2).contains(&a) => Diag::Requests(Word::of(a - REG_REQUESTS)),
         REG_EXCEPTIONS => Diag::Exceptions,
+        REG_SECURITY => Diag::Security,
+        REG_AUTH_FAILURES => Diag::AuthFailures,
+        a if (REG_LAST_FAILED_SOURCE..REG_LAST_FAILED_SOURCE + 2).contains(&a) => {
+            Diag::LastFailedSource(Word::of(a - REG_LAST_FAILED_SOURCE))
+        }
+        REG_BUDGET_REFUSALS => Diag::BudgetRefusals,
+        REG_ACCESS_REFUSALS => Diag::AccessRefusals,
+        REG_UPDATE_REFUSALS => Diag::UpdateRefusals,
+        a if (REG_UPDATE_KEY..REG_UPDATE_KEY + 4).contains(&a) => Diag::UpdateKey((a - REG_UPDATE_KEY) as u8),
         _ => return None,
     })
 }
@@ -110,6 +154,13 @@ impl Diag {
             Diag::Connections => REG_CONNECTIONS,
             Diag::Requests(w) => REG_REQUESTS + w.offset(),
             Diag::Exceptions => REG_EXCEPTIONS,
+            Diag::Security => REG_SECURITY,
+            Diag::AuthFailures => REG_AUTH_FAILURES,
+            Diag::LastFailedSource(w) => REG_LAST_FAILED_SOURCE + w.offset(),
+            Diag::BudgetRefusals => REG_BUDGET_REFUSALS,
+            Diag::AccessRefusals => REG_ACCESS_REFUSALS,
+            Diag::UpdateRefusals => REG_UPDATE_REFUSALS,
+            Diag::UpdateKey(i) => REG_UPDATE_KEY + u16::from(i),
         }
     }
 }
@@ -119,9 +170,11 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_eight_registers_of_extensions_1() {
+    fn the_registers_of_extensions_1_and_the_security_events() {
         let mapped: std::vec::Vec<u16> = (0..=u16::MAX).filter(|a| decode(*a).is_some()).collect();
-        assert_eq!(mapped, (40241..=40248).map(|r| r - 40001).collect::<std::vec::Vec<_>>());
+        // 40241-40248 (extensions §1), 40249-40255 and 40321-40324 (docs/diagnostics.md).
+        let expected = (40241..=40255).chain(40321..=40324).map(|r| r - 40001);
+        assert_eq!(mapped, expected.collect::<std::vec::Vec<_>>());
         for a in mapped {
             assert_eq!(decode(a).map(Diag::addr), Some(a));
         }

@@ -1,21 +1,35 @@
 //! The network discovery and configuration protocol (UDP, port [`PORT`]), the codec only; see
-//! `docs/discovery.md` for the wire format. [`decode_request`] is pure and total (fuzzed); the
-//! module side's service is in `remodaq-shared`, the PC side in the `remodaq` utility.
+//! `docs/discovery.md` for the wire format and `docs/security.md` for its authentication.
+//! [`decode_request`] is pure and total (fuzzed); the module side's service is in
+//! `remodaq-shared`, the PC side in the `remodaq` utility ([`client`], with the `client`
+//! feature).
+//!
+//! Commands that change or reveal settings are authenticated ([`Auth`], `crate::auth`): no
+//! password crosses the wire, each proof is bound to a single-use nonce of the module and to
+//! every byte of its request, and the module signs its answer.
 
 use crate::access::{AllowList, ENCODED_MAX};
+use crate::auth::{CREDENTIAL_LEN, KEY_LEN, NONCE_LEN, SALT_LEN};
 use crate::net::NetConfig;
-
-/// The longest password (bytes).
-pub const MAX_PASSWORD_LEN: usize = 32;
 
 /// The UDP port modules listen on.
 pub const PORT: u16 = 8300;
 /// Datagrams longer than this are ignored.
-pub const MAX_DATAGRAM: usize = 160;
+pub const MAX_DATAGRAM: usize = 256;
 /// First bytes of every datagram.
 pub const MAGIC: [u8; 4] = *b"RDAQ";
-/// Protocol version.
-pub const VERSION: u8 = 1;
+/// Protocol version (2: authenticated commands; version 1 carried passwords and is ignored).
+pub const VERSION: u8 = 2;
+/// Bytes of the header: magic, version, opcode, request id.
+pub const HEADER_LEN: usize = 8;
+/// Where the proof of an authenticated request starts: header, MAC, both nonces.
+pub const PROOF_AT: usize = HEADER_LEN + 6 + 2 * NONCE_LEN;
+/// Label of the AuthMessage of a configuration command.
+pub const CLIENT_LABEL: &[u8] = b"RDAQ discovery v2 request";
+/// Label of the module's signature over a command and its answer.
+pub const SERVER_LABEL: &[u8] = b"RDAQ discovery v2 answer";
+/// Label of the key that seals a new credential.
+pub const SEAL_LABEL: &[u8] = b"RDAQ new credential";
 
 /// Request opcodes (replies set bit 7).
 pub mod op {
@@ -27,35 +41,45 @@ pub mod op {
     pub const RESTART: u8 = 0x03;
     /// Blink the identify LED for 10 s.
     pub const IDENTIFY: u8 = 0x04;
-    /// Change the configuration password.
+    /// Change the configuration password (a sealed new credential).
     pub const SET_PASSWORD: u8 = 0x05;
     /// Read the Modbus write allow-list (extensions §4); the reply carries it.
     pub const GET_ACCESS: u8 = 0x06;
     /// Store a new Modbus write allow-list (in force at once).
     pub const SET_ACCESS: u8 = 0x07;
+    /// Ask for a nonce (and the salt, iterations and the module's key-agreement key).
+    pub const CHALLENGE: u8 = 0x08;
     /// Reply to SEARCH.
     pub const INFO: u8 = 0x81;
     /// Reply bit.
     pub const REPLY: u8 = 0x80;
 }
 
-/// Result codes of the configuration commands.
+/// Result codes of the configuration commands (and of the update session).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[repr(u8)]
 pub enum Status {
     /// Done.
     Ok = 0,
-    /// Wrong password: nothing changed.
+    /// The proof does not match the module's password: nothing changed.
     WrongPassword = 1,
-    /// Too many wrong passwords: not checked, try later.
+    /// The module-wide guessing budget is spent: not checked, try later.
     RateLimited = 2,
-    /// The settings are not usable (mask, address, port, password length).
+    /// The settings are not usable (mask, address, port, credential), or an image is not for
+    /// this module.
     Invalid = 3,
     /// The settings (or the update) could not be stored.
     StoreFailed = 4,
-    /// Firmware update only: the image's signature does not match its firmware, or was not
-    /// made with this module's key. Nothing changed.
+    /// Firmware update only: the image's signature does not match its header and firmware, or
+    /// was not made with this module's key. Nothing changed.
     BadSignature = 5,
+    /// The nonce is not one the module handed out, was used already or expired: nothing was
+    /// checked; ask for a new challenge.
+    StaleNonce = 6,
+    /// The factory password is still in force: set a password first (firmware updates and
+    /// allow-list changes are refused until then).
+    SetPasswordFirst = 7,
 }
 
 impl Status {
@@ -68,109 +92,141 @@ impl Status {
             3 => Status::Invalid,
             4 => Status::StoreFailed,
             5 => Status::BadSignature,
+            6 => Status::StaleNonce,
+            7 => Status::SetPasswordFirst,
             _ => return None,
         })
+    }
+
+    /// Whether the module answers this status only after a right proof: such an answer
+    /// carries the module's signature.
+    pub fn after_proof(self) -> bool {
+        !matches!(self, Status::WrongPassword | Status::RateLimited | Status::StaleNonce)
+    }
+}
+
+/// The authentication block of a command: the PC's nonce, the module's nonce (from a
+/// CHALLENGE answer), and the proof over every other byte of the request.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Auth {
+    /// The PC's nonce.
+    pub cnonce: [u8; NONCE_LEN],
+    /// The module's nonce.
+    pub snonce: [u8; NONCE_LEN],
+    /// ClientProof (`crate::auth::client_proof`); zeros while the request is being built.
+    pub proof: [u8; KEY_LEN],
+}
+
+/// What an authenticated request asks for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Command {
+    /// SET_NETWORK: store these settings.
+    SetNetwork(NetConfig),
+    /// RESTART.
+    Restart,
+    /// SET_PASSWORD: the PC's ephemeral X25519 key, and the new credential sealed with the key
+    /// agreed with the module's (`crate::auth::seal`).
+    SetPassword {
+        /// The PC's ephemeral X25519 public key.
+        public: [u8; KEY_LEN],
+        /// The new credential, sealed.
+        sealed: [u8; CREDENTIAL_LEN],
+    },
+    /// GET_ACCESS: read the allow-list.
+    GetAccess,
+    /// SET_ACCESS: store this allow-list (empty: writes not restricted).
+    SetAccess(AllowList),
+}
+
+impl Command {
+    /// The command's opcode.
+    pub fn opcode(&self) -> u8 {
+        match self {
+            Command::SetNetwork(_) => op::SET_NETWORK,
+            Command::Restart => op::RESTART,
+            Command::SetPassword { .. } => op::SET_PASSWORD,
+            Command::GetAccess => op::GET_ACCESS,
+            Command::SetAccess(_) => op::SET_ACCESS,
+        }
     }
 }
 
 /// A decoded request.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Request<'a> {
+pub enum Request {
     /// SEARCH.
     Search,
-    /// SET_NETWORK for the module with `mac`.
-    SetNetwork {
-        /// Target module.
-        mac: [u8; 6],
-        /// Configuration password.
-        password: &'a [u8],
-        /// New settings.
-        net: NetConfig,
-    },
-    /// RESTART the module with `mac`.
-    Restart {
-        /// Target module.
-        mac: [u8; 6],
-        /// Configuration password.
-        password: &'a [u8],
-    },
-    /// IDENTIFY the module with `mac`.
+    /// IDENTIFY the module with `mac` (no authentication: it only blinks a LED).
     Identify {
         /// Target module.
         mac: [u8; 6],
     },
-    /// SET_PASSWORD of the module with `mac`.
-    SetPassword {
+    /// CHALLENGE: the module with `mac` hands out a nonce.
+    Challenge {
         /// Target module.
         mac: [u8; 6],
-        /// Current password.
-        password: &'a [u8],
-        /// New password.
-        new: &'a [u8],
+        /// The PC's nonce (echoed, so the PC matches the answer).
+        cnonce: [u8; NONCE_LEN],
     },
-    /// GET_ACCESS of the module with `mac`.
-    GetAccess {
+    /// An authenticated command for the module with `mac`.
+    Command {
         /// Target module.
         mac: [u8; 6],
-        /// Configuration password.
-        password: &'a [u8],
-    },
-    /// SET_ACCESS of the module with `mac`.
-    SetAccess {
-        /// Target module.
-        mac: [u8; 6],
-        /// Configuration password.
-        password: &'a [u8],
-        /// The new list (empty: writes not restricted).
-        list: AllowList,
+        /// The authentication block.
+        auth: Auth,
+        /// What it asks for.
+        command: Command,
     },
 }
 
-impl Request<'_> {
+impl Request {
     /// The request's opcode.
     pub fn opcode(&self) -> u8 {
         match self {
             Request::Search => op::SEARCH,
-            Request::SetNetwork { .. } => op::SET_NETWORK,
-            Request::Restart { .. } => op::RESTART,
             Request::Identify { .. } => op::IDENTIFY,
-            Request::SetPassword { .. } => op::SET_PASSWORD,
-            Request::GetAccess { .. } => op::GET_ACCESS,
-            Request::SetAccess { .. } => op::SET_ACCESS,
+            Request::Challenge { .. } => op::CHALLENGE,
+            Request::Command { command, .. } => command.opcode(),
         }
     }
 }
 
-/// Encodes request `id` into `out`; `None` if it does not fit (a password over
-/// [`MAX_PASSWORD_LEN`] bytes is not encodable either).
-pub fn encode_request(id: u16, request: &Request<'_>, out: &mut [u8]) -> Option<usize> {
+/// Encodes request `id` into `out`; `None` if it does not fit. A command's proof is encoded as
+/// given ([`client::prove`] fills it in).
+pub fn encode_request(id: u16, request: &Request, out: &mut [u8]) -> Option<usize> {
     let mut w = Writer::new(out, request.opcode(), id);
-    let password = |w: &mut Writer<'_>, p: &[u8]| {
-        if p.len() > MAX_PASSWORD_LEN {
-            w.overflow = true;
-        }
-        w.string(p);
-    };
     match *request {
         Request::Search => {}
-        Request::SetNetwork { mac, password: p, net } => {
-            password(w.bytes(&mac), p);
-            w.net(&net);
-        }
-        Request::Restart { mac, password: p } | Request::GetAccess { mac, password: p } => password(w.bytes(&mac), p),
         Request::Identify { mac } => {
             w.bytes(&mac);
         }
-        Request::SetPassword { mac, password: p, new } => {
-            password(w.bytes(&mac), p);
-            password(&mut w, new);
+        Request::Challenge { mac, cnonce } => {
+            w.bytes(&mac).bytes(&cnonce);
         }
-        Request::SetAccess { mac, password: p, list } => {
-            password(w.bytes(&mac), p);
-            w.allow_list(&list);
+        Request::Command { mac, auth, command } => {
+            w.bytes(&mac).bytes(&auth.cnonce).bytes(&auth.snonce).bytes(&auth.proof);
+            match command {
+                Command::SetNetwork(net) => {
+                    w.net(&net);
+                }
+                Command::Restart | Command::GetAccess => {}
+                Command::SetPassword { public, sealed } => {
+                    w.bytes(&public).bytes(&sealed);
+                }
+                Command::SetAccess(list) => {
+                    w.allow_list(&list);
+                }
+            }
         }
     }
     w.finish()
+}
+
+/// The AuthMessage of an authenticated request (every byte but the proof), in parts, after
+/// [`CLIENT_LABEL`]; `None` if the datagram is too short to hold a proof.
+pub fn auth_message(datagram: &[u8]) -> Option<[&[u8]; 3]> {
+    let tail = datagram.get(PROOF_AT + KEY_LEN..)?;
+    Some([CLIENT_LABEL, &datagram[..PROOF_AT], tail])
 }
 
 /// A reader over a datagram that fails (None) instead of running past its end.
@@ -193,13 +249,12 @@ impl<'a> Reader<'a> {
     fn u16(&mut self) -> Option<u16> {
         self.array().map(u16::from_be_bytes)
     }
+    fn u32(&mut self) -> Option<u32> {
+        self.array().map(u32::from_be_bytes)
+    }
     fn string(&mut self) -> Option<&'a [u8]> {
         let [len] = self.array::<1>()?;
-        let len = usize::from(len);
-        if len > MAX_PASSWORD_LEN {
-            return None;
-        }
-        self.bytes(len)
+        self.bytes(usize::from(len))
     }
     fn net(&mut self) -> Option<NetConfig> {
         Some(NetConfig { ip: self.array()?, mask: self.array()?, gateway: self.array()?, port: self.u16()? })
@@ -209,31 +264,45 @@ impl<'a> Reader<'a> {
         self.rest = &[];
         Some(list)
     }
+    fn auth(&mut self) -> Option<Auth> {
+        Some(Auth { cnonce: self.array()?, snonce: self.array()?, proof: self.array()? })
+    }
     fn end(&self) -> Option<()> {
         self.rest.is_empty().then_some(())
+    }
+    /// The header of this protocol version: its opcode and request id.
+    fn header(&mut self) -> Option<(u8, u16)> {
+        if self.array::<4>()? != MAGIC || self.array::<1>()? != [VERSION] {
+            return None;
+        }
+        let [opcode] = self.array::<1>()?;
+        Some((opcode, self.u16()?))
     }
 }
 
 /// The request id and request of a datagram; `None` for anything malformed, truncated,
 /// oversized, of another version, or a reply.
-pub fn decode_request(datagram: &[u8]) -> Option<(u16, Request<'_>)> {
+pub fn decode_request(datagram: &[u8]) -> Option<(u16, Request)> {
     if datagram.len() > MAX_DATAGRAM {
         return None;
     }
     let mut r = Reader { rest: datagram };
-    if r.array::<4>()? != MAGIC || r.array::<1>()? != [VERSION] {
-        return None;
-    }
-    let [opcode] = r.array::<1>()?;
-    let id = r.u16()?;
+    let (opcode, id) = r.header()?;
     let request = match opcode {
         op::SEARCH => Request::Search,
-        op::SET_NETWORK => Request::SetNetwork { mac: r.array()?, password: r.string()?, net: r.net()? },
-        op::RESTART => Request::Restart { mac: r.array()?, password: r.string()? },
         op::IDENTIFY => Request::Identify { mac: r.array()? },
-        op::SET_PASSWORD => Request::SetPassword { mac: r.array()?, password: r.string()?, new: r.string()? },
-        op::GET_ACCESS => Request::GetAccess { mac: r.array()?, password: r.string()? },
-        op::SET_ACCESS => Request::SetAccess { mac: r.array()?, password: r.string()?, list: r.allow_list()? },
+        op::CHALLENGE => Request::Challenge { mac: r.array()?, cnonce: r.array()? },
+        op::SET_NETWORK | op::RESTART | op::SET_PASSWORD | op::GET_ACCESS | op::SET_ACCESS => {
+            let (mac, auth) = (r.array()?, r.auth()?);
+            let command = match opcode {
+                op::SET_NETWORK => Command::SetNetwork(r.net()?),
+                op::RESTART => Command::Restart,
+                op::SET_PASSWORD => Command::SetPassword { public: r.array()?, sealed: r.array()? },
+                op::GET_ACCESS => Command::GetAccess,
+                _ => Command::SetAccess(r.allow_list()?),
+            };
+            Request::Command { mac, auth, command }
+        }
         _ => return None,
     };
     r.end()?;
@@ -305,40 +374,97 @@ pub struct Info<'a> {
     pub stored: NetConfig,
     /// Seconds since start-up.
     pub uptime_s: u32,
-    /// Model string.
+    /// Model string (untrusted bytes: sanitise before showing them).
     pub name: &'a [u8],
-    /// Flags ([`info_flags`]); `None` from a module whose reply has none (older firmware).
-    pub flags: Option<u8>,
+    /// Flags ([`info_flags`]).
+    pub flags: u8,
+    /// The first 8 bytes of the SHA-256 of the public key the module verifies firmware images
+    /// with.
+    pub update_key: [u8; 8],
 }
 
-/// Flags at the end of an INFO reply.
+/// Flags of an INFO reply and a CHALLENGE answer.
 pub mod info_flags {
     /// The Modbus write allow-list is not empty: writes are restricted (extensions §4).
     pub const WRITES_RESTRICTED: u8 = 1 << 0;
+    /// The factory password is in force: set one (`remodaq password`).
+    pub const FACTORY_PASSWORD: u8 = 1 << 1;
 }
 
 /// Decodes an INFO reply.
 pub fn decode_info(datagram: &[u8]) -> Option<Info<'_>> {
     let mut r = Reader { rest: datagram };
-    if r.array::<4>()? != MAGIC || r.array::<1>()? != [VERSION] || r.array::<1>()? != [op::INFO] {
+    let (opcode, id) = r.header()?;
+    if opcode != op::INFO {
         return None;
     }
     let info = Info {
-        id: r.u16()?,
+        id,
         model: r.u16()?,
         version: r.u16()?,
         mac: r.array()?,
         running: r.net()?,
         stored: r.net()?,
-        uptime_s: u32::from_be_bytes(r.array()?),
+        uptime_s: r.u32()?,
         name: r.string()?,
-        flags: match r.rest {
-            [] => None,
-            [flags] => Some(*flags),
-            _ => return None,
-        },
+        flags: r.array::<1>()?[0],
+        update_key: r.array()?,
     };
+    r.end()?;
     Some(info)
+}
+
+/// A decoded CHALLENGE answer (the PC side).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Challenge {
+    /// Request id echoed.
+    pub id: u16,
+    /// The module's MAC address.
+    pub mac: [u8; 6],
+    /// The PC's nonce, echoed.
+    pub cnonce: [u8; NONCE_LEN],
+    /// The module's nonce: single use, valid for `crate::discovery` [`NONCE_LIFETIME_S`].
+    pub snonce: [u8; NONCE_LEN],
+    /// The PBKDF2 salt of the module's password.
+    pub salt: [u8; SALT_LEN],
+    /// Its PBKDF2 iterations.
+    pub iterations: u32,
+    /// The module's X25519 key for sealing a new credential.
+    pub public: [u8; KEY_LEN],
+    /// [`info_flags`].
+    pub flags: u8,
+}
+
+/// Seconds a nonce of the module stays valid.
+pub const NONCE_LIFETIME_S: u64 = 30;
+
+/// Encodes a CHALLENGE answer (the module side).
+pub fn encode_challenge(c: &Challenge, out: &mut [u8]) -> Option<usize> {
+    let mut w = Writer::new(out, op::CHALLENGE | op::REPLY, c.id);
+    w.bytes(&c.mac).bytes(&c.cnonce).bytes(&c.snonce).bytes(&c.salt);
+    w.bytes(&c.iterations.to_be_bytes()).bytes(&c.public).bytes(&[c.flags]);
+    w.finish()
+}
+
+/// Decodes a CHALLENGE answer.
+pub fn decode_challenge(datagram: &[u8]) -> Option<Challenge> {
+    let mut r = Reader { rest: datagram };
+    let (opcode, id) = r.header()?;
+    if opcode != op::CHALLENGE | op::REPLY {
+        return None;
+    }
+    let c = Challenge {
+        id,
+        mac: r.array()?,
+        cnonce: r.array()?,
+        snonce: r.array()?,
+        salt: r.array()?,
+        iterations: r.u32()?,
+        public: r.array()?,
+        flags: r.array::<1>()?[0],
+    };
+    r.end()?;
+    Some(c)
 }
 
 /// A decoded command reply (the PC side).
@@ -354,25 +480,77 @@ pub struct Reply {
     pub status: Status,
     /// GET_ACCESS answered [`Status::Ok`]: the allow-list.
     pub list: Option<AllowList>,
+    /// The module's signature, on an answer given after a right proof
+    /// ([`Status::after_proof`]).
+    pub signature: Option<[u8; KEY_LEN]>,
 }
 
-/// Decodes a command reply. Only a GET_ACCESS reply with [`Status::Ok`] carries more than the
-/// status: the allow-list.
+/// Decodes a command reply. A GET_ACCESS reply with [`Status::Ok`] carries the allow-list;
+/// every reply after a right proof ends with the module's signature.
 pub fn decode_reply(datagram: &[u8]) -> Option<Reply> {
     let mut r = Reader { rest: datagram };
-    if r.array::<4>()? != MAGIC || r.array::<1>()? != [VERSION] {
+    let (opcode, id) = r.header()?;
+    if opcode & op::REPLY == 0 || opcode == op::INFO || opcode == op::CHALLENGE | op::REPLY {
         return None;
     }
-    let [opcode] = r.array::<1>()?;
-    if opcode & op::REPLY == 0 || opcode == op::INFO {
-        return None;
-    }
-    let (id, mac, [status]) = (r.u16()?, r.array()?, r.array::<1>()?);
+    let (mac, [status]) = (r.array()?, r.array::<1>()?);
     let (opcode, status) = (opcode & !op::REPLY, Status::from_code(status)?);
+    let signature = match opcode != op::IDENTIFY && status.after_proof() {
+        true => {
+            let at = r.rest.len().checked_sub(KEY_LEN)?;
+            let (body, signature) = r.rest.split_at(at);
+            r.rest = body;
+            Some(signature.try_into().ok()?)
+        }
+        false => None,
+    };
     let list = match (opcode, status) {
         (op::GET_ACCESS, Status::Ok) => Some(r.allow_list()?),
         _ => None,
     };
     r.end()?;
-    Some(Reply { opcode, id, mac, status, list })
+    Some(Reply { opcode, id, mac, status, list, signature })
+}
+
+/// The PC side of authentication: proofs and the check of the module's signature.
+#[cfg(any(feature = "client", test))]
+pub mod client {
+    use super::*;
+    use crate::auth;
+
+    /// Fills in the proof of an encoded authenticated request (`ClientKey` from
+    /// `crate::auth::derive`); false if it is too short to be one.
+    pub fn prove(datagram: &mut [u8], client_key: &[u8; KEY_LEN]) -> bool {
+        let Some(parts) = auth_message(datagram) else { return false };
+        let proof = auth::client_proof(client_key, &parts);
+        datagram[PROOF_AT..PROOF_AT + KEY_LEN].copy_from_slice(&proof);
+        true
+    }
+
+    /// Whether `reply` (a datagram) carries the module's right signature over `request` and
+    /// itself: the module that knows the password answered this very request.
+    pub fn answer_is_genuine(request: &[u8], reply: &[u8], server_key: &[u8; KEY_LEN]) -> bool {
+        let (Some(parts), Some(at)) = (auth_message(request), reply.len().checked_sub(KEY_LEN)) else {
+            return false;
+        };
+        let (body, signature) = reply.split_at(at);
+        let expected = auth::server_signature(server_key, &[SERVER_LABEL, parts[1], parts[2], body]);
+        signature.try_into().is_ok_and(|s| auth::same(&expected, s))
+    }
+
+    /// The new credential of SET_PASSWORD sealed for the module: the PC's ephemeral secret
+    /// `secret`, the module's key-agreement key and both nonces from the challenge. Returns the
+    /// command.
+    pub fn seal_credential(
+        new: &auth::Credential,
+        secret: &[u8; KEY_LEN],
+        challenge: &Challenge,
+        cnonce: &[u8; NONCE_LEN],
+    ) -> Command {
+        let public = auth::x25519(secret, &auth::BASE_POINT);
+        let shared = auth::x25519(secret, &challenge.public);
+        let mut sealed = new.encode();
+        auth::seal(&shared, &[SEAL_LABEL, cnonce, &challenge.snonce], &mut sealed);
+        Command::SetPassword { public, sealed }
+    }
 }

@@ -11,6 +11,7 @@
 extern crate std;
 
 pub mod access;
+pub mod auth;
 pub mod diag;
 pub mod discovery;
 pub mod m8318;

@@ -3,10 +3,86 @@
 //!
 //! An image file is a [`Header`] then the firmware bytes. The signature is ed25519 over the
 //! SHA-512 digest of the firmware bytes (what `embassy-boot` verifies before it marks the
-//! update). A session: the PC sends the configuration password (one length byte, then the
-//! bytes), then the image file; the module answers one [`Status`] byte after the header (go on,
-//! or why not) and one after the firmware bytes (verified and marked, or why not), then
-//! restarts into the new image when the second is [`Status::Ok`].
+//! update). A session authenticates as the discovery protocol's commands do (`crate::auth`,
+//! docs/security.md), with no password on the wire:
+//! 1. the PC sends its nonce ([`NONCE_LEN`] bytes);
+//! 2. the module answers a [`Greeting`]: its MAC, the salt and iterations of its password, its
+//!    nonce (new for this session) and its flags;
+//! 3. the PC sends its proof over [`auth_message`] (which covers the header), then the header;
+//! 4. the module answers a [`Status`] byte (go on, or why not), signed when given after a right
+//!    proof ([`answer_message`]);
+//! 5. the PC sends the firmware bytes; the module answers a last signed status (verified and
+//!    marked, or why not), then restarts into the new image when it is [`Status::Ok`].
+//!
+//! The handshake (1-3) must be done within [`HANDSHAKE_S`] seconds, and a session whose peer
+//! sends nothing for [`HANDSHAKE_S`] seconds ends.
+
+use crate::auth::{KEY_LEN, NONCE_LEN, SALT_LEN};
+
+/// Seconds the handshake may take, and the longest silence of a peer in a session.
+pub const HANDSHAKE_S: u64 = 10;
+/// Label of the AuthMessage of an update session.
+pub const UPDATE_LABEL: &[u8] = b"RDAQ update v2";
+/// Label of the module's signatures in an update session.
+pub const ANSWER_LABEL: &[u8] = b"RDAQ update v2 answer";
+/// Bytes of an encoded [`Greeting`].
+pub const GREETING_LEN: usize = 6 + SALT_LEN + 4 + NONCE_LEN + 1;
+
+/// The module's first answer in a session.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Greeting {
+    /// The module's MAC address.
+    pub mac: [u8; 6],
+    /// The salt of its password.
+    pub salt: [u8; SALT_LEN],
+    /// Its PBKDF2 iterations.
+    pub iterations: u32,
+    /// The module's nonce for this session.
+    pub snonce: [u8; NONCE_LEN],
+    /// `crate::discovery::info_flags`.
+    pub flags: u8,
+}
+
+impl Greeting {
+    /// The encoded greeting.
+    pub fn encode(&self) -> [u8; GREETING_LEN] {
+        let mut out = [0u8; GREETING_LEN];
+        out[..6].copy_from_slice(&self.mac);
+        out[6..22].copy_from_slice(&self.salt);
+        out[22..26].copy_from_slice(&self.iterations.to_be_bytes());
+        out[26..42].copy_from_slice(&self.snonce);
+        out[42] = self.flags;
+        out
+    }
+    /// Decodes [`Self::encode`]'s bytes.
+    pub fn decode(b: &[u8; GREETING_LEN]) -> Self {
+        let mut g = Greeting { mac: [0; 6], salt: [0; SALT_LEN], iterations: 0, snonce: [0; NONCE_LEN], flags: b[42] };
+        g.mac.copy_from_slice(&b[..6]);
+        g.salt.copy_from_slice(&b[6..22]);
+        g.iterations = u32::from_be_bytes([b[22], b[23], b[24], b[25]]);
+        g.snonce.copy_from_slice(&b[26..42]);
+        g
+    }
+}
+
+/// The AuthMessage of a session: what the PC's proof covers.
+pub fn auth_message<'a>(
+    mac: &'a [u8; 6],
+    cnonce: &'a [u8; NONCE_LEN],
+    snonce: &'a [u8; NONCE_LEN],
+    header: &'a [u8; HEADER_LEN],
+) -> [&'a [u8]; 5] {
+    [UPDATE_LABEL, mac, cnonce, snonce, header]
+}
+
+/// What the module signs for an answer `status` at `step` (0 after the header, 1 after the
+/// firmware) of a session with AuthMessage `message`.
+pub fn answer_message<'a>(message: &[&'a [u8]; 5], step: &'a [u8; 1], status: &'a [u8; 1]) -> [&'a [u8]; 7] {
+    [ANSWER_LABEL, message[1], message[2], message[3], message[4], step, status]
+}
+
+/// Bytes of a signed answer: the status, then the signature.
+pub const SIGNED_ANSWER_LEN: usize = 1 + KEY_LEN;
 
 /// The TCP port of the update service.
 pub const PORT: u16 = 8301;

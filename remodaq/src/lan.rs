@@ -5,8 +5,10 @@ use std::str::FromStr;
 use std::time::{Duration, Instant};
 
 use remodaq_protocol::access::{AllowList, Network};
+use remodaq_protocol::auth;
 use remodaq_protocol::discovery::{
-    decode_info, decode_reply, encode_request, info_flags, Reply, Request, Status, MAX_DATAGRAM,
+    self, client, decode_challenge, decode_info, decode_reply, encode_request, info_flags, op, Reply, Request,
+    Status, MAX_DATAGRAM,
 };
 use remodaq_protocol::net::NetConfig;
 use serde::Serialize;
@@ -80,8 +82,19 @@ pub struct Found {
     /// Whether the module's Modbus write allow-list restricts writes (`null`: the module does
     /// not say).
     pub writes_restricted: Option<bool>,
-    #[serde(skip)]
-    raw_stored: NetConfig,
+    /// The factory password is in force (anyone on the LAN may change the network settings).
+    pub factory_password: bool,
+    /// The fingerprint of the key the module verifies firmware images with.
+    pub update_key: String,
+}
+
+/// Most modules one search lists.
+pub const MAX_FOUND: usize = 1024;
+
+/// A module-supplied string made safe to print: control characters (escape sequences of a
+/// terminal among them) shown as `?`, at most 64 characters.
+pub fn sanitize(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).chars().take(64).map(|c| if c.is_control() { '?' } else { c }).collect()
 }
 
 async fn socket() -> Result<UdpSocket, Error> {
@@ -106,24 +119,28 @@ pub async fn find(to: SocketAddr, timeout: Duration) -> Result<Vec<Found>, Error
     socket.send_to(&buf[..n], to).await.map_err(|e| Error::Other(format!("cannot send to {to}: {e}")))?;
     let deadline = Instant::now() + timeout;
     let mut found: Vec<Found> = Vec::new();
+    let mut seen = std::collections::HashSet::new();
     let mut rx = [0u8; 512];
     while let Ok(received) = tokio::time::timeout_at(deadline.into(), socket.recv_from(&mut rx)).await {
         let Some(n) = datagram(received) else { continue };
         let Some(info) = decode_info(&rx[..n]) else { continue };
-        if info.id != id || found.iter().any(|f| f.mac == Mac(info.mac).to_string()) {
+        // Each module once (a set, not a scan of the list), and at most MAX_FOUND of them: a
+        // flood of forged answers cannot grow the list without bound.
+        if info.id != id || found.len() >= MAX_FOUND || !seen.insert(info.mac) {
             continue;
         }
         found.push(Found {
             model: format!("{:04X}", info.model),
-            name: String::from_utf8_lossy(info.name).into_owned(),
+            name: sanitize(info.name),
             firmware: format!("{:04X}", info.version),
             mac: Mac(info.mac).to_string(),
             running: info.running.into(),
             stored: info.stored.into(),
             uptime_s: info.uptime_s,
             modbus_port: info.running.port,
-            writes_restricted: info.flags.map(|f| f & info_flags::WRITES_RESTRICTED != 0),
-            raw_stored: info.stored,
+            writes_restricted: Some(info.flags & info_flags::WRITES_RESTRICTED != 0),
+            factory_password: info.flags & info_flags::FACTORY_PASSWORD != 0,
+            update_key: info.update_key.iter().map(|b| format!("{b:02x}")).collect(),
         });
     }
     Ok(found)
@@ -150,6 +167,11 @@ pub async fn search(to: SocketAddr, timeout: Duration, json: bool) -> Result<(),
             "{:<14} {:<18} {:<16} {:<16} {:<16} {:>6} {:>8}s",
             f.name, f.mac, r.ip, r.mask, r.gateway, r.port, f.uptime_s
         );
+        if f.factory_password {
+            if let Ok(mac) = f.mac.parse() {
+                println!("  {}", factory_warning(mac));
+            }
+        }
         if f.stored != f.running {
             let s = f.stored;
             println!(
@@ -161,31 +183,32 @@ pub async fn search(to: SocketAddr, timeout: Duration, json: bool) -> Result<(),
     Ok(())
 }
 
-/// The settings `remodaq net set` changes; `None` keeps the stored value.
+/// The settings `remodaq net set` stores: all of them, from the command line (never taken from
+/// an unauthenticated search answer).
 pub struct NetChange {
-    pub ip: Option<Ipv4Addr>,
-    pub mask: Option<Ipv4Addr>,
-    pub gateway: Option<Ipv4Addr>,
-    pub port: Option<u16>,
+    pub ip: Ipv4Addr,
+    pub mask: Ipv4Addr,
+    pub gateway: Ipv4Addr,
+    pub port: u16,
 }
 
-/// A configuration command.
+/// A configuration command (the password is the login's).
 pub enum Command<'a> {
     /// Store network settings.
-    SetNetwork(&'a str, NetConfig),
+    SetNetwork(NetConfig),
     /// Restart.
-    Restart(&'a str),
-    /// Identify.
+    Restart,
+    /// Identify (no password).
     Identify,
-    /// Change the password (old, new).
-    SetPassword(&'a str, &'a str),
+    /// Change the password to this one.
+    SetPassword(&'a str),
     /// Read the Modbus write allow-list.
-    GetAccess(&'a str),
+    GetAccess,
     /// Store a Modbus write allow-list.
-    SetAccess(&'a str, AllowList),
+    SetAccess(AllowList),
 }
 
-/// `remodaq net set`: the stored settings (found by a search) with the changes applied.
+/// `remodaq net set`.
 pub async fn set_network(
     to: SocketAddr,
     mac: Mac,
@@ -194,36 +217,37 @@ pub async fn set_network(
     timeout: Duration,
     json: bool,
 ) -> Result<(), Error> {
-    let found = find(to, timeout).await?;
-    let module = found
-        .iter()
-        .find(|f| f.mac == mac.to_string())
-        .ok_or_else(|| Error::Timeout(format!("no module with MAC {mac} answered at {to}")))?;
-    let s = module.raw_stored;
     let net = NetConfig {
-        ip: change.ip.map_or(s.ip, |a| a.octets()),
-        mask: change.mask.map_or(s.mask, |a| a.octets()),
-        gateway: change.gateway.map_or(s.gateway, |a| a.octets()),
-        port: change.port.unwrap_or(s.port),
+        ip: change.ip.octets(),
+        mask: change.mask.octets(),
+        gateway: change.gateway.octets(),
+        port: change.port,
     };
     if !net.is_valid() {
         return Err(Error::Other("these settings are not usable (mask, address or port)".into()));
     }
-    command(to, mac, Command::SetNetwork(password, net), timeout, json).await
+    command(to, mac, Some(password), Command::SetNetwork(net), timeout, json).await
 }
 
 /// Sends a configuration command and prints its result.
-pub async fn command(to: SocketAddr, mac: Mac, cmd: Command<'_>, timeout: Duration, json: bool) -> Result<(), Error> {
+pub async fn command(
+    to: SocketAddr,
+    mac: Mac,
+    password: Option<&str>,
+    cmd: Command<'_>,
+    timeout: Duration,
+    json: bool,
+) -> Result<(), Error> {
     let what = match cmd {
         Command::SetNetwork(..) => "network settings stored (in force after a restart)",
-        Command::Restart(_) => "restarting",
+        Command::Restart => "restarting",
         Command::Identify => "identifying: the LED blinks for 10 s",
         Command::SetPassword(..) => "password changed",
-        Command::GetAccess(_) => "",
-        Command::SetAccess(_, list) if list.is_empty() => "Modbus writes allowed from any client",
+        Command::GetAccess => "",
+        Command::SetAccess(list) if list.is_empty() => "Modbus writes allowed from any client",
         Command::SetAccess(..) => "Modbus writes allowed from the listed networks only",
     };
-    let reply = exchange(to, mac, &cmd, timeout).await?;
+    let (reply, factory) = exchange(to, mac, password, &cmd, timeout).await?;
     if let Some(list) = reply.list {
         let nets: Vec<String> = list.iter().map(cidr).collect();
         if json {
@@ -239,7 +263,18 @@ pub async fn command(to: SocketAddr, mac: Mac, cmd: Command<'_>, timeout: Durati
     } else {
         println!("{mac}: {what}");
     }
+    if factory && !matches!(cmd, Command::SetPassword(_)) && !json {
+        println!("{}", factory_warning(mac));
+    }
     Ok(())
+}
+
+/// What `remodaq` says of a module whose factory password is in force.
+pub fn factory_warning(mac: Mac) -> String {
+    format!(
+        "warning: {mac} still has the factory password: anyone on the LAN can change its network \
+         settings. Set one: remodaq password --mac {mac}"
+    )
 }
 
 /// A network in CIDR form.
@@ -255,53 +290,144 @@ pub fn parse_cidr(s: &str) -> Result<Network, String> {
     Network::new(ip.octets(), prefix).ok_or_else(|| format!("`{s}`: the prefix is 0 to 32"))
 }
 
-/// Sends a configuration command and waits for the module's reply (an error unless it is Ok).
-async fn exchange(to: SocketAddr, mac: Mac, cmd: &Command<'_>, timeout: Duration) -> Result<Reply, Error> {
-    let socket = socket().await?;
-    let id = request_id();
-    let mut buf = [0u8; MAX_DATAGRAM];
-    let mac_bytes = mac.0;
-    let request = match *cmd {
-        Command::SetNetwork(password, net) => {
-            Request::SetNetwork { mac: mac_bytes, password: password.as_bytes(), net }
-        }
-        Command::Restart(password) => Request::Restart { mac: mac_bytes, password: password.as_bytes() },
-        Command::Identify => Request::Identify { mac: mac_bytes },
-        Command::SetPassword(old, new) => {
-            Request::SetPassword { mac: mac_bytes, password: old.as_bytes(), new: new.as_bytes() }
-        }
-        Command::GetAccess(password) => Request::GetAccess { mac: mac_bytes, password: password.as_bytes() },
-        Command::SetAccess(password, list) => {
-            Request::SetAccess { mac: mac_bytes, password: password.as_bytes(), list }
-        }
-    };
-    let n = encode_request(id, &request, &mut buf).ok_or_else(|| Error::Other("password too long".into()))?;
-    socket.send_to(&buf[..n], to).await.map_err(|e| Error::Other(format!("cannot send to {to}: {e}")))?;
-    let deadline = Instant::now() + timeout;
+/// PBKDF2 iterations of a new password (the module accepts 4096 to 10 000 000).
+pub const NEW_ITERATIONS: u32 = 100_000;
+
+/// Random bytes from the OS.
+pub fn random<const N: usize>() -> Result<[u8; N], Error> {
+    let mut out = [0u8; N];
+    getrandom::fill(&mut out).map_err(|e| Error::Other(format!("no random numbers from the OS: {e}")))?;
+    Ok(out)
+}
+
+/// The keys of `password` for a module's salt and iteration count (a forged answer cannot make
+/// this PC hash for hours: the count is bounded).
+pub fn login(password: &str, salt: &[u8; 16], iterations: u32) -> Result<([u8; 32], auth::Credential), Error> {
+    if !(auth::MIN_ITERATIONS..=auth::MAX_ITERATIONS).contains(&iterations) {
+        return Err(Error::Reply(format!("the module asks for {iterations} PBKDF2 iterations: not a RemoDAQ module")));
+    }
+    Ok(auth::derive(password.as_bytes(), salt, iterations))
+}
+
+/// Waits for the first datagram that `accept` takes.
+async fn receive<T>(
+    socket: &UdpSocket,
+    deadline: Instant,
+    what: impl Fn() -> String,
+    mut accept: impl FnMut(&[u8]) -> Option<T>,
+) -> Result<T, Error> {
     let mut rx = [0u8; 512];
     loop {
         let received = tokio::time::timeout_at(deadline.into(), socket.recv_from(&mut rx)).await;
-        let Ok(received) = received else {
-            return Err(Error::Timeout(format!(
-                "module {mac} did not answer at {to} within {:.1} s",
-                timeout.as_secs_f64()
-            )));
-        };
+        let Ok(received) = received else { return Err(Error::Timeout(what())) };
         let Some(n) = datagram(received) else { continue };
-        let Some(reply) = decode_reply(&rx[..n]) else { continue };
-        if reply.opcode != request.opcode() || reply.id != id || reply.mac != mac.0 {
+        if let Some(out) = accept(&rx[..n]) {
+            return Ok(out);
+        }
+    }
+}
+
+/// Sends a configuration command (after a challenge, with a proof of `password`) and waits for
+/// the module's signed reply (an error unless it is Ok). Also says whether the factory
+/// password is in force.
+async fn exchange(
+    to: SocketAddr,
+    mac: Mac,
+    password: Option<&str>,
+    cmd: &Command<'_>,
+    timeout: Duration,
+) -> Result<(Reply, bool), Error> {
+    let socket = socket().await?;
+    let deadline = Instant::now() + timeout;
+    let silent = || format!("module {mac} did not answer at {to} within {:.1} s", timeout.as_secs_f64());
+    let send = |bytes: Vec<u8>| {
+        let socket = &socket;
+        async move {
+            socket.send_to(&bytes, to).await.map_err(|e| Error::Other(format!("cannot send to {to}: {e}")))
+        }
+    };
+    let mut buf = [0u8; MAX_DATAGRAM];
+    if let Command::Identify = cmd {
+        let id = request_id();
+        let n = encode_request(id, &Request::Identify { mac: mac.0 }, &mut buf).unwrap_or(0);
+        send(buf[..n].to_vec()).await?;
+        let reply = receive(&socket, deadline, silent, |d| {
+            decode_reply(d).filter(|r| r.opcode == op::IDENTIFY && r.id == id && r.mac == mac.0)
+        })
+        .await?;
+        return status(reply, mac).map(|r| (r, false));
+    }
+    let password = password.ok_or_else(|| Error::Other("a password is needed".into()))?;
+    // A nonce the module used or forgot (another PC asked for many) is asked for once more.
+    for attempt in 0..2 {
+        let (id, cnonce) = (request_id(), random::<16>()?);
+        let n = encode_request(id, &Request::Challenge { mac: mac.0, cnonce }, &mut buf).unwrap_or(0);
+        send(buf[..n].to_vec()).await?;
+        let challenge = receive(&socket, deadline, silent, |d| {
+            decode_challenge(d).filter(|c| c.id == id && c.mac == mac.0 && c.cnonce == cnonce)
+        })
+        .await?;
+        let (client_key, credential) = login(password, &challenge.salt, challenge.iterations)?;
+        let command = match *cmd {
+            Command::SetNetwork(net) => discovery::Command::SetNetwork(net),
+            Command::Restart => discovery::Command::Restart,
+            Command::GetAccess => discovery::Command::GetAccess,
+            Command::SetAccess(list) => discovery::Command::SetAccess(list),
+            Command::SetPassword(new) => {
+                let (_, new) = auth::derive(new.as_bytes(), &random::<16>()?, NEW_ITERATIONS);
+                client::seal_credential(&new, &random::<32>()?, &challenge, &cnonce)
+            }
+            Command::Identify => return Err(Error::Other("identify needs no password".into())),
+        };
+        let id = request_id().wrapping_add(1);
+        let request = Request::Command {
+            mac: mac.0,
+            auth: discovery::Auth { cnonce, snonce: challenge.snonce, proof: [0; 32] },
+            command,
+        };
+        let n = encode_request(id, &request, &mut buf).ok_or_else(|| Error::Other("request too long".into()))?;
+        client::prove(&mut buf[..n], &client_key);
+        let request = buf[..n].to_vec();
+        send(request.clone()).await?;
+        let (reply, bytes) = receive(&socket, deadline, silent, |d| {
+            decode_reply(d)
+                .filter(|r| r.opcode == command.opcode() && r.id == id && r.mac == mac.0)
+                .map(|r| (r, d.to_vec()))
+        })
+        .await?;
+        if reply.signature.is_some() && !client::answer_is_genuine(&request, &bytes, &credential.server_key) {
+            return Err(Error::Reply(format!(
+                "{mac}: the answer is not signed by the module (a forged answer?); nothing is known to have changed"
+            )));
+        }
+        if reply.status == Status::StaleNonce && attempt == 0 {
             continue;
         }
-        let message = match reply.status {
-            Status::Ok => return Ok(reply),
-            Status::WrongPassword => return Err(Error::Refused(format!("{mac}: wrong password, nothing changed"))),
-            Status::RateLimited => {
-                return Err(Error::Refused(format!("{mac}: too many wrong passwords, try again later")));
-            }
-            Status::Invalid => "the module refused the settings (mask, address, port or password length)",
-            Status::StoreFailed => "the module could not store the settings",
-            Status::BadSignature => "the module answered a status of the update service (bad signature)",
-        };
-        return Err(Error::Other(format!("{mac}: {message}")));
+        let factory = challenge.flags & info_flags::FACTORY_PASSWORD != 0;
+        return status(reply, mac).map(|r| (r, factory));
     }
+    Err(Error::Other(format!("{mac}: the module kept refusing its own nonces")))
+}
+
+/// A reply's status as a result.
+fn status(reply: Reply, mac: Mac) -> Result<Reply, Error> {
+    let message = match reply.status {
+        Status::Ok => return Ok(reply),
+        Status::WrongPassword => return Err(Error::Refused(format!("{mac}: wrong password, nothing changed"))),
+        Status::RateLimited => {
+            return Err(Error::Refused(format!(
+                "{mac}: too many wrong passwords on this module, try again in a minute"
+            )));
+        }
+        Status::StaleNonce => return Err(Error::Refused(format!("{mac}: the module's nonce was already used"))),
+        Status::SetPasswordFirst => {
+            return Err(Error::Refused(format!(
+                "{mac}: the factory password is in force: set a password first (remodaq password --mac {mac})"
+            )));
+        }
+        Status::Invalid => "the module refused the settings (mask, address, port or password)",
+        Status::StoreFailed => "the module could not store the settings",
+        Status::BadSignature => "the module answered a status of the update service (bad signature)",
+    };
+    Err(Error::Other(format!("{mac}: {message}")))
 }

@@ -57,9 +57,10 @@ enum Command {
         target: Target,
         #[command(flatten)]
         password: Auth,
-        /// The new password (4 to 32 bytes).
-        #[arg(long)]
-        new: String,
+        /// The new password, at least 8 characters (asked for, without echo, when not given;
+        /// or REMODAQ_NEW_PASSWORD). It never crosses the network: only keys derived from it.
+        #[arg(long, env = "REMODAQ_NEW_PASSWORD", hide_env_values = true)]
+        new: Option<String>,
     },
     /// Read a module's inputs and outputs once.
     Read {
@@ -134,8 +135,8 @@ enum Command {
 
 #[derive(Subcommand)]
 enum NetCommand {
-    /// Store new network settings (in force after `remodaq restart`). Settings not given keep
-    /// their stored value.
+    /// Store new network settings (in force after `remodaq restart`). Every setting comes from
+    /// the command line: nothing is taken from an unauthenticated search answer.
     Set {
         #[command(flatten)]
         target: Target,
@@ -143,16 +144,16 @@ enum NetCommand {
         password: Auth,
         /// IP address.
         #[arg(long)]
-        ip: Option<Ipv4Addr>,
+        ip: Ipv4Addr,
         /// Subnet mask.
         #[arg(long)]
-        mask: Option<Ipv4Addr>,
+        mask: Ipv4Addr,
         /// Default gateway (0.0.0.0: none).
         #[arg(long)]
-        gateway: Option<Ipv4Addr>,
+        gateway: Ipv4Addr,
         /// Modbus/TCP port.
-        #[arg(long)]
-        port: Option<u16>,
+        #[arg(long, default_value_t = 8000)]
+        port: u16,
     },
 }
 
@@ -206,9 +207,51 @@ struct Target {
 /// The module's configuration password.
 #[derive(clap::Args)]
 struct Auth {
-    /// Configuration password (factory default: remodaq).
+    /// Configuration password: asked for without echo when not given, or REMODAQ_PASSWORD for
+    /// scripts (a password on the command line shows in the process list). It never crosses
+    /// the network.
     #[arg(long, env = "REMODAQ_PASSWORD", hide_env_values = true)]
-    password: String,
+    password: Option<String>,
+}
+
+impl Auth {
+    /// The password given, or asked for on the terminal.
+    fn get(&self) -> Result<String, Error> {
+        match &self.password {
+            Some(p) => Ok(p.clone()),
+            None => rpassword::prompt_password("configuration password: ")
+                .map_err(|e| Error::Other(format!("no password given and none could be asked for ({e}): set REMODAQ_PASSWORD"))),
+        }
+    }
+}
+
+/// A new password: given, or asked for twice; at least 8 characters, not the factory one.
+fn new_password(given: Option<String>) -> Result<String, Error> {
+    let new = match given {
+        Some(p) => p,
+        None => {
+            let ask = |prompt: &str| {
+                rpassword::prompt_password(prompt).map_err(|e| {
+                    Error::Other(format!("no new password given and none could be asked for ({e}): set REMODAQ_NEW_PASSWORD"))
+                })
+            };
+            let first = ask("new password: ")?;
+            if ask("new password again: ")? != first {
+                return Err(Error::Other("the two new passwords differ".into()));
+            }
+            first
+        }
+    };
+    if new.chars().count() < remodaq_protocol::auth::MIN_PASSWORD_LEN {
+        return Err(Error::Other(format!(
+            "the new password is too short: at least {} characters",
+            remodaq_protocol::auth::MIN_PASSWORD_LEN
+        )));
+    }
+    if new == remodaq_protocol::auth::FACTORY_PASSWORD {
+        return Err(Error::Other("the new password is the factory one".into()));
+    }
+    Ok(new)
 }
 
 /// What went wrong, with the exit code it gives.
@@ -274,17 +317,19 @@ async fn run(cli: Cli) -> Result<(), Error> {
         Command::Search { to } => lan::search(to, timeout, json).await,
         Command::Net { command: NetCommand::Set { target, password, ip, mask, gateway, port } } => {
             let change = lan::NetChange { ip, mask, gateway, port };
-            lan::set_network(target.to, target.mac, &password.password, change, timeout, json).await
+            lan::set_network(target.to, target.mac, &password.get()?, change, timeout, json).await
         }
         Command::Restart { target, password } => {
-            lan::command(target.to, target.mac, lan::Command::Restart(&password.password), timeout, json).await
+            let password = password.get()?;
+            lan::command(target.to, target.mac, Some(&password), lan::Command::Restart, timeout, json).await
         }
         Command::Identify { target } => {
-            lan::command(target.to, target.mac, lan::Command::Identify, timeout, json).await
+            lan::command(target.to, target.mac, None, lan::Command::Identify, timeout, json).await
         }
         Command::Password { target, password, new } => {
-            let cmd = lan::Command::SetPassword(&password.password, &new);
-            lan::command(target.to, target.mac, cmd, timeout, json).await
+            let password = password.get()?;
+            let new = new_password(new)?;
+            lan::command(target.to, target.mac, Some(&password), lan::Command::SetPassword(&new), timeout, json).await
         }
         Command::Read { module, discovery } => io::read(&module, discovery, timeout, json).await,
         Command::Watch { module, discovery, interval, count } => {
@@ -292,23 +337,24 @@ async fn run(cli: Cli) -> Result<(), Error> {
             io::watch(&module, discovery, timeout, interval, count, json).await
         }
         Command::Access { command } => {
-            let (target, cmd) = match &command {
-                AccessCommand::Show { target, password } => (target, lan::Command::GetAccess(&password.password)),
+            let (target, password, cmd) = match &command {
+                AccessCommand::Show { target, password } => (target, password, lan::Command::GetAccess),
                 AccessCommand::Set { target, password, networks } => {
                     let list = remodaq_protocol::access::AllowList::of(networks)
                         .ok_or_else(|| Error::Other("at most 4 networks".into()))?;
-                    (target, lan::Command::SetAccess(&password.password, list))
+                    (target, password, lan::Command::SetAccess(list))
                 }
                 AccessCommand::Clear { target, password } => {
-                    (target, lan::Command::SetAccess(&password.password, remodaq_protocol::access::AllowList::EMPTY))
+                    (target, password, lan::Command::SetAccess(remodaq_protocol::access::AllowList::EMPTY))
                 }
             };
-            lan::command(target.to, target.mac, cmd, timeout, json).await
+            let password = password.get()?;
+            lan::command(target.to, target.mac, Some(&password), cmd, timeout, json).await
         }
         Command::Config { module, setting } => io::config(&module, setting, timeout, json).await,
         Command::Keygen { key } => sign::keygen(&key),
         Command::Update { module, image, password, port } => {
-            update::update(&module, &image, &password.password, port, timeout, json).await
+            update::update(&module, &image, &password.get()?, port, timeout, json).await
         }
         Command::Sign { key, model, version, firmware, out } => sign::sign(&key, &firmware, model, version, &out),
     }

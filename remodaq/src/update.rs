@@ -6,7 +6,8 @@ use std::net::SocketAddr;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use remodaq_protocol::update::{Header, Status, HEADER_LEN};
+use remodaq_protocol::auth;
+use remodaq_protocol::update::{answer_message, auth_message, Greeting, Header, Status, GREETING_LEN, HEADER_LEN};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 use tokio::time::timeout as within;
@@ -32,14 +33,17 @@ fn refused(status: Option<Status>, module: SocketAddr) -> Error {
             "{module}: the signature does not match (another key, or a changed file); nothing changed"
         )),
         Some(Status::StoreFailed) => Error::Other(format!("{module}: the module could not write the update")),
+        Some(Status::StaleNonce) => Error::Reply(format!("{module}: not an update service answer")),
+        Some(Status::SetPasswordFirst) => Error::Refused(format!(
+            "{module}: the factory password is in force: set a password first (remodaq password); nothing changed"
+        )),
         Some(Status::Ok) | None => Error::Reply(format!("{module}: not an update service answer")),
     }
 }
 
-async fn status(stream: &mut TcpStream, limit: Duration, module: SocketAddr) -> Result<Status, Error> {
-    let mut byte = [0u8; 1];
-    match within(limit, stream.read_exact(&mut byte)).await {
-        Ok(Ok(_)) => Ok(Status::from_code(byte[0]).ok_or_else(|| refused(None, module))?),
+async fn read(stream: &mut TcpStream, buf: &mut [u8], limit: Duration, module: SocketAddr) -> Result<(), Error> {
+    match within(limit, stream.read_exact(buf)).await {
+        Ok(Ok(_)) => Ok(()),
         Ok(Err(e)) => Err(Error::Other(format!("{module}: the update service closed the connection ({e})"))),
         Err(_) => {
             Err(Error::Timeout(format!("{module}: no answer from the update service within {} s", limit.as_secs())))
@@ -47,7 +51,40 @@ async fn status(stream: &mut TcpStream, limit: Duration, module: SocketAddr) -> 
     }
 }
 
-/// `remodaq update MODULE IMAGE --password PW`.
+/// What the PC knows of a session once it sent its proof.
+struct Session {
+    server_key: [u8; 32],
+    mac: [u8; 6],
+    cnonce: [u8; 16],
+    snonce: [u8; 16],
+    header: [u8; HEADER_LEN],
+}
+
+/// The module's answer at `step` (0 after the header, 1 after the firmware): its status, whose
+/// signature must be the module's when it comes after a right proof.
+async fn status(
+    stream: &mut TcpStream,
+    session: &Session,
+    step: u8,
+    limit: Duration,
+    module: SocketAddr,
+) -> Result<Status, Error> {
+    let mut byte = [0u8; 1];
+    read(stream, &mut byte, limit, module).await?;
+    let status = Status::from_code(byte[0]).ok_or_else(|| refused(None, module))?;
+    if status.after_proof() {
+        let mut signature = [0u8; 32];
+        read(stream, &mut signature, limit, module).await?;
+        let message = auth_message(&session.mac, &session.cnonce, &session.snonce, &session.header);
+        let expected = auth::server_signature(&session.server_key, &answer_message(&message, &[step], &byte));
+        if !auth::same(&expected, &signature) {
+            return Err(Error::Reply(format!("{module}: the answer is not signed by the module (a forged answer?)")));
+        }
+    }
+    Ok(status)
+}
+
+/// `remodaq update MODULE IMAGE`.
 pub async fn update(
     module: &str,
     image: &Path,
@@ -62,35 +99,46 @@ pub async fn update(
         .and_then(Header::decode)
         .filter(|h| h.length as usize == file.len() - HEADER_LEN)
         .ok_or_else(|| Error::Other(format!("{} is not a signed image file (remodaq sign)", image.display())))?;
-    if password.len() > remodaq_protocol::discovery::MAX_PASSWORD_LEN {
-        return Err(Error::Other("password too long".into()));
-    }
     let (addr, model, before) = crate::io::identity(module, timeout).await?;
     if model != header.model {
         return Err(Error::Other(format!("the image is for a {:04X}, the module is a {model:04X}", header.model)));
     }
     let target = SocketAddr::new(addr.ip(), port);
-    let mut hello = vec![password.len() as u8];
-    hello.extend_from_slice(password.as_bytes());
-    hello.extend_from_slice(&file[..HEADER_LEN]);
+    let mut header_bytes = [0u8; HEADER_LEN];
+    header_bytes.copy_from_slice(&file[..HEADER_LEN]);
     let io_error = |e: std::io::Error| Error::Other(format!("{target}: {e}"));
     // The module serves one session at a time and listens again a moment after one ends:
     // a connection refused or reset before the first answer is tried again, for a few seconds.
     let started = Instant::now();
-    let mut stream = loop {
+    let (mut stream, session) = loop {
         let attempt = async {
             let mut stream = within(timeout, TcpStream::connect(target))
                 .await
                 .map_err(|_| Error::Timeout(format!("no connection to the update service at {target}")))?
                 .map_err(|e| Error::Other(format!("cannot connect to the update service at {target}: {e}")))?;
-            stream.write_all(&hello).await.map_err(io_error)?;
+            let cnonce = crate::lan::random::<16>()?;
+            stream.write_all(&cnonce).await.map_err(io_error)?;
+            let mut greeting = [0u8; GREETING_LEN];
+            read(&mut stream, &mut greeting, timeout, target).await?;
+            let greeting = Greeting::decode(&greeting);
+            let (client_key, credential) = crate::lan::login(password, &greeting.salt, greeting.iterations)?;
+            let session = Session {
+                server_key: credential.server_key,
+                mac: greeting.mac,
+                cnonce,
+                snonce: greeting.snonce,
+                header: header_bytes,
+            };
+            let message = auth_message(&session.mac, &cnonce, &session.snonce, &header_bytes);
+            let proof = auth::client_proof(&client_key, &message);
+            stream.write_all(&[&proof[..], &header_bytes[..]].concat()).await.map_err(io_error)?;
             // The module erases its update partition before it answers.
-            let first = status(&mut stream, ERASE, target).await?;
-            Ok::<_, Error>((stream, first))
+            let first = status(&mut stream, &session, 0, ERASE, target).await?;
+            Ok::<_, Error>((stream, session, first))
         };
         match attempt.await {
-            Ok((stream, Status::Ok)) => break stream,
-            Ok((_, other)) => return Err(refused(Some(other), target)),
+            Ok((stream, session, Status::Ok)) => break (stream, session),
+            Ok((_, _, other)) => return Err(refused(Some(other), target)),
             Err(e) if started.elapsed() > Duration::from_secs(10) => return Err(e),
             Err(_) => tokio::time::sleep(Duration::from_millis(300)).await,
         }
@@ -106,7 +154,7 @@ pub async fn update(
         bar.inc(chunk.len() as u64);
     }
     bar.set_message("verifying");
-    let verdict = status(&mut stream, VERIFY, target).await;
+    let verdict = status(&mut stream, &session, 1, VERIFY, target).await;
     bar.finish_and_clear();
     match verdict? {
         Status::Ok => {}

@@ -61,6 +61,9 @@ pub trait Board: Sized + 'static {
     fn factory_reset_requested(&self) -> bool;
     /// The module's MAC address.
     fn mac(&self) -> [u8; 6];
+    /// 32 bytes from the board's entropy source, to seed the module's random numbers (nonces
+    /// and key-agreement keys, docs/security.md): the STM32's RNG, the host's OS.
+    fn entropy(&mut self) -> [u8; 32];
     /// Starts the network with the stored settings, and the board's own tasks (network
     /// runner, watchdog, identify LED). Returns the network and the settings actually in force
     /// (the host and QEMU boards listen where they are told, not at the stored address).
@@ -214,6 +217,12 @@ where
     let stored = store.get().net();
     let mac = board.mac();
     let settings = *store.get();
+    crate::password::AUTH.seed(&board.entropy());
+    crate::diagnostics::DIAGNOSTICS.factory_password(settings.password().is_factory());
+    crate::diagnostics::DIAGNOSTICS.update_key(remodaq_protocol::auth::fingerprint(&crate::update::UPDATE_KEY));
+    if settings.password().is_factory() {
+        crate::warn!("the factory password is in force: set one (remodaq password)");
+    }
     let state: &'static M::State = statics.state.init(M::state(&settings));
     let store: &'static Store<B::Flash, M::Settings> = statics.store.init(Mutex::new(store));
     let map = Mutex::new(M::map(store, &settings, state));
@@ -243,7 +252,9 @@ impl<B: Board, M: Module> App<B, M> {
     pub async fn serve_update(&'static self) -> ! {
         let parts = self.boot.lock().await.take();
         match parts {
-            Some((dfu, state)) => crate::update::run(&self.net, &self.map, M::MODULE_NAME, dfu, state).await,
+            Some((dfu, state)) => {
+                crate::update::run(&self.net, &self.map, M::MODULE_NAME, self.identity.mac, dfu, state).await
+            },
             None => core::future::pending().await,
         }
     }

@@ -6,7 +6,8 @@
 use core::sync::atomic::{AtomicU16, AtomicU32, Ordering};
 
 use embassy_time::Instant;
-pub use remodaq_protocol::diag::{reset_cause, status, Diag};
+pub use remodaq_protocol::diag::{reset_cause, security, status, Diag};
+use remodaq_protocol::Word;
 
 /// Why this run started (register 40244).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -27,6 +28,19 @@ pub enum ResetCause {
     Unknown = reset_cause::UNKNOWN,
 }
 
+/// A security event counted in the diagnostics registers (docs/diagnostics.md).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Security {
+    /// A wrong proof (its source is kept as the last failed source).
+    AuthFailure,
+    /// A proof not checked: the guessing budget was spent.
+    BudgetRefusal,
+    /// A Modbus write refused by the allow-list.
+    AccessRefusal,
+    /// A firmware update refused.
+    UpdateRefusal,
+}
+
 /// The counters and flags behind the diagnostics registers.
 pub struct Diagnostics {
     status: AtomicU16,
@@ -34,7 +48,17 @@ pub struct Diagnostics {
     connections: AtomicU16,
     requests: AtomicU32,
     exceptions: AtomicU16,
+    security: AtomicU16,
+    auth_failures: AtomicU16,
+    last_failed_source: AtomicU32,
+    budget_refusals: AtomicU16,
+    access_refusals: AtomicU16,
+    update_refusals: AtomicU16,
+    update_key: AtomicU32x2,
 }
+
+/// Two 32-bit atomics (the update key's fingerprint: no 64-bit atomics on the Cortex-M4).
+struct AtomicU32x2([AtomicU32; 2]);
 
 /// The module's diagnostics.
 pub static DIAGNOSTICS: Diagnostics = Diagnostics::new();
@@ -48,7 +72,44 @@ impl Diagnostics {
             connections: AtomicU16::new(0),
             requests: AtomicU32::new(0),
             exceptions: AtomicU16::new(0),
+            security: AtomicU16::new(0),
+            auth_failures: AtomicU16::new(0),
+            last_failed_source: AtomicU32::new(0),
+            budget_refusals: AtomicU16::new(0),
+            access_refusals: AtomicU16::new(0),
+            update_refusals: AtomicU16::new(0),
+            update_key: AtomicU32x2([AtomicU32::new(0), AtomicU32::new(0)]),
         }
+    }
+
+    /// Counts a security event from `from`.
+    pub fn security(&self, event: Security, from: [u8; 4]) {
+        let counter = match event {
+            Security::AuthFailure => {
+                self.last_failed_source.store(u32::from_be_bytes(from), Ordering::Relaxed);
+                &self.auth_failures
+            }
+            Security::BudgetRefusal => &self.budget_refusals,
+            Security::AccessRefusal => &self.access_refusals,
+            Security::UpdateRefusal => &self.update_refusals,
+        };
+        counter.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Whether the factory password is in force (security flag bit 0).
+    pub fn factory_password(&self, on: bool) {
+        if on {
+            self.security.fetch_or(security::FACTORY_PASSWORD, Ordering::Relaxed);
+        } else {
+            self.security.fetch_and(!security::FACTORY_PASSWORD, Ordering::Relaxed);
+        }
+    }
+
+    /// The fingerprint of the firmware update key (registers 40321-40324).
+    pub fn update_key(&self, fingerprint: [u8; 8]) {
+        let [a, b, c, d, e, f, g, h] = fingerprint;
+        self.update_key.0[0].store(u32::from_be_bytes([a, b, c, d]), Ordering::Relaxed);
+        self.update_key.0[1].store(u32::from_be_bytes([e, f, g, h]), Ordering::Relaxed);
     }
 
     /// Records the reset cause at start-up (a watchdog reset also sets its status bit).
@@ -114,6 +175,27 @@ impl Diagnostics {
             Diag::Connections => self.connections.load(Ordering::Relaxed),
             Diag::Requests(w) => w.get(self.requests.load(Ordering::Relaxed)),
             Diag::Exceptions => self.exceptions.load(Ordering::Relaxed),
+            Diag::Security => self.security.load(Ordering::Relaxed),
+            Diag::AuthFailures => self.auth_failures.load(Ordering::Relaxed),
+            // a.b first, then c.d (the address as written).
+            Diag::LastFailedSource(w) => {
+                let ip = self.last_failed_source.load(Ordering::Relaxed);
+                match w {
+                    Word::Low => (ip >> 16) as u16,
+                    Word::High => ip as u16,
+                }
+            }
+            Diag::BudgetRefusals => self.budget_refusals.load(Ordering::Relaxed),
+            Diag::AccessRefusals => self.access_refusals.load(Ordering::Relaxed),
+            Diag::UpdateRefusals => self.update_refusals.load(Ordering::Relaxed),
+            Diag::UpdateKey(i) => {
+                let half = self.update_key.0[usize::from(i / 2) % 2].load(Ordering::Relaxed);
+                if i % 2 == 0 {
+                    (half >> 16) as u16
+                } else {
+                    half as u16
+                }
+            }
         }
     }
 }

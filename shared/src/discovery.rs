@@ -11,7 +11,8 @@ use embedded_storage_async::nor_flash::NorFlash;
 use crate::access::AllowList;
 use crate::module::{commit_change, CommonSettings, SettingsAccess, Store};
 use crate::net::NetConfig;
-use crate::password::{self, Check, Limiter, PasswordHash};
+use crate::password::{Check, Credential, AUTH, CREDENTIAL_LEN, KEY_LEN, NONCE_LEN};
+use remodaq_protocol::auth::{fingerprint, seal, x25519, BASE_POINT};
 
 /// What a module says about itself.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -39,22 +40,64 @@ pub enum Effect {
     Identify,
 }
 
+/// Nonces handed out and not used yet.
+pub const NONCES: usize = 16;
+
+#[derive(Clone, Copy)]
+struct Nonce {
+    value: [u8; NONCE_LEN],
+    issued_ms: u64,
+}
+
 /// The module side of the protocol.
 pub struct Service {
     identity: Identity,
-    limiter: Limiter,
+    nonces: [Option<Nonce>; NONCES],
+    /// The module's X25519 key for sealing a new credential (secret, public): new at start-up
+    /// and after each password change.
+    agreement: Option<([u8; KEY_LEN], [u8; KEY_LEN])>,
 }
 
 impl Service {
     /// The service of a module.
     pub fn new(identity: Identity) -> Self {
-        Self { identity, limiter: Limiter::default() }
+        Self { identity, nonces: [None; NONCES], agreement: None }
+    }
+
+    /// The key-agreement key, made when first needed.
+    fn agreement(&mut self, now_ms: u64) -> ([u8; KEY_LEN], [u8; KEY_LEN]) {
+        *self.agreement.get_or_insert_with(|| {
+            let mut secret = [0u8; KEY_LEN];
+            AUTH.random(&now_ms.to_le_bytes(), &mut secret);
+            (secret, x25519(&secret, &BASE_POINT))
+        })
+    }
+
+    /// Hands out a nonce: the oldest one is forgotten when every place is taken.
+    fn issue(&mut self, from: [u8; 4], now_ms: u64) -> [u8; NONCE_LEN] {
+        let mut value = [0u8; NONCE_LEN];
+        let mut context = [0u8; 12];
+        context[..8].copy_from_slice(&now_ms.to_le_bytes());
+        context[8..].copy_from_slice(&from);
+        AUTH.random(&context, &mut value);
+        let slot = (0..NONCES).min_by_key(|&i| self.nonces[i].map_or(0, |n| n.issued_ms + 1)).unwrap_or(0);
+        self.nonces[slot] = Some(Nonce { value, issued_ms: now_ms });
+        value
+    }
+
+    /// Takes a nonce handed out less than [`NONCE_LIFETIME_S`] ago: it can never be used again.
+    fn redeem(&mut self, value: &[u8; NONCE_LEN], now_ms: u64) -> bool {
+        let live = |n: &Nonce| now_ms.saturating_sub(n.issued_ms) < NONCE_LIFETIME_S * 1000;
+        match self.nonces.iter_mut().find(|n| n.is_some_and(|n| n.value == *value)) {
+            Some(slot) => slot.take().is_some_and(|n| live(&n)),
+            None => false,
+        }
     }
 
     /// Handles one datagram from `from` at `now_ms` (ms since start): the reply's length in
     /// `out` (none for datagrams that are ignored or addressed to another module) and the
     /// effect to carry out after sending it. The map is locked only to copy the settings in
-    /// force: the password is hashed, and new settings committed, without its lock.
+    /// force: proofs are checked, and new settings committed, without its lock.
     pub async fn handle<R: RawMutex, A: SettingsAccess, F: NorFlash>(
         &mut self,
         datagram: &[u8],
@@ -67,46 +110,104 @@ impl Service {
         let (id, request) = decode_request(datagram)?;
         let me = self.identity.mac;
         let current = *map.lock().await.settings();
-        let (mac, password) = match request {
+        let credential = current.password();
+        let (auth, command) = match request {
             Request::Search => return self.info(id, now_ms, &current, out).map(|n| (n, Effect::None)),
             Request::Identify { mac } if mac == me => {
                 return result(out, op::IDENTIFY, id, me, Status::Ok, None).map(|n| (n, Effect::Identify));
             }
-            Request::Identify { .. } => return None,
-            Request::SetNetwork { mac, password, .. }
-            | Request::Restart { mac, password }
-            | Request::SetPassword { mac, password, .. }
-            | Request::GetAccess { mac, password }
-            | Request::SetAccess { mac, password, .. } => (mac, password),
+            Request::Challenge { mac, cnonce } if mac == me => {
+                let snonce = self.issue(from, now_ms);
+                let (_, public) = self.agreement(now_ms);
+                let c = Challenge {
+                    id,
+                    mac: me,
+                    cnonce,
+                    snonce,
+                    salt: credential.salt,
+                    iterations: credential.iterations,
+                    public,
+                    flags: flags(&current),
+                };
+                return encode_challenge(&c, out).map(|n| (n, Effect::None));
+            }
+            Request::Command { mac, auth, command } if mac == me => (auth, command),
+            _ => return None,
         };
-        if mac != me {
-            return None;
-        }
-        let opcode = request.opcode();
-        let mut list = None;
-        let status = match self.limiter.check(&current.password(), password, from, now_ms) {
-            Check::Locked => Status::RateLimited,
-            Check::Wrong => Status::WrongPassword,
-            Check::Ok => match request {
-                Request::SetNetwork { net, .. } if net.is_valid() => commit(map, store, |s| s.set_net(net)).await,
-                Request::SetPassword { new, .. } if (password::MIN_LEN..=password::MAX_LEN).contains(&new.len()) => {
-                    let hash = PasswordHash::new(current.password().next_salt(&me, now_ms), new);
-                    commit(map, store, |s| s.set_password(hash)).await
+        let opcode = command.opcode();
+        let message = auth_message(datagram)?;
+        let status = if !self.redeem(&auth.snonce, now_ms) {
+            Status::StaleNonce
+        } else {
+            match AUTH.check(&credential, &message, &auth.proof, from, now_ms) {
+                Check::Limited => Status::RateLimited,
+                Check::Wrong => Status::WrongPassword,
+                Check::Ok(_) => {
+                    let mut list = None;
+                    let status = self.command(command, &auth, &credential, &current, &mut list, map, store, now_ms);
+                    let status = status.await;
+                    let n = result(out, opcode, id, me, status, list.as_ref())?;
+                    // The answer, signed with the key the PC proved it knows (the old one
+                    // after a password change).
+                    let signature = remodaq_protocol::auth::server_signature(
+                        &credential.server_key,
+                        &[SERVER_LABEL, message[1], message[2], &out[..n]],
+                    );
+                    let end = n + KEY_LEN;
+                    out.get_mut(n..end)?.copy_from_slice(&signature);
+                    let effect = match (command, status) {
+                        (Command::Restart, Status::Ok) => Effect::Restart,
+                        _ => Effect::None,
+                    };
+                    return Some((end, effect));
                 }
-                Request::SetAccess { list, .. } => commit(map, store, |s| s.set_allow_list(list)).await,
-                Request::GetAccess { .. } => {
-                    list = Some(current.allow_list());
-                    Status::Ok
-                }
-                Request::Restart { .. } => Status::Ok,
-                _ => Status::Invalid,
-            },
+            }
         };
-        let effect = if opcode == op::RESTART && status == Status::Ok { Effect::Restart } else { Effect::None };
-        if status == Status::WrongPassword {
-            crate::warn!("discovery: wrong configuration password");
+        result(out, opcode, id, me, status, None).map(|n| (n, Effect::None))
+    }
+
+    /// Carries out an authenticated command.
+    #[allow(clippy::too_many_arguments)]
+    async fn command<R: RawMutex, A: SettingsAccess, F: NorFlash>(
+        &mut self,
+        command: Command,
+        auth: &Auth,
+        credential: &Credential,
+        current: &A::Settings,
+        list: &mut Option<AllowList>,
+        map: &Mutex<R, A>,
+        store: &Store<F, A::Settings>,
+        now_ms: u64,
+    ) -> Status {
+        match command {
+            Command::SetNetwork(net) if net.is_valid() => commit(map, store, |s| s.set_net(net)).await,
+            Command::SetNetwork(_) => Status::Invalid,
+            Command::Restart => Status::Ok,
+            Command::GetAccess => {
+                *list = Some(current.allow_list());
+                Status::Ok
+            }
+            Command::SetAccess(_) if credential.is_factory() => Status::SetPasswordFirst,
+            Command::SetAccess(new) => commit(map, store, |s| s.set_allow_list(new)).await,
+            Command::SetPassword { public, sealed } => {
+                let (secret, _) = self.agreement(now_ms);
+                let shared = x25519(&secret, &public);
+                let mut bytes: [u8; CREDENTIAL_LEN] = sealed;
+                seal(&shared, &[SEAL_LABEL, &auth.cnonce, &auth.snonce], &mut bytes);
+                let new = Credential::decode(&bytes);
+                if !new.is_acceptable() || new.is_factory() {
+                    return Status::Invalid;
+                }
+                // A new key for the next change (what sealed this one is forgotten).
+                self.agreement = None;
+                let status = commit(map, store, |s| s.set_password(new)).await;
+                if status == Status::Ok {
+                    crate::diagnostics::DIAGNOSTICS.factory_password(false);
+                    crate::info!("discovery: password changed");
+                }
+                status
+            }
         }
-        result(out, opcode, id, me, status, list.as_ref()).map(|n| (n, effect))
     }
 
     fn info<S: CommonSettings>(&self, id: u16, now_ms: u64, settings: &S, out: &mut [u8]) -> Option<usize> {
@@ -115,10 +216,21 @@ impl Service {
         w.bytes(&i.model.to_be_bytes()).bytes(&i.version.to_be_bytes()).bytes(&i.mac);
         w.net(&i.running).net(&settings.net());
         w.bytes(&((now_ms / 1000) as u32).to_be_bytes()).string(i.name.as_bytes());
-        let restricted = !settings.allow_list().is_empty();
-        w.bytes(&[if restricted { info_flags::WRITES_RESTRICTED } else { 0 }]);
+        w.bytes(&[flags(settings)]).bytes(&fingerprint(&crate::update::UPDATE_KEY));
         w.finish()
     }
+}
+
+/// The flags of INFO and CHALLENGE answers.
+fn flags<S: CommonSettings>(settings: &S) -> u8 {
+    let mut flags = 0;
+    if !settings.allow_list().is_empty() {
+        flags |= info_flags::WRITES_RESTRICTED;
+    }
+    if settings.password().is_factory() {
+        flags |= info_flags::FACTORY_PASSWORD;
+    }
+    flags
 }
 
 /// Commits a change of the settings (the store's lock only).

@@ -6,7 +6,7 @@ use embassy_sync::mutex::Mutex;
 use embedded_storage_async::nor_flash::NorFlash;
 
 use crate::net::NetConfig;
-use crate::password::PasswordHash;
+use crate::password::Credential;
 use crate::protocol::access::AllowList;
 use crate::settings::{Schema, SettingsStore, StoreError};
 
@@ -16,10 +16,10 @@ pub trait CommonSettings: Schema + Copy {
     fn net(&self) -> NetConfig;
     /// Changes the stored network settings.
     fn set_net(&mut self, net: NetConfig);
-    /// The configuration password.
-    fn password(&self) -> PasswordHash;
-    /// Changes the configuration password.
-    fn set_password(&mut self, hash: PasswordHash);
+    /// The configuration password's credential.
+    fn password(&self) -> Credential;
+    /// Changes the configuration password's credential.
+    fn set_password(&mut self, credential: Credential);
     /// The Modbus write allow-list (extensions §4).
     fn allow_list(&self) -> AllowList;
     /// Changes the Modbus write allow-list.
@@ -74,7 +74,7 @@ where
 }
 
 /// Implements [`CommonSettings`] for a settings struct with the fields `net: NetConfig`,
-/// `password: PasswordHash` and `allow: AllowList`.
+/// `password: Credential` and `allow: AllowList`.
 #[macro_export]
 macro_rules! impl_common_settings {
     ($settings:ty) => {
@@ -85,11 +85,11 @@ macro_rules! impl_common_settings {
             fn set_net(&mut self, net: $crate::net::NetConfig) {
                 self.net = net;
             }
-            fn password(&self) -> $crate::password::PasswordHash {
+            fn password(&self) -> $crate::password::Credential {
                 self.password
             }
-            fn set_password(&mut self, hash: $crate::password::PasswordHash) {
-                self.password = hash;
+            fn set_password(&mut self, credential: $crate::password::Credential) {
+                self.password = credential;
             }
             fn allow_list(&self) -> $crate::protocol::access::AllowList {
                 self.allow

@@ -1,155 +1,220 @@
-//! The configuration password: kept as a salted SHA-256 hash in the settings, checked with a
-//! rate limit on wrong guesses.
+//! The configuration password on the module (docs/security.md): the stored [`Credential`]
+//! (never the password), the module's random numbers ([`AUTH`]: nonces, key-agreement keys)
+//! and the module-wide guessing [`Budget`] that the discovery service and the update service
+//! share, whatever source addresses the guesses claim.
 
-use sha2::{Digest, Sha256};
+use core::cell::RefCell;
+
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::blocking_mutex::Mutex;
+pub use remodaq_protocol::auth::{Credential, CREDENTIAL_LEN, KEY_LEN, NONCE_LEN};
+use remodaq_protocol::auth::{hmac, verify_proof};
 
 use crate::settings::{RecordReader, RecordWriter};
 
-/// Factory default configuration password.
-pub const FACTORY_PASSWORD: &str = "remodaq";
-/// Longest password accepted.
-pub const MAX_LEN: usize = remodaq_protocol::discovery::MAX_PASSWORD_LEN;
-/// Shortest new password accepted.
-pub const MIN_LEN: usize = 4;
+/// The settings tag of the credential. (Tags 5 and 6 held the salted SHA-256 hash of settings
+/// version 1: a hash cannot be turned into SCRAM keys, so such a record loads with the factory
+/// credential, which the module then reports: docs/security.md, "Migration".)
+const TAG_CREDENTIAL: u8 = 7;
 
-/// A salted password hash.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct PasswordHash {
-    salt: [u8; 16],
-    hash: [u8; 32],
+/// Writes the credential into a settings record.
+pub fn encode(c: &Credential, w: &mut RecordWriter<'_>) {
+    w.put(TAG_CREDENTIAL, &c.encode());
 }
 
-mod tag {
-    pub const SALT: u8 = 5;
-    pub const HASH: u8 = 6;
-}
-
-fn digest(salt: &[u8; 16], password: &[u8]) -> [u8; 32] {
-    let mut h = Sha256::new();
-    h.update(salt);
-    h.update(password);
-    h.finalize().into()
-}
-
-impl PasswordHash {
-    /// The hash of `password` with `salt`.
-    pub fn new(salt: [u8; 16], password: &[u8]) -> Self {
-        Self { salt, hash: digest(&salt, password) }
-    }
-
-    /// The factory default ([`FACTORY_PASSWORD`], zero salt).
-    pub fn factory() -> Self {
-        Self::new([0; 16], FACTORY_PASSWORD.as_bytes())
-    }
-
-    /// Whether `password` is the password (constant time over the hash).
-    pub fn matches(&self, password: &[u8]) -> bool {
-        let h = digest(&self.salt, password);
-        h.iter().zip(self.hash.iter()).fold(0u8, |acc, (a, b)| acc | (a ^ b)) == 0
-    }
-
-    /// A new salt, unique per module and change: derived from the MAC, the time and the old salt.
-    pub fn next_salt(&self, mac: &[u8; 6], now_ms: u64) -> [u8; 16] {
-        let mut h = Sha256::new();
-        h.update(mac);
-        h.update(now_ms.to_le_bytes());
-        h.update(self.salt);
-        h.update(self.hash);
-        let d: [u8; 32] = h.finalize().into();
-        let mut salt = [0u8; 16];
-        salt.copy_from_slice(&d[..16]);
-        salt
-    }
-
-    /// Writes the fields into a settings record.
-    pub fn encode(&self, w: &mut RecordWriter<'_>) {
-        w.put(tag::SALT, &self.salt);
-        w.put(tag::HASH, &self.hash);
-    }
-
-    /// Reads the fields of a settings record; the factory password if absent.
-    pub fn decode(r: &RecordReader<'_>) -> Self {
-        match (r.array(tag::SALT), r.array(tag::HASH)) {
-            (Some(salt), Some(hash)) => Self { salt, hash },
-            _ => Self::factory(),
-        }
+/// The credential of a settings record; the factory one if absent or not acceptable.
+pub fn decode(r: &RecordReader<'_>) -> Credential {
+    match r.array::<CREDENTIAL_LEN>(TAG_CREDENTIAL).map(|b| Credential::decode(&b)) {
+        Some(c) if c.is_acceptable() => c,
+        _ => Credential::FACTORY,
     }
 }
 
-/// Wrong guesses allowed before the lock-out starts.
-const FREE_FAILURES: u32 = 3;
-/// Longest lock-out, ms.
-const MAX_LOCKOUT_MS: u64 = 300_000;
-/// Sources whose wrong guesses are remembered (extensions §4: at least the 16 most recent).
+/// Failed proofs the whole module allows in a burst.
+pub const BUDGET: u32 = 10;
+/// One failed proof more is allowed every this many ms (10 a minute, sustained).
+pub const REFILL_MS: u64 = 6_000;
+/// Of the budget, what one source address may spend in a burst (so one host guessing leaves
+/// the rest to others, extensions §4); it gets one back every `2 * REFILL_MS`.
+pub const SOURCE_BUDGET: u32 = 5;
+/// Source addresses remembered for their share (the least recently seen is forgotten first).
 pub const SOURCES: usize = 16;
 
-/// One source's wrong guesses.
+/// A token bucket kept as the time at which it is full again (GCRA).
+#[derive(Clone, Copy, Default)]
+struct Bucket {
+    full_at_ms: u64,
+}
+
+impl Bucket {
+    /// Whether one token is left at `now_ms` in a bucket of `capacity` refilled every
+    /// `refill_ms`.
+    fn has_token(&self, now_ms: u64, capacity: u32, refill_ms: u64) -> bool {
+        let debt = self.full_at_ms.saturating_sub(now_ms);
+        debt + refill_ms <= u64::from(capacity) * refill_ms
+    }
+    fn take(&mut self, now_ms: u64, refill_ms: u64) {
+        self.full_at_ms = self.full_at_ms.max(now_ms) + refill_ms;
+    }
+}
+
 #[derive(Clone, Copy)]
 struct Source {
     ip: [u8; 4],
-    failures: u32,
-    locked_until_ms: u64,
+    bucket: Bucket,
     last_ms: u64,
 }
 
-/// Rate limit on password checks, kept per source address (extensions §4), so one host
-/// guessing cannot lock the administrator out elsewhere: after [`FREE_FAILURES`] wrong
-/// guesses from a source, every further check from it is refused for 1 s, then 2 s, 4 s, ...
-/// up to 5 minutes, until a right password from it. The [`SOURCES`] most recently seen
-/// sources are remembered.
+/// The module-wide guessing budget: at most [`BUDGET`] failed proofs in a burst and one more
+/// every [`REFILL_MS`] (10 a minute) for the whole module, and at most [`SOURCE_BUDGET`] of
+/// them from one source address. A proof is not checked at all while the budget (or its
+/// source's share) is spent. A forged source can thus delay the administrator, but once it
+/// stops, the module takes proofs again within 6 s (the whole budget is back within a minute):
+/// there is no lock-out longer than the budget window.
 #[derive(Default)]
-pub struct Limiter {
+pub struct Budget {
+    module: Bucket,
     sources: [Option<Source>; SOURCES],
 }
 
-/// The outcome of a password check.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Check {
-    /// Right password.
-    Ok,
-    /// Wrong password.
-    Wrong,
-    /// Not checked: too many wrong guesses from this source, try later.
-    Locked,
-}
-
-impl Limiter {
-    /// Checks `password` from source `from` against `hash` at time `now_ms` (the hash is not
-    /// computed while the source is locked out).
-    pub fn check(&mut self, hash: &PasswordHash, password: &[u8], from: [u8; 4], now_ms: u64) -> Check {
-        let index = self.sources.iter().position(|s| s.is_some_and(|s| s.ip == from));
-        if let Some(source) = index.and_then(|i| self.sources[i].as_mut()) {
-            source.last_ms = now_ms;
-            if now_ms < source.locked_until_ms {
-                return Check::Locked;
-            }
-        }
-        if hash.matches(password) {
-            if let Some(i) = index {
-                self.sources[i] = None;
-            }
-            return Check::Ok;
-        }
-        let slot = index.unwrap_or_else(|| self.free_or_oldest());
-        let source =
-            self.sources[slot].get_or_insert(Source { ip: from, failures: 0, locked_until_ms: 0, last_ms: now_ms });
-        source.failures = source.failures.saturating_add(1);
-        if source.failures >= FREE_FAILURES {
-            let exp = (source.failures - FREE_FAILURES).min(20);
-            source.locked_until_ms = now_ms + (1000u64 << exp).min(MAX_LOCKOUT_MS);
-        }
-        Check::Wrong
+impl Budget {
+    /// Whether a proof from `from` may be checked at `now_ms`.
+    pub fn allows(&self, from: [u8; 4], now_ms: u64) -> bool {
+        let source = self.sources.iter().flatten().find(|s| s.ip == from);
+        self.module.has_token(now_ms, BUDGET, REFILL_MS)
+            && source.is_none_or(|s| s.bucket.has_token(now_ms, SOURCE_BUDGET, 2 * REFILL_MS))
     }
 
-    /// A free entry, else the one seen least recently (its record is dropped).
-    fn free_or_oldest(&mut self) -> usize {
-        let slot = match self.sources.iter().position(Option::is_none) {
-            Some(free) => free,
-            None => (0..SOURCES).min_by_key(|i| self.sources[*i].map_or(0, |s| s.last_ms)).unwrap_or(0),
+    /// A proof from `from` failed at `now_ms`: it costs one token of the module and of its
+    /// source.
+    pub fn failed(&mut self, from: [u8; 4], now_ms: u64) {
+        self.module.take(now_ms, REFILL_MS);
+        let slot = match self.sources.iter().position(|s| s.is_some_and(|s| s.ip == from)) {
+            Some(i) => i,
+            None => {
+                let oldest = (0..SOURCES).min_by_key(|&i| self.sources[i].map_or(0, |s| s.last_ms)).unwrap_or(0);
+                self.sources[oldest] = None;
+                oldest
+            }
         };
-        self.sources[slot] = None;
-        slot
+        let source = self.sources[slot].get_or_insert(Source { ip: from, bucket: Bucket::default(), last_ms: 0 });
+        source.last_ms = now_ms;
+        source.bucket.take(now_ms, 2 * REFILL_MS);
+    }
+}
+
+/// A deterministic random bit generator (HMAC-SHA-256 in counter mode, after HMAC-DRBG's
+/// update step), seeded by the board's entropy at start-up and stirred with the time of every
+/// request that asks for a nonce.
+struct Drbg {
+    key: [u8; KEY_LEN],
+    counter: u64,
+}
+
+impl Drbg {
+    fn stir(&mut self, data: &[u8]) {
+        self.key = hmac(&self.key, &[b"stir", &self.counter.to_le_bytes(), data]);
+    }
+    fn fill(&mut self, out: &mut [u8]) {
+        for chunk in out.chunks_mut(KEY_LEN) {
+            self.counter += 1;
+            let block = hmac(&self.key, &[b"out", &self.counter.to_le_bytes()]);
+            chunk.copy_from_slice(&block[..chunk.len()]);
+        }
+        // Forward secrecy of what was handed out: the key moves on.
+        self.stir(b"next");
+    }
+}
+
+/// The module-wide state of authentication.
+struct State {
+    drbg: Drbg,
+    budget: Budget,
+    seeded: bool,
+}
+
+/// Authentication state shared by the discovery and the update services.
+pub struct Authority {
+    state: Mutex<CriticalSectionRawMutex, RefCell<State>>,
+}
+
+/// The module's authentication state.
+pub static AUTH: Authority = Authority::new();
+
+/// The outcome of checking a proof.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Check {
+    /// Right: the ClientKey of the session (the key that sealed a new credential's context).
+    Ok([u8; KEY_LEN]),
+    /// Wrong (one failure counted against the budget).
+    Wrong,
+    /// Not checked: the budget is spent.
+    Limited,
+}
+
+impl Authority {
+    /// Unseeded.
+    pub const fn new() -> Self {
+        Self {
+            state: Mutex::new(RefCell::new(State {
+                drbg: Drbg { key: [0; KEY_LEN], counter: 0 },
+                budget: Budget { module: Bucket { full_at_ms: 0 }, sources: [None; SOURCES] },
+                seeded: false,
+            })),
+        }
+    }
+
+    /// Seeds the random numbers with the board's entropy (at start-up).
+    pub fn seed(&self, entropy: &[u8; 32]) {
+        self.state.lock(|s| {
+            let mut s = s.borrow_mut();
+            s.drbg.stir(entropy);
+            s.seeded = true;
+        });
+    }
+
+    /// Fresh random bytes, stirred first with `context` (e.g. the time and source of a request).
+    pub fn random(&self, context: &[u8], out: &mut [u8]) {
+        self.state.lock(|s| {
+            let mut s = s.borrow_mut();
+            if !s.seeded {
+                crate::warn!("auth: random numbers before the board seeded them");
+            }
+            s.drbg.stir(context);
+            s.drbg.fill(out);
+        });
+    }
+
+    /// Checks `proof` over `message` against `credential`, for a request from `from` at
+    /// `now_ms`, within the module-wide budget; counts the security events.
+    pub fn check(
+        &self,
+        credential: &Credential,
+        message: &[&[u8]],
+        proof: &[u8; KEY_LEN],
+        from: [u8; 4],
+        now_ms: u64,
+    ) -> Check {
+        let allowed = self.state.lock(|s| s.borrow().budget.allows(from, now_ms));
+        if !allowed {
+            crate::diagnostics::DIAGNOSTICS.security(crate::diagnostics::Security::BudgetRefusal, from);
+            return Check::Limited;
+        }
+        match verify_proof(&credential.stored_key, message, proof) {
+            Some(client_key) => Check::Ok(client_key),
+            None => {
+                self.state.lock(|s| s.borrow_mut().budget.failed(from, now_ms));
+                crate::diagnostics::DIAGNOSTICS.security(crate::diagnostics::Security::AuthFailure, from);
+                crate::warn!("auth: a wrong proof");
+                Check::Wrong
+            }
+        }
+    }
+}
+
+impl Default for Authority {
+    fn default() -> Self {
+        Self::new()
     }
 }
 
@@ -158,43 +223,47 @@ mod tests {
     use super::*;
 
     #[test]
-    fn hash_and_limit() {
-        let h = PasswordHash::factory();
-        assert!(h.matches(b"remodaq"));
-        assert!(!h.matches(b"remodaq "));
-        let salt = h.next_salt(&[2, 0, 0, 0, 0, 1], 5);
-        assert_ne!(salt, h.next_salt(&[2, 0, 0, 0, 0, 2], 5));
-        let h2 = PasswordHash::new(salt, b"secret");
-        assert!(h2.matches(b"secret") && !h2.matches(b"remodaq"));
-
-        let mut l = Limiter::default();
-        let a = [10, 0, 0, 1];
-        assert_eq!(l.check(&h, b"a", a, 0), Check::Wrong);
-        assert_eq!(l.check(&h, b"b", a, 0), Check::Wrong);
-        assert_eq!(l.check(&h, b"c", a, 0), Check::Wrong);
-        assert_eq!(l.check(&h, b"remodaq", a, 500), Check::Locked, "even the right one, while locked");
-        assert_eq!(l.check(&h, b"d", a, 1000), Check::Wrong);
-        assert_eq!(l.check(&h, b"remodaq", a, 2999), Check::Locked, "2 s after the fourth");
-        assert_eq!(l.check(&h, b"remodaq", a, 3000), Check::Ok);
-        assert_eq!(l.check(&h, b"x", a, 3000), Check::Wrong, "reset by the right password");
-        assert_eq!(l.check(&h, b"remodaq", a, 3000), Check::Ok);
+    fn budget_is_module_wide_with_a_share_per_source() {
+        let mut b = Budget::default();
+        let (guesser, admin) = ([10, 0, 0, 66], [10, 0, 0, 1]);
+        // One source spends its share of 5, then waits; others still have the rest.
+        for _ in 0..5 {
+            assert!(b.allows(guesser, 0));
+            b.failed(guesser, 0);
+        }
+        assert!(!b.allows(guesser, 0), "a source's share is 5");
+        assert!(b.allows(admin, 0), "the administrator still gets checked");
+        // Forged sources, one guess each: the module-wide budget of 10 ends it.
+        for i in 0..5u8 {
+            assert!(b.allows([10, 1, 0, i], 0));
+            b.failed([10, 1, 0, i], 0);
+        }
+        assert!(!b.allows([10, 2, 0, 0], 0) && !b.allows(admin, 0), "10 failed proofs: nothing more is checked");
+        // One token back every 6 s: 10 a minute at most.
+        assert!(!b.allows(admin, 5_999));
+        assert!(b.allows(admin, 6_000));
+        b.failed([10, 3, 0, 0], 6_000);
+        assert!(!b.allows(admin, 6_000));
+        // Once the guessing stops, the whole budget is back within a minute.
+        for i in 0..10u8 {
+            assert!(b.allows([10, 4, 0, i], 66_000), "guess {i}");
+            b.failed([10, 4, 0, i], 66_000);
+        }
+        assert!(!b.allows(admin, 66_000));
     }
 
     #[test]
-    fn lock_out_is_per_source() {
-        let h = PasswordHash::factory();
-        let mut l = Limiter::default();
-        let (guesser, admin) = ([10, 0, 0, 66], [10, 0, 0, 1]);
-        for _ in 0..10 {
-            l.check(&h, b"guess", guesser, 100);
-        }
-        assert_eq!(l.check(&h, b"remodaq", guesser, 200), Check::Locked);
-        assert_eq!(l.check(&h, b"remodaq", admin, 200), Check::Ok, "another source is still accepted");
-        assert_eq!(l.check(&h, b"wrong", admin, 200), Check::Wrong, "and gets its own free guesses");
-        // 15 other sources guessing after the guesser keep it among the 16 remembered.
-        for i in 0..14u8 {
-            l.check(&h, b"x", [10, 1, 0, i], 300);
-        }
-        assert_eq!(l.check(&h, b"remodaq", guesser, 400), Check::Locked, "still remembered");
+    fn random_numbers_differ() {
+        let a = Authority::new();
+        a.seed(&[1; 32]);
+        let (mut x, mut y) = ([0u8; 16], [0u8; 16]);
+        a.random(b"t=1", &mut x);
+        a.random(b"t=1", &mut y);
+        assert_ne!(x, y, "the same context twice still gives new bytes");
+        let b = Authority::new();
+        b.seed(&[2; 32]);
+        let mut z = [0u8; 16];
+        b.random(b"t=1", &mut z);
+        assert_ne!(x, z, "another seed, other bytes");
     }
 }

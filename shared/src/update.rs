@@ -12,7 +12,8 @@ use embedded_io_async::{Read, Write};
 use embedded_storage_async::nor_flash::NorFlash;
 
 use crate::module::{CommonSettings, SettingsAccess};
-use crate::password::{Check, Limiter, MAX_LEN};
+use crate::password::{Check, AUTH, KEY_LEN, NONCE_LEN};
+use remodaq_protocol::auth::server_signature;
 
 include!(concat!(env!("OUT_DIR"), "/update_key.rs"));
 
@@ -23,7 +24,7 @@ pub const TRIAL: Duration = Duration::from_secs(20);
 /// Firmware bytes buffered per write to the update partition.
 pub const CHUNK: usize = 1024;
 /// A session whose peer sends nothing for this long ends (the image stays unmarked).
-pub const STALL: Duration = Duration::from_secs(10);
+pub const STALL: Duration = Duration::from_secs(HANDSHAKE_S);
 
 /// Where an update goes: the bootloader's update partition and state (`embassy-boot`'s
 /// `FirmwareUpdater` on the boards).
@@ -53,23 +54,33 @@ pub enum Outcome {
     NotUpdated,
 }
 
-/// The update service of a module: its model, the size of its update partition, and its own
-/// wrong-password limiter (per source address, as discovery's).
+/// The update service of a module: its model, MAC and the size of its update partition.
+/// Wrong proofs count against the module-wide guessing budget (`crate::password::AUTH`).
 pub struct UpdateService {
     model: u16,
+    mac: [u8; 6],
     capacity: u32,
-    limiter: Limiter,
+}
+
+/// Why a session's handshake ended without going on.
+enum Refused {
+    /// The peer went, stalled or took too long: nothing to answer.
+    Gone,
+    /// Refused before a right proof (unsigned answer).
+    Early(Status),
+    /// Refused after a right proof (signed answer).
+    Late(Status),
 }
 
 impl UpdateService {
-    /// The service of a module with name register `model` and an update partition of
-    /// `capacity` bytes.
-    pub fn new(model: u16, capacity: u32) -> Self {
-        Self { model, capacity, limiter: Limiter::default() }
+    /// The service of a module with name register `model`, MAC `mac` and an update partition
+    /// of `capacity` bytes.
+    pub fn new(model: u16, mac: [u8; 6], capacity: u32) -> Self {
+        Self { model, mac, capacity }
     }
 
     /// Serves one session from the client at `from` at `now_ms`. The map is locked only to
-    /// copy the password hash.
+    /// copy the credential.
     pub async fn session<T, R, A, U>(
         &mut self,
         io: &mut T,
@@ -84,40 +95,49 @@ impl UpdateService {
         A: SettingsAccess,
         U: UpdateTarget,
     {
-        let mut buf = [0u8; CHUNK];
-        // The password, then the image header.
-        let Some(()) = read_exact(io, &mut buf[..1]).await else { return Outcome::NotUpdated };
-        let len = usize::from(buf[0]);
-        if len > MAX_LEN {
-            return reply(io, Status::Invalid).await;
-        }
-        let mut password = [0u8; MAX_LEN];
-        let Some(()) = read_exact(io, &mut password[..len]).await else { return Outcome::NotUpdated };
+        let settings = *map.lock().await.settings();
+        let credential = settings.password();
+        let mut cnonce = [0u8; NONCE_LEN];
+        let mut snonce = [0u8; NONCE_LEN];
+        let mut context = [0u8; 12];
+        context[..8].copy_from_slice(&now_ms.to_le_bytes());
+        context[8..].copy_from_slice(&from);
+        AUTH.random(&context, &mut snonce);
         let mut header = [0u8; HEADER_LEN];
-        let Some(()) = read_exact(io, &mut header).await else { return Outcome::NotUpdated };
-        let header = match Header::decode(&header) {
-            Some(h) if h.model == self.model && h.length > 0 && h.length <= self.capacity => h,
-            _ => return reply(io, Status::Invalid).await,
+        let handshake = self.handshake(io, from, now_ms, &settings, &mut cnonce, &snonce, &mut header);
+        let refused = match with_timeout(Duration::from_secs(HANDSHAKE_S), handshake).await {
+            Ok(Ok(h)) => Ok(h),
+            Ok(Err(refused)) => Err(refused),
+            Err(_) => Err(Refused::Gone),
         };
-        let hash = map.lock().await.settings().password();
-        match self.limiter.check(&hash, &password[..len], from, now_ms) {
-            Check::Ok => {}
-            Check::Wrong => {
-                crate::warn!("update: wrong configuration password");
-                return reply(io, Status::WrongPassword).await;
+        let message = auth_message(&self.mac, &cnonce, &snonce, &header);
+        let sign = |step: u8, status: Status| {
+            server_signature(&credential.server_key, &answer_message(&message, &[step], &[status as u8]))
+        };
+        let header = match refused {
+            Ok(h) => h,
+            Err(Refused::Gone) => return Outcome::NotUpdated,
+            Err(Refused::Early(status)) => {
+                refused_update(from);
+                send(io, &[status as u8]).await;
+                return Outcome::NotUpdated;
             }
-            Check::Locked => return reply(io, Status::RateLimited).await,
-        }
+            Err(Refused::Late(status)) => {
+                refused_update(from);
+                return answer(io, status, &sign(0, status)).await;
+            }
+        };
         if let Err(status) = target.begin().await {
             crate::error!("update: the update partition could not be erased");
-            return reply(io, status).await;
+            return answer(io, status, &sign(0, status)).await;
         }
-        if !send(io, Status::Ok).await {
+        if !send_signed(io, Status::Ok, &sign(0, Status::Ok)).await {
             return Outcome::NotUpdated;
         }
         crate::info!("update: receiving {} bytes, version {:04X}", header.length, header.version);
 
         // The firmware, a chunk at a time; the last one padded to the write size.
+        let mut buf = [0u8; CHUNK];
         let mut offset = 0u32;
         while offset < header.length {
             let n = ((header.length - offset) as usize).min(CHUNK);
@@ -129,7 +149,7 @@ impl UpdateService {
             buf[n..padded].fill(0xFF);
             if let Err(status) = target.write(offset, &buf[..padded]).await {
                 crate::error!("update: the update partition could not be written");
-                return reply(io, status).await;
+                return answer(io, status, &sign(1, status)).await;
             }
             offset += n as u32;
         }
@@ -137,27 +157,82 @@ impl UpdateService {
             Ok(()) => {
                 crate::info!("update: version {:04X} verified and marked", header.version);
                 // Marked: the bootloader swaps it in at the next start, answer sent or not.
-                send(io, Status::Ok).await;
+                send_signed(io, Status::Ok, &sign(1, Status::Ok)).await;
                 Outcome::Updated { version: header.version }
             }
             Err(status) => {
                 crate::warn!("update: refused after verification: {}", status as u8);
-                reply(io, status).await
+                refused_update(from);
+                answer(io, status, &sign(1, status)).await
             }
+        }
+    }
+
+    /// Steps 1-3 of a session: the PC's nonce, the greeting, the proof and the header, checked.
+    #[allow(clippy::too_many_arguments)]
+    async fn handshake<T: Read + Write, S: CommonSettings>(
+        &self,
+        io: &mut T,
+        from: [u8; 4],
+        now_ms: u64,
+        settings: &S,
+        cnonce: &mut [u8; NONCE_LEN],
+        snonce: &[u8; NONCE_LEN],
+        header: &mut [u8; HEADER_LEN],
+    ) -> Result<Header, Refused> {
+        let credential = settings.password();
+        read_exact(io, cnonce).await.ok_or(Refused::Gone)?;
+        let mut flags = 0;
+        if credential.is_factory() {
+            flags |= crate::discovery::info_flags::FACTORY_PASSWORD;
+        }
+        let greeting =
+            Greeting { mac: self.mac, salt: credential.salt, iterations: credential.iterations, snonce: *snonce, flags };
+        if !send(io, &greeting.encode()).await {
+            return Err(Refused::Gone);
+        }
+        let mut proof = [0u8; KEY_LEN];
+        read_exact(io, &mut proof).await.ok_or(Refused::Gone)?;
+        read_exact(io, header).await.ok_or(Refused::Gone)?;
+        let message = auth_message(&self.mac, cnonce, snonce, header);
+        match AUTH.check(&credential, &message, &proof, from, now_ms) {
+            Check::Ok(_) => {}
+            Check::Wrong => return Err(Refused::Early(Status::WrongPassword)),
+            Check::Limited => return Err(Refused::Early(Status::RateLimited)),
+        }
+        if credential.is_factory() {
+            crate::warn!("update: refused, the factory password is in force");
+            return Err(Refused::Late(Status::SetPasswordFirst));
+        }
+        match Header::decode(header) {
+            Some(h) if h.model == self.model && h.length > 0 && h.length <= self.capacity => Ok(h),
+            _ => Err(Refused::Late(Status::Invalid)),
         }
     }
 }
 
-/// Sends a refusal: the session ends with nothing updated.
-async fn reply<T: Write>(io: &mut T, status: Status) -> Outcome {
-    send(io, status).await;
+fn refused_update(from: [u8; 4]) {
+    crate::diagnostics::DIAGNOSTICS.security(crate::diagnostics::Security::UpdateRefusal, from);
+}
+
+/// Sends a signed refusal: the session ends with nothing updated.
+async fn answer<T: Write>(io: &mut T, status: Status, signature: &[u8; KEY_LEN]) -> Outcome {
+    send_signed(io, status, signature).await;
     Outcome::NotUpdated
 }
 
-/// Sends a status; false if it could not be sent in time.
-async fn send<T: Write>(io: &mut T, status: Status) -> bool {
+/// Sends a status and its signature; false if it could not be sent in time.
+async fn send_signed<T: Write>(io: &mut T, status: Status, signature: &[u8; KEY_LEN]) -> bool {
+    let mut bytes = [0u8; SIGNED_ANSWER_LEN];
+    bytes[0] = status as u8;
+    bytes[1..].copy_from_slice(signature);
+    send(io, &bytes).await
+}
+
+/// Sends bytes; false if they could not be sent in time.
+async fn send<T: Write>(io: &mut T, bytes: &[u8]) -> bool {
     let sent = with_timeout(STALL, async {
-        io.write_all(&[status as u8]).await?;
+        io.write_all(bytes).await?;
         io.flush().await
     })
     .await;
@@ -229,6 +304,7 @@ pub async fn run<N, A, DFU, STATE>(
     net: &'static N,
     map: &'static crate::board::Shared<A>,
     model: u16,
+    mac: [u8; 6],
     dfu: DFU,
     state: STATE,
 ) -> !
@@ -249,7 +325,7 @@ where
     );
     let mut target = BootUpdater { updater, public_key: UPDATE_KEY };
     confirm(net, &mut target).await;
-    let mut service = UpdateService::new(model, capacity);
+    let mut service = UpdateService::new(model, mac, capacity);
     net.serve_update(map, &mut service, &mut target).await
 }
 

@@ -104,6 +104,15 @@ impl Board for HostBoard {
         mac_from_uid(&uid)
     }
 
+    /// From the OS (getrandom).
+    fn entropy(&mut self) -> [u8; 32] {
+        let mut seed = [0u8; 32];
+        if let Err(e) = getrandom::fill(&mut seed) {
+            fail(&format!("no random numbers from the OS: {e}"));
+        }
+        seed
+    }
+
     /// Binds the listener (`--listen`, the stored port by default) and the discovery socket;
     /// an address that cannot be used ends the process with status 2. The settings in force
     /// are the stored ones with the address actually listened on.

@@ -141,6 +141,16 @@ impl Board for QemuBoard {
         self.mac
     }
 
+    /// The machine has no entropy source: a fixed seed, which the module's generator stirs with
+    /// the time (ms) and source of every request for a nonce. Nonces do not repeat in practice,
+    /// but they are not unpredictable: a test board only (docs/security.md).
+    fn entropy(&mut self) -> [u8; 32] {
+        let mut seed = [0u8; 32];
+        seed[..6].copy_from_slice(&self.mac);
+        seed[6..].copy_from_slice(b"qemu-mps2-an386 no entropy");
+        seed
+    }
+
     /// Brings up the LAN9118 and the network stack on QEMU's user network (10.0.2.15/24,
     /// whatever the stored address; the Modbus port is the stored one).
     fn start_network(self, spawner: Spawner, stored: NetConfig) -> (EmbassyNet<QemuEffects>, NetConfig) {

@@ -85,6 +85,8 @@ pub struct Stm32Board {
     factory_reset: bool,
     eth: Device,
     seed: u64,
+    /// 32 bytes of the RNG (RM0090 §24) for the module's random numbers (nonces, keys).
+    entropy: [u8; 32],
     led: Output<'static>,
     reset_cause: remodaq_shared::diagnostics::ResetCause,
     /// PA12 held as an output, pulled down, low: embassy-stm32 0.6 refuses (panics on) flash
@@ -156,6 +158,8 @@ fn init(spawner: Spawner) -> (Stm32Board, SettingsFlash, Io) {
     let mut rng = Rng::new(p.RNG, Irqs);
     let mut seed = [0u8; 8];
     rng.fill_bytes(&mut seed);
+    let mut entropy = [0u8; 32];
+    rng.fill_bytes(&mut entropy);
 
     let mac = mac_from_uid(&embassy_stm32::uid::uid());
 
@@ -225,7 +229,17 @@ fn init(spawner: Spawner) -> (Stm32Board, SettingsFlash, Io) {
         },
     };
     let board =
-        Stm32Board { mac, factory_reset, eth, seed: u64::from_le_bytes(seed), led, reset_cause, _pa12: pa12, boot };
+        Stm32Board {
+        mac,
+        factory_reset,
+        eth,
+        seed: u64::from_le_bytes(seed),
+        entropy,
+        led,
+        reset_cause,
+        _pa12: pa12,
+        boot,
+    };
     (board, settings_flash, io)
 }
 
@@ -280,6 +294,10 @@ impl Board for Stm32Board {
 
     fn mac(&self) -> [u8; 6] {
         self.mac
+    }
+
+    fn entropy(&mut self) -> [u8; 32] {
+        self.entropy
     }
 
     /// Starts the network with the stored settings (static IPv4), the watchdog and the

@@ -2,7 +2,7 @@
 
 use remodaq_shared::access::{self, AllowList};
 use remodaq_shared::net::{NetConfig, NetRecord};
-use remodaq_shared::password::PasswordHash;
+use remodaq_shared::password::{self, Credential};
 use remodaq_shared::settings::{RecordReader, RecordWriter, Schema};
 
 use crate::input::InputType;
@@ -14,8 +14,8 @@ pub use remodaq_protocol::m8318::{cjc_offset_from_register, cjc_offset_to_regist
 pub struct Settings {
     /// Network settings.
     pub net: NetConfig,
-    /// Configuration password (network settings, restart).
-    pub password: PasswordHash,
+    /// Configuration password: its credential, never the password (docs/security.md).
+    pub password: Credential,
     /// Input type code (40201), one of spec §2.2 ([`InputType::from_code`]).
     pub input_type: u8,
     /// CJC offset (40216) in 0.01 °C, within ±[`CJC_OFFSET_LIMIT`].
@@ -36,13 +36,14 @@ mod tag {
 }
 
 impl Schema for Settings {
-    const VERSION: u8 = 1;
+    // 2: the password as a SCRAM credential (tag 7) instead of a salted hash (docs/security.md).
+    const VERSION: u8 = 2;
 
     fn defaults() -> Self {
         // Decision: factory input type 0Fh (type K), all channels enabled, no CJC offset.
         Self {
             net: NetConfig::FACTORY,
-            password: PasswordHash::factory(),
+            password: Credential::FACTORY,
             input_type: 0x0F,
             cjc_offset: 0,
             enable_mask: 0xFF,
@@ -53,7 +54,7 @@ impl Schema for Settings {
 
     fn encode(&self, w: &mut RecordWriter<'_>) {
         self.net.encode(w);
-        self.password.encode(w);
+        password::encode(&self.password, w);
         w.put(tag::INPUT_TYPE, &[self.input_type]);
         w.put(tag::CJC_OFFSET, &self.cjc_offset.to_le_bytes());
         w.put(tag::ENABLE_MASK, &[self.enable_mask]);
@@ -65,7 +66,7 @@ impl Schema for Settings {
         let d = Self::defaults();
         Self {
             net: NetConfig::decode(r),
-            password: PasswordHash::decode(r),
+            password: password::decode(r),
             input_type: r
                 .array::<1>(tag::INPUT_TYPE)
                 .map(|[t]| t)

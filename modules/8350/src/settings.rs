@@ -4,7 +4,7 @@
 use remodaq_protocol::m8350::{wd_mode, DO_CHANNELS, WD_TIMEOUT_MAX};
 use remodaq_shared::access::{self, AllowList};
 use remodaq_shared::net::{NetConfig, NetRecord};
-use remodaq_shared::password::PasswordHash;
+use remodaq_shared::password::{self, Credential};
 use remodaq_shared::settings::{RecordReader, RecordWriter, Schema};
 
 use crate::di::{self, DiMode};
@@ -16,8 +16,8 @@ use crate::watchdog::WatchdogConfig;
 pub struct Settings {
     /// Network settings.
     pub net: NetConfig,
-    /// Configuration password (network settings, restart).
-    pub password: PasswordHash,
+    /// Configuration password: its credential, never the password (docs/security.md).
+    pub password: Credential,
     /// DI n mode (40257 + n).
     pub di_modes: [DiMode; di::CHANNELS],
     /// DO n mode (40273 + n).
@@ -79,12 +79,13 @@ fn get_u32s(r: &RecordReader<'_>, tag: u8) -> Option<[u32; pulse::CHANNELS]> {
 }
 
 impl Schema for Settings {
-    const VERSION: u8 = 1;
+    // 2: the password as a SCRAM credential (tag 7) instead of a salted hash (docs/security.md).
+    const VERSION: u8 = 2;
 
     fn defaults() -> Self {
         Self {
             net: NetConfig::FACTORY,
-            password: PasswordHash::factory(),
+            password: Credential::FACTORY,
             di_modes: [DiMode::Normal; di::CHANNELS],
             do_modes: [DoMode::Normal; pulse::CHANNELS],
             pulses: [PulseConfig::default(); pulse::CHANNELS],
@@ -97,7 +98,7 @@ impl Schema for Settings {
 
     fn encode(&self, w: &mut RecordWriter<'_>) {
         self.net.encode(w);
-        self.password.encode(w);
+        password::encode(&self.password, w);
         w.put(tag::DI_MODES, &self.di_modes.map(|m| m as u8));
         w.put(tag::DO_MODES, &self.do_modes.map(|m| m as u8));
         put_u32s(w, tag::LOW, self.pulses.iter().map(|p| p.low));
@@ -113,7 +114,7 @@ impl Schema for Settings {
     fn decode(_version: u8, r: &RecordReader<'_>) -> Self {
         let mut s = Self::defaults();
         s.net = NetConfig::decode(r);
-        s.password = PasswordHash::decode(r);
+        s.password = password::decode(r);
         if let Some(modes) = r.array::<{ di::CHANNELS }>(tag::DI_MODES) {
             for (m, v) in s.di_modes.iter_mut().zip(modes) {
                 *m = DiMode::from_register(u16::from(v)).unwrap_or(DiMode::Normal);
