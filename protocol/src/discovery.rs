@@ -553,4 +553,82 @@ pub mod client {
         auth::seal(&shared, &[SEAL_LABEL, cnonce, &challenge.snonce], &mut sealed);
         Command::SetPassword { public, sealed }
     }
+
+    /// What a PC asks of a module in [`transact`].
+    #[derive(Clone, Copy, Debug)]
+    pub enum Ask<'a> {
+        /// Store network settings.
+        SetNetwork(NetConfig),
+        /// Restart.
+        Restart,
+        /// Read the allow-list.
+        GetAccess,
+        /// Store an allow-list.
+        SetAccess(AllowList),
+        /// Change the password to `new`, with this salt, iteration count and ephemeral X25519
+        /// secret (the caller's random numbers).
+        SetPassword {
+            /// The new password.
+            new: &'a [u8],
+            /// Its salt.
+            salt: [u8; SALT_LEN],
+            /// Its PBKDF2 iterations.
+            iterations: u32,
+            /// The PC's ephemeral X25519 secret.
+            secret: [u8; KEY_LEN],
+        },
+    }
+
+    /// Why [`transact`] has no answer.
+    #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+    pub enum Failure {
+        /// No (fitting) answer.
+        NoAnswer,
+        /// An answer after a proof without the module's right signature.
+        Forged,
+        /// The challenge asks for an iteration count out of range.
+        Iterations,
+    }
+
+    /// One authenticated command, the whole exchange: a challenge, the command with its proof
+    /// of `password`, the answer checked. `send` sends a datagram and returns the module's
+    /// answer to it (the caller matches ids and MACs). Returns the answer and the request sent
+    /// (to replay it in tests).
+    pub fn transact(
+        mac: [u8; 6],
+        password: &[u8],
+        ask: Ask<'_>,
+        cnonce: [u8; NONCE_LEN],
+        id: u16,
+        mut send: impl FnMut(&[u8]) -> Option<std::vec::Vec<u8>>,
+    ) -> Result<(Reply, std::vec::Vec<u8>), Failure> {
+        let mut buf = [0u8; MAX_DATAGRAM];
+        let n = encode_request(id, &Request::Challenge { mac, cnonce }, &mut buf).ok_or(Failure::NoAnswer)?;
+        let answer = send(&buf[..n]).ok_or(Failure::NoAnswer)?;
+        let challenge = decode_challenge(&answer).filter(|c| c.cnonce == cnonce).ok_or(Failure::NoAnswer)?;
+        if !(auth::MIN_ITERATIONS..=auth::MAX_ITERATIONS).contains(&challenge.iterations) {
+            return Err(Failure::Iterations);
+        }
+        let (client_key, credential) = auth::derive(password, &challenge.salt, challenge.iterations);
+        let command = match ask {
+            Ask::SetNetwork(net) => Command::SetNetwork(net),
+            Ask::Restart => Command::Restart,
+            Ask::GetAccess => Command::GetAccess,
+            Ask::SetAccess(list) => Command::SetAccess(list),
+            Ask::SetPassword { new, salt, iterations, secret } => {
+                let (_, new) = auth::derive(new, &salt, iterations);
+                seal_credential(&new, &secret, &challenge, &cnonce)
+            }
+        };
+        let request = Request::Command { mac, auth: Auth { cnonce, snonce: challenge.snonce, proof: [0; KEY_LEN] }, command };
+        let id = id.wrapping_add(1);
+        let n = encode_request(id, &request, &mut buf).ok_or(Failure::NoAnswer)?;
+        prove(&mut buf[..n], &client_key);
+        let answer = send(&buf[..n]).ok_or(Failure::NoAnswer)?;
+        let reply = decode_reply(&answer).filter(|r| r.id == id && r.opcode == command.opcode()).ok_or(Failure::NoAnswer)?;
+        if reply.signature.is_some() && !answer_is_genuine(&buf[..n], &answer, &credential.server_key) {
+            return Err(Failure::Forged);
+        }
+        Ok((reply, buf[..n].to_vec()))
+    }
 }

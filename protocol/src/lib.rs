@@ -7,7 +7,7 @@
 #![no_std]
 #![warn(missing_docs)]
 
-#[cfg(test)]
+#[cfg(any(test, feature = "client"))]
 extern crate std;
 
 pub mod access;

@@ -8,7 +8,6 @@ use remodaq_shared::access::AllowList;
 use remodaq_shared::modbus::{Access, Exception, RegisterMap, Table, WriteValues};
 use remodaq_shared::module::SettingsAccess;
 use remodaq_shared::net::{NetConfig, NetRecord};
-use remodaq_shared::password::PasswordHash;
 use remodaq_shared::settings::{RecordReader, RecordWriter, Schema};
 
 /// Bits 0x00..0x20 readable, 0x10..0x16 writable, 0x1000..0x1800 read/write (a block large
@@ -125,22 +124,22 @@ pub fn hex(s: &str) -> Vec<u8> {
 #[derive(Clone, Copy, PartialEq, Debug)]
 pub struct S {
     pub net: NetConfig,
-    pub password: PasswordHash,
+    pub password: remodaq_shared::password::Credential,
     pub allow: AllowList,
 }
 
 impl Schema for S {
     const VERSION: u8 = 1;
     fn defaults() -> Self {
-        Self { net: NetConfig::FACTORY, password: PasswordHash::factory(), allow: AllowList::EMPTY }
+        Self { net: NetConfig::FACTORY, password: remodaq_shared::password::Credential::FACTORY, allow: AllowList::EMPTY }
     }
     fn encode(&self, w: &mut RecordWriter<'_>) {
         self.net.encode(w);
-        self.password.encode(w);
+        remodaq_shared::password::encode(&self.password, w);
         remodaq_shared::access::encode(&self.allow, w);
     }
     fn decode(_: u8, r: &RecordReader<'_>) -> Self {
-        Self { net: NetConfig::decode(r), password: PasswordHash::decode(r), allow: remodaq_shared::access::decode(r) }
+        Self { net: NetConfig::decode(r), password: remodaq_shared::password::decode(r), allow: remodaq_shared::access::decode(r) }
     }
 }
 

@@ -11,7 +11,10 @@ use std::process::{Child, Command, ExitCode, Stdio};
 use std::time::{Duration, Instant};
 
 use remodaq_protocol::diag;
-use remodaq_protocol::discovery::{decode_info, decode_reply, encode_request, Request, Status, MAX_DATAGRAM};
+use remodaq_protocol::auth;
+use remodaq_protocol::discovery::client::{transact, Ask};
+use remodaq_protocol::discovery::{decode_info, encode_request, Request, Status, MAX_DATAGRAM};
+use remodaq_protocol::update::{answer_message, auth_message, Greeting, GREETING_LEN, HEADER_LEN};
 use remodaq_protocol::identity::{FIRMWARE_VERSION, REG_NAME, REG_VERSION};
 use remodaq_protocol::m8318::{REG_CJC, REG_INPUT_TYPE, REG_VALUE};
 use remodaq_protocol::m8350::{
@@ -466,6 +469,34 @@ async fn discover(to: SocketAddr, request: &[u8]) -> Result<Vec<u8>, String> {
     Err(format!("no discovery reply from {to}"))
 }
 
+/// The password the update checks set (updates are refused while the factory one is in force).
+const PASSWORD: &str = "qemu-e2e password";
+
+/// One authenticated discovery command (challenge, proof, signed answer) over a blocking UDP
+/// socket, in a blocking task; its status.
+async fn command(to: SocketAddr, mac: [u8; 6], password: &'static str, ask: Ask<'static>) -> Result<Status, String> {
+    tokio::task::spawn_blocking(move || {
+        let socket = std::net::UdpSocket::bind("127.0.0.1:0").map_err(|e| e.to_string())?;
+        socket.set_read_timeout(Some(Duration::from_secs(2))).map_err(|e| e.to_string())?;
+        let send = |bytes: &[u8]| {
+            let mut rx = [0u8; 512];
+            for _ in 0..3 {
+                socket.send_to(bytes, to).ok()?;
+                if let Ok((n, _)) = socket.recv_from(&mut rx) {
+                    return Some(rx[..n].to_vec());
+                }
+            }
+            None
+        };
+        let cnonce = std::process::id().to_be_bytes().repeat(4).try_into().unwrap_or([1; 16]);
+        transact(mac, password.as_bytes(), ask, cnonce, 40, send)
+            .map(|(reply, _)| reply.status)
+            .map_err(|e| format!("discovery command: {e:?}"))
+    })
+    .await
+    .map_err(|e| e.to_string())?
+}
+
 /// The embassy-net discovery path end to end: search, store new network settings with the
 /// password, restart (a system reset of the guest), then the module answers again with the
 /// stored settings and the input type written before (the settings region survives a reset).
@@ -479,14 +510,13 @@ async fn discovery_and_restart(to: SocketAddr, modbus: SocketAddr, model: u16) -
     }
     let mac = info.mac;
     let net = NetConfig { ip: [10, 0, 0, 50], mask: [255, 255, 0, 0], gateway: [10, 0, 0, 1], port: 8000 };
-    let n = encode_request(8, &Request::SetNetwork { mac, password: b"remodaq", net }, &mut buf).ok_or("set")?;
-    let status = decode_reply(&discover(to, &buf[..n]).await?).map(|r| r.status);
-    if status != Some(Status::Ok) {
+    // The manuals' first contact: the factory password sets the network and restarts.
+    let status = command(to, mac, "remodaq", Ask::SetNetwork(net)).await?;
+    if status != Status::Ok {
         return Err(format!("set network: {status:?}"));
     }
-    let n = encode_request(9, &Request::Restart { mac, password: b"remodaq" }, &mut buf).ok_or("restart")?;
-    let status = decode_reply(&discover(to, &buf[..n]).await?).map(|r| r.status);
-    if status != Some(Status::Ok) {
+    let status = command(to, mac, "remodaq", Ask::Restart).await?;
+    if status != Status::Ok {
         return Err(format!("restart: {status:?}"));
     }
     sleep(Duration::from_secs(1)).await;
@@ -618,25 +648,47 @@ async fn version(addr: SocketAddr) -> Result<u16, String> {
     }
 }
 
-/// An update session by hand: the password, `file` (cut after `send` bytes), the answers.
-async fn session(update: SocketAddr, file: &[u8], send: usize) -> Result<Vec<u8>, String> {
+/// An update session by hand with `password`: the handshake, `file` (cut after `send`
+/// bytes); the statuses the module answered (each signature checked).
+async fn session(update: SocketAddr, password: &str, file: &[u8], send: usize) -> Result<Vec<u8>, String> {
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     let mut stream = timeout(STEP, tokio::net::TcpStream::connect(update))
         .await
         .map_err(|_| "update service: connect timed out".to_string())?
         .map_err(|e| e.to_string())?;
-    let mut bytes = vec![7u8];
-    bytes.extend_from_slice(b"remodaq");
-    bytes.extend_from_slice(&file[..send.min(file.len())]);
+    let cnonce = [0x5C; 16];
+    stream.write_all(&cnonce).await.map_err(|e| e.to_string())?;
+    let mut greeting = [0u8; GREETING_LEN];
+    timeout(STEP, stream.read_exact(&mut greeting)).await.map_err(|_| "no greeting".to_string())?.map_err(|e| e.to_string())?;
+    let greeting = Greeting::decode(&greeting);
+    let (client_key, credential) = auth::derive(password.as_bytes(), &greeting.salt, greeting.iterations);
+    let mut header = [0u8; HEADER_LEN];
+    header.copy_from_slice(&file[..HEADER_LEN]);
+    let message = auth_message(&greeting.mac, &cnonce, &greeting.snonce, &header);
+    let proof = auth::client_proof(&client_key, &message);
+    let bytes = [&proof[..], &file[..send.min(file.len())]].concat();
     stream.write_all(&bytes).await.map_err(|e| e.to_string())?;
-    if send < file.len() {
-        // Cut: the module answered the header (or not); close without the rest.
-        let mut first = [0u8; 1];
-        let _ = timeout(STEP, stream.read_exact(&mut first)).await;
-        return Ok(vec![first[0]]);
-    }
     let mut answers = Vec::new();
-    let _ = timeout(Duration::from_secs(60), stream.read_to_end(&mut answers)).await;
+    for step in 0..2u8 {
+        let mut status = [0u8; 1];
+        let limit = if step == 0 { STEP * 4 } else { Duration::from_secs(60) };
+        match timeout(limit, stream.read_exact(&mut status)).await {
+            Ok(Ok(_)) => answers.push(status[0]),
+            _ => break,
+        }
+        if Status::from_code(status[0]).is_some_and(Status::after_proof) {
+            let mut signature = [0u8; 32];
+            timeout(STEP, stream.read_exact(&mut signature)).await.map_err(|_| "no signature".to_string())?.map_err(|e| e.to_string())?;
+            let expected = auth::server_signature(&credential.server_key, &answer_message(&message, &[step], &status));
+            if !auth::same(&expected, &signature) {
+                return Err(format!("answer {step}: not signed by the module"));
+            }
+        }
+        if status[0] != 0 || send < file.len() {
+            // Refused, or cut: the module answered the header; close without the rest.
+            break;
+        }
+    }
     Ok(answers)
 }
 
@@ -658,8 +710,34 @@ async fn updates(report: &mut Report, image: &str, addr: SocketAddr, update: Soc
         report.check("update images", Err("the v2/v3 images are missing: run scripts/qemu variants".into()));
         return;
     };
+    // Updates are refused while the factory password is in force; then a password is set.
+    let mut buf = [0u8; MAX_DATAGRAM];
+    let n = encode_request(12, &Request::Search, &mut buf).unwrap_or(0);
+    let mac = match discover(discovery, &buf[..n]).await.map(|reply| decode_info(&reply).map(|i| i.mac)) {
+        Ok(Some(mac)) => mac,
+        other => {
+            report.check("update: the module's MAC", Err(format!("search: {other:?}")));
+            return;
+        }
+    };
+    let factory = session(update, "remodaq", &v2, usize::MAX).await;
+    report.check(
+        "update: refused while the factory password is in force (status 7), nothing changed",
+        match factory {
+            Ok(a) if a == [Status::SetPasswordFirst as u8] => Ok(()),
+            other => Err(format!("answers {other:?}")),
+        },
+    );
+    let set = Ask::SetPassword { new: PASSWORD.as_bytes(), salt: [0x33; 16], iterations: 4096, secret: [0x44; 32] };
+    report.check(
+        "update: a password set over discovery (sealed credential)",
+        match command(discovery, mac, "remodaq", set).await {
+            Ok(Status::Ok) => Ok(()),
+            other => Err(format!("{other:?}")),
+        },
+    );
     let refused = async |what: &str, file: &[u8], send: usize, want: &[u8]| -> Result<(), String> {
-        let answers = session(update, file, send).await?;
+        let answers = session(update, PASSWORD, file, send).await?;
         if answers != want {
             return Err(format!("{what}: the module answered {answers:?}, expected {want:?}"));
         }
@@ -683,7 +761,8 @@ async fn updates(report: &mut Report, image: &str, addr: SocketAddr, update: Soc
     // v1 -> v2 with the tool.
     let started = Instant::now();
     let tool = Command::new(std::env::var("REMODAQ").unwrap_or_else(|_| "target/debug/remodaq".into()))
-        .args(["update", &addr.to_string(), &format!("{image}-v2.rdq"), "--password", "remodaq"])
+        .args(["update", &addr.to_string(), &format!("{image}-v2.rdq")])
+        .env("REMODAQ_PASSWORD", PASSWORD)
         .args(["--port", &update.port().to_string()])
         .output();
     let v1_to_v2 = match tool {
@@ -711,7 +790,7 @@ async fn updates(report: &mut Report, image: &str, addr: SocketAddr, update: Soc
 
     // v3 never confirms: it runs on trial, then the reset reverts to v2.
     let rollback = async {
-        let answers = session(update, &v3, usize::MAX).await?;
+        let answers = session(update, PASSWORD, &v3, usize::MAX).await?;
         if answers != [0, 0] {
             return Err(format!("v3: the module answered {answers:?}"));
         }
