@@ -7,6 +7,8 @@ mod common;
 use core::cell::Cell;
 
 use common::{Live, Script, S};
+use remodaq_protocol::auth::{client_proof, derive, server_signature, Credential};
+use remodaq_protocol::update::{answer_message, auth_message, Greeting, GREETING_LEN, HEADER_LEN};
 use ed25519_dalek::{Signer, SigningKey};
 use embassy_boot::{BootLoader, BootLoaderConfig, FirmwareUpdater, FirmwareUpdaterConfig, State};
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
@@ -45,36 +47,128 @@ fn signed(firmware: &[u8], version: u16, key: &SigningKey) -> Vec<u8> {
     [&header.encode()[..], firmware].concat()
 }
 
-/// The PC's side of a session: the password, then the image file (cut after `cut` bytes).
-fn session_bytes(password: &str, file: &[u8], cut: Option<usize>) -> Vec<Vec<u8>> {
-    let mut first = vec![password.len() as u8];
-    first.extend_from_slice(password.as_bytes());
-    let file = &file[..cut.unwrap_or(file.len()).min(file.len())];
-    // In segments of 300 bytes, as a TCP stream may deliver them.
-    std::iter::once(first).chain(file.chunks(300).map(<[u8]>::to_vec)).collect()
+/// The module's configuration password in these tests (updates are refused while the factory
+/// one is in force).
+const PASSWORD: &str = "plant password";
+
+/// What the PC sends in a session: the password it proves, the image file (cut after `cut`
+/// bytes).
+type Plan = (String, Vec<u8>);
+
+fn session_bytes(password: &str, file: &[u8], cut: Option<usize>) -> Plan {
+    (password.to_string(), file[..cut.unwrap_or(file.len()).min(file.len())].to_vec())
+}
+
+/// The PC's side of a session over a [`Script`]: its nonce first; once the module's greeting
+/// is in, the proof and the (cut) image file, in segments of 300 bytes as a TCP stream may
+/// deliver them. Afterwards [`Pc::statuses`] checks the module's signatures.
+struct Pc {
+    io: Script,
+    plan: Plan,
+    proved: Option<([u8; 32], [u8; HEADER_LEN], Greeting)>,
+}
+
+const CNONCE: [u8; 16] = [0xC0; 16];
+
+impl Pc {
+    fn new(plan: Plan) -> Self {
+        let mut io = Script::new(&[]);
+        io.incoming.push_back(CNONCE.to_vec());
+        Self { io, plan, proved: None }
+    }
+
+    /// The module's answers: one status each, its signature checked where it must have one.
+    fn statuses(&self) -> Vec<u8> {
+        let out = &self.io.outgoing;
+        let Some((server_key, header, g)) = &self.proved else { return out.clone() };
+        let message = auth_message(&g.mac, &CNONCE, &g.snonce, header);
+        let mut rest = &out[GREETING_LEN..];
+        let mut statuses = Vec::new();
+        for step in 0..2u8 {
+            let Some((&status, tail)) = rest.split_first() else { break };
+            statuses.push(status);
+            rest = tail;
+            if Status::from_code(status).is_some_and(Status::after_proof) {
+                let (signature, tail) = rest.split_at(32);
+                let expected = server_signature(server_key, &answer_message(&message, &[step], &[status]));
+                assert_eq!(signature, expected, "the module's signature on answer {step}");
+                rest = tail;
+            }
+        }
+        assert!(rest.is_empty(), "nothing after the answers");
+        statuses
+    }
+}
+
+impl embedded_io_async::ErrorType for Pc {
+    type Error = core::convert::Infallible;
+}
+
+impl embedded_io_async::Read for Pc {
+    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
+        self.io.read(buf).await
+    }
+}
+
+impl embedded_io_async::Write for Pc {
+    async fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
+        let n = self.io.write(buf).await?;
+        if self.proved.is_none() && self.io.outgoing.len() >= GREETING_LEN {
+            let g = Greeting::decode(self.io.outgoing[..GREETING_LEN].try_into().unwrap());
+            let (password, file) = &self.plan;
+            let (client_key, credential) = derive(password.as_bytes(), &g.salt, g.iterations);
+            let mut header = [0u8; HEADER_LEN];
+            let n = file.len().min(HEADER_LEN);
+            header[..n].copy_from_slice(&file[..n]);
+            let proof = client_proof(&client_key, &auth_message(&g.mac, &CNONCE, &g.snonce, &header));
+            let bytes = [&proof[..], file].concat();
+            self.io.incoming.extend(bytes.chunks(300).map(<[u8]>::to_vec));
+            self.proved = Some((credential.server_key, header, g));
+        }
+        Ok(n)
+    }
+
+    async fn flush(&mut self) -> Result<(), Self::Error> {
+        Ok(())
+    }
+}
+
+/// The test password's credential.
+fn credential() -> Credential {
+    derive(PASSWORD.as_bytes(), &[0x77; 16], 4096).1
 }
 
 /// Runs sessions, one after the other, against the update and state partitions through one
 /// service and one updater (as the module does); the module's answers and the outcome of each.
-fn sessions(dfu: &mut Dfu, state: &mut StateFlash, each: Vec<Vec<Vec<u8>>>) -> Vec<(Vec<u8>, Outcome)> {
-    let map = Mutex::<NoopRawMutex, _>::new(Live(S::defaults()));
+fn sessions(dfu: &mut Dfu, state: &mut StateFlash, each: Vec<Plan>) -> Vec<(Vec<u8>, Outcome)> {
+    sessions_with(credential(), dfu, state, each)
+}
+
+fn sessions_with(
+    password: Credential,
+    dfu: &mut Dfu,
+    state: &mut StateFlash,
+    each: Vec<Plan>,
+) -> Vec<(Vec<u8>, Outcome)> {
+    let map = Mutex::<NoopRawMutex, _>::new(Live(S { password, ..S::defaults() }));
     let mut aligned = [0u8; 4];
     let updater = FirmwareUpdater::new(FirmwareUpdaterConfig { dfu, state }, &mut aligned);
     let mut target = BootUpdater { updater, public_key: key().verifying_key().to_bytes() };
-    let mut service = UpdateService::new(MODEL, 4 * PAGE as u32);
+    let mut service = UpdateService::new(MODEL, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
     each.into_iter()
-        .map(|segments| {
-            let mut io = Script::new(&[]);
-            io.incoming = segments.into();
-            let outcome = block_on(service.session(&mut io, [127, 0, 0, 1], 0, &map, &mut target));
-            (io.outgoing, outcome)
+        .enumerate()
+        .map(|(i, plan)| {
+            let mut pc = Pc::new(plan);
+            // Each session a minute after the last: the guessing budget is full again.
+            let outcome = block_on(service.session(&mut pc, [127, 0, 0, 1], i as u64 * 60_000, &map, &mut target));
+            (pc.statuses(), outcome)
         })
         .collect()
 }
 
 /// One session.
-fn session(dfu: &mut Dfu, state: &mut StateFlash, segments: Vec<Vec<u8>>) -> (Vec<u8>, Outcome) {
-    sessions(dfu, state, vec![segments]).remove(0)
+fn session(dfu: &mut Dfu, state: &mut StateFlash, plan: Plan) -> (Vec<u8>, Outcome) {
+    sessions(dfu, state, vec![plan]).remove(0)
 }
 
 /// A flash whose power is cut after a budget of erases and word writes shared with the other
@@ -191,7 +285,7 @@ fn a_signed_image_is_streamed_verified_and_marked() {
     let (old, new) = (image(1, 3000), image(2, 3001));
     let mut m = module_with(&old);
     let file = signed(&new, 0xA101, &key());
-    let (answers, outcome) = session(&mut m.dfu, &mut m.state, session_bytes("remodaq", &file, None));
+    let (answers, outcome) = session(&mut m.dfu, &mut m.state, session_bytes(PASSWORD, &file, None));
     assert_eq!(answers, [Status::Ok as u8, Status::Ok as u8]);
     assert_eq!(outcome, Outcome::Updated { version: 0xA101 });
     assert_eq!(&m.dfu.image()[..new.len()], &new[..], "the firmware is in the update partition");
@@ -203,22 +297,33 @@ fn a_signed_image_is_streamed_verified_and_marked() {
 }
 
 #[test]
+fn no_update_while_the_factory_password_is_in_force() {
+    let (old, new) = (image(1, 3000), image(2, 3001));
+    let mut m = module_with(&old);
+    let file = signed(&new, 0xA101, &key());
+    let plan = session_bytes(remodaq_protocol::auth::FACTORY_PASSWORD, &file, None);
+    let (answers, outcome) = sessions_with(Credential::FACTORY, &mut m.dfu, &mut m.state, vec![plan]).remove(0);
+    assert_eq!((answers, outcome), (vec![Status::SetPasswordFirst as u8], Outcome::NotUpdated));
+    assert_eq!((m.boot(None), m.running(&old, &new)), (Ok(State::Boot), "old"));
+}
+
+#[test]
 fn refusals_change_nothing() {
     let (old, new) = (image(1, 3000), image(2, 2048));
     let file = signed(&new, 0xA101, &key());
     /// What is refused, what the PC sends, what the module answers.
-    type Case = (&'static str, Vec<Vec<u8>>, Vec<u8>);
+    type Case = (&'static str, Plan, Vec<u8>);
     let cases: Vec<Case> = vec![
         ("wrong password", session_bytes("guess", &file, None), vec![Status::WrongPassword as u8]),
         (
             "signed with another key",
-            session_bytes("remodaq", &signed(&new, 0xA101, &SigningKey::from_bytes(&[7; 32])), None),
+            session_bytes(PASSWORD, &signed(&new, 0xA101, &SigningKey::from_bytes(&[7; 32])), None),
             vec![0, Status::BadSignature as u8],
         ),
         (
             "a byte changed after signing",
             session_bytes(
-                "remodaq",
+                PASSWORD,
                 &{
                     let mut f = file.clone();
                     let last = f.len() - 1;
@@ -229,13 +334,13 @@ fn refusals_change_nothing() {
             ),
             vec![0, Status::BadSignature as u8],
         ),
-        ("truncated", session_bytes("remodaq", &file, Some(file.len() - 100)), vec![0]),
-        ("header only", session_bytes("remodaq", &file, Some(78)), vec![0]),
-        ("too large", session_bytes("remodaq", &signed(&image(3, 4 * PAGE + 4), 1, &key()), None), vec![3]),
+        ("truncated", session_bytes(PASSWORD, &file, Some(file.len() - 100)), vec![0]),
+        ("header only", session_bytes(PASSWORD, &file, Some(HEADER_LEN)), vec![0]),
+        ("too large", session_bytes(PASSWORD, &signed(&image(3, 4 * PAGE + 4), 1, &key()), None), vec![3]),
         (
             "another model",
             session_bytes(
-                "remodaq",
+                PASSWORD,
                 &{
                     let mut f = file.clone();
                     f[6..8].copy_from_slice(&0x8318u16.to_be_bytes());
@@ -253,7 +358,7 @@ fn refusals_change_nothing() {
         assert_eq!(m.boot(None), Ok(State::Boot), "{what}: no swap");
         assert_eq!(m.running(&old, &new), "old", "{what}");
         // And a full session afterwards works (a cut transfer can be started again).
-        let (answers, _) = session(&mut m.dfu, &mut m.state, session_bytes("remodaq", &file, None));
+        let (answers, _) = session(&mut m.dfu, &mut m.state, session_bytes(PASSWORD, &file, None));
         assert_eq!(answers, [0, 0], "{what}: then a good session");
         assert_eq!(m.boot(None), Ok(State::Swap));
         assert_eq!(m.running(&old, &new), "new");
@@ -274,9 +379,9 @@ fn a_cut_session_then_a_new_one_on_the_same_running_module() {
         vec![
             // Cut inside the first page, after two chunks were written to it: the next session
             // starts in the page written last.
-            session_bytes("remodaq", &other, Some(78 + 2048 + 100)),
-            session_bytes("remodaq", &file, Some(2900)),
-            session_bytes("remodaq", &file, None),
+            session_bytes(PASSWORD, &other, Some(HEADER_LEN + 2048 + 100)),
+            session_bytes(PASSWORD, &file, Some(2900)),
+            session_bytes(PASSWORD, &file, None),
         ],
     );
     let answers: Vec<Vec<u8>> = results.iter().map(|(a, _)| a.clone()).collect();
@@ -294,7 +399,7 @@ fn power_cut_at_every_write_and_erase_of_the_marking() {
     for cut in 0.. {
         let mut m = module_with(&old);
         m.state.set_budget(Some(cut));
-        let (answers, outcome) = session(&mut m.dfu, &mut m.state, session_bytes("remodaq", &file, None));
+        let (answers, outcome) = session(&mut m.dfu, &mut m.state, session_bytes(PASSWORD, &file, None));
         m.state.set_budget(None);
         let state = m.boot(None).expect("boots after the cut");
         let running = m.running(&old, &new);
@@ -316,7 +421,7 @@ fn power_cut_at_every_write_and_erase_of_the_marking() {
     for cut in 0.. {
         let mut m = module_with(&old);
         m.dfu.set_budget(Some(cut));
-        let (answers, outcome) = session(&mut m.dfu, &mut m.state, session_bytes("remodaq", &file, None));
+        let (answers, outcome) = session(&mut m.dfu, &mut m.state, session_bytes(PASSWORD, &file, None));
         m.dfu.set_budget(None);
         if outcome != Outcome::NotUpdated {
             break;
@@ -338,7 +443,7 @@ fn power_cut_at_every_write_and_erase_of_the_swap_and_the_revert() {
     let (old, new) = (image(1, 4 * PAGE), image(2, 4 * PAGE - 8));
     let mut marked = module_with(&old);
     let (answers, _) =
-        session(&mut marked.dfu, &mut marked.state, session_bytes("remodaq", &signed(&new, 3, &key()), None));
+        session(&mut marked.dfu, &mut marked.state, session_bytes(PASSWORD, &signed(&new, 3, &key()), None));
     assert_eq!(answers, [0, 0]);
 
     // The swap, cut after every operation, then the power comes back: the new image boots
@@ -384,3 +489,4 @@ fn power_cut_at_every_write_and_erase_of_the_swap_and_the_revert() {
     eprintln!("power cut at each of {swap_ops} operations of the swap and {revert_ops} of the revert");
     assert!(swap_ops > 100 && revert_ops > 100, "every page copy was cut: {swap_ops} / {revert_ops}");
 }
+
