@@ -8,7 +8,8 @@ use std::time::{Duration, Instant};
 
 use remodaq_board_host::testing::SimModule;
 use remodaq_protocol::access::{AllowList, Network};
-use remodaq_protocol::discovery::{decode_info, decode_reply, encode_request, Request, Status, MAX_DATAGRAM};
+use remodaq_protocol::discovery::client::{transact, Ask};
+use remodaq_protocol::discovery::{decode_info, encode_request, info_flags, Reply, Request, Status, MAX_DATAGRAM};
 use remodaq_protocol::m8350::{
     wd_mode, BIT_DO, REG_DI_MODE, REG_DO_MODE, REG_POWER_ON, REG_PULSE, REG_SAFE_VALUES, REG_WD_MODE, REG_WD_STATUS,
     REG_WD_TIMEOUT,
@@ -171,7 +172,31 @@ async fn host_watchdog_safe_state_clears_power_on_and_persistence() {
     assert_eq!(levels(&dos(&mut other).await), 0b00_0100);
 }
 
-async fn discover(to: SocketAddr, from: [u8; 4], request: &Request<'_>) -> Vec<u8> {
+/// One authenticated discovery command from `from` (challenge, proof, the module's signed
+/// answer), in a blocking task.
+async fn command(to: SocketAddr, from: [u8; 4], mac: [u8; 6], password: &'static str, ask: Ask<'static>) -> Reply {
+    tokio::task::spawn_blocking(move || {
+        let socket = std::net::UdpSocket::bind(SocketAddr::from((from, 0))).unwrap();
+        socket.set_read_timeout(Some(LIMIT)).unwrap();
+        let send = |bytes: &[u8]| {
+            socket.send_to(bytes, to).ok()?;
+            let mut rx = [0u8; 512];
+            socket.recv_from(&mut rx).ok().map(|(n, _)| rx[..n].to_vec())
+        };
+        transact(mac, password.as_bytes(), ask, [from[3]; 16], 3, send).expect("a genuine answer").0
+    })
+    .await
+    .unwrap()
+}
+
+/// The password these tests set (allow-list changes are refused while the factory one is in force).
+const PASSWORD: &str = "plant password";
+
+fn new_password(new: &'static str) -> Ask<'static> {
+    Ask::SetPassword { new: new.as_bytes(), salt: [9; 16], iterations: 4096, secret: [8; 32] }
+}
+
+async fn discover(to: SocketAddr, from: [u8; 4], request: &Request) -> Vec<u8> {
     let socket = UdpSocket::bind(SocketAddr::from((from, 0))).await.unwrap();
     let mut buf = [0u8; MAX_DATAGRAM];
     let n = encode_request(1, request, &mut buf).unwrap();
@@ -190,9 +215,11 @@ async fn allow_list_and_per_source_lock_out() {
     let module = SimModule::start(BIN, &temp("access.flash"));
     let mac = mac(&module).await;
     let list = AllowList::of(&[Network::new([127, 0, 0, 2], 32).unwrap()]).unwrap();
-    let set = Request::SetAccess { mac, password: b"remodaq", list };
-    let reply = decode_reply(&discover(module.discovery, [127, 0, 0, 1], &set).await).unwrap();
-    assert_eq!(reply.status, Status::Ok);
+    let d = module.discovery;
+    let first = command(d, [127, 0, 0, 1], mac, "remodaq", Ask::SetAccess(list)).await;
+    assert_eq!(first.status, Status::SetPasswordFirst, "not with the factory password");
+    assert_eq!(command(d, [127, 0, 0, 1], mac, "remodaq", new_password(PASSWORD)).await.status, Status::Ok);
+    assert_eq!(command(d, [127, 0, 0, 1], mac, PASSWORD, Ask::SetAccess(list)).await.status, Status::Ok);
 
     let mut outside = connect_from([127, 0, 0, 1], module.addr).await;
     let mut inside = connect_from([127, 0, 0, 2], module.addr).await;
@@ -207,22 +234,20 @@ async fn allow_list_and_per_source_lock_out() {
     write_reg(&mut inside, REG_DI_MODE, 1).await.expect("127.0.0.2 may write");
     assert_eq!(regs(&mut outside, REG_DI_MODE, 1).await, [1]);
     let flags = decode_info(&discover(module.discovery, [127, 0, 0, 1], &Request::Search).await).unwrap().flags;
-    assert_eq!(flags, Some(1), "a search says writes are restricted");
+    assert_eq!(flags & info_flags::WRITES_RESTRICTED, info_flags::WRITES_RESTRICTED, "a search says so");
 
-    // Per-source lock-out: 127.0.0.3 guesses and is locked out; 127.0.0.1 is still accepted.
-    let guess = Request::GetAccess { mac, password: b"guess" };
-    for _ in 0..4 {
-        discover(module.discovery, [127, 0, 0, 3], &guess).await;
+    // The guessing budget: 127.0.0.3 spends its share (5) and waits; 127.0.0.1 is still checked.
+    for _ in 0..5 {
+        assert_eq!(command(d, [127, 0, 0, 3], mac, "guess", Ask::GetAccess).await.status, Status::WrongPassword);
     }
-    let right = Request::GetAccess { mac, password: b"remodaq" };
-    let locked = decode_reply(&discover(module.discovery, [127, 0, 0, 3], &right).await).unwrap();
-    assert_eq!(locked.status, Status::RateLimited, "the guessing source is locked out");
-    let admin = decode_reply(&discover(module.discovery, [127, 0, 0, 1], &right).await).unwrap();
-    assert_eq!((admin.status, admin.list), (Status::Ok, Some(list)), "another source is accepted");
+    let locked = command(d, [127, 0, 0, 3], mac, PASSWORD, Ask::GetAccess).await;
+    assert_eq!(locked.status, Status::RateLimited, "the guessing source waits");
+    let admin = command(d, [127, 0, 0, 1], mac, PASSWORD, Ask::GetAccess).await;
+    assert_eq!((admin.status, admin.list), (Status::Ok, Some(list)), "another source is checked");
 
     // Cleared: anyone may write again.
-    let clear = Request::SetAccess { mac, password: b"remodaq", list: AllowList::EMPTY };
-    assert_eq!(decode_reply(&discover(module.discovery, [127, 0, 0, 1], &clear).await).unwrap().status, Status::Ok);
+    let clear = command(d, [127, 0, 0, 1], mac, PASSWORD, Ask::SetAccess(AllowList::EMPTY)).await;
+    assert_eq!(clear.status, Status::Ok);
     write_reg(&mut outside, REG_DI_MODE, 0).await.expect("writes allowed again");
 }
 
@@ -246,8 +271,8 @@ async fn reads_are_answered_while_the_flash_commits() {
         } else {
             let to = module.discovery;
             tokio::spawn(async move {
-                let change = Request::SetPassword { mac, password: b"remodaq", new: b"remodaq" };
-                assert_eq!(decode_reply(&discover(to, [127, 0, 0, 1], &change).await).unwrap().status, Status::Ok);
+                let change = new_password(PASSWORD);
+                assert_eq!(command(to, [127, 0, 0, 1], mac, "remodaq", change).await.status, Status::Ok);
                 started.elapsed()
             })
         };

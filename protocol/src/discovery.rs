@@ -620,12 +620,14 @@ pub mod client {
                 seal_credential(&new, &secret, &challenge, &cnonce)
             }
         };
-        let request = Request::Command { mac, auth: Auth { cnonce, snonce: challenge.snonce, proof: [0; KEY_LEN] }, command };
+        let request =
+            Request::Command { mac, auth: Auth { cnonce, snonce: challenge.snonce, proof: [0; KEY_LEN] }, command };
         let id = id.wrapping_add(1);
         let n = encode_request(id, &request, &mut buf).ok_or(Failure::NoAnswer)?;
         prove(&mut buf[..n], &client_key);
         let answer = send(&buf[..n]).ok_or(Failure::NoAnswer)?;
-        let reply = decode_reply(&answer).filter(|r| r.id == id && r.opcode == command.opcode()).ok_or(Failure::NoAnswer)?;
+        let reply =
+            decode_reply(&answer).filter(|r| r.id == id && r.opcode == command.opcode()).ok_or(Failure::NoAnswer)?;
         if reply.signature.is_some() && !answer_is_genuine(&buf[..n], &answer, &credential.server_key) {
             return Err(Failure::Forged);
         }

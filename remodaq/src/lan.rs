@@ -7,8 +7,8 @@ use std::time::{Duration, Instant};
 use remodaq_protocol::access::{AllowList, Network};
 use remodaq_protocol::auth;
 use remodaq_protocol::discovery::{
-    self, client, decode_challenge, decode_info, decode_reply, encode_request, info_flags, op, Reply, Request,
-    Status, MAX_DATAGRAM,
+    self, client, decode_challenge, decode_info, decode_reply, encode_request, info_flags, op, Reply, Request, Status,
+    MAX_DATAGRAM,
 };
 use remodaq_protocol::net::NetConfig;
 use serde::Serialize;
@@ -342,9 +342,7 @@ async fn exchange(
     let silent = || format!("module {mac} did not answer at {to} within {:.1} s", timeout.as_secs_f64());
     let send = |bytes: Vec<u8>| {
         let socket = &socket;
-        async move {
-            socket.send_to(&bytes, to).await.map_err(|e| Error::Other(format!("cannot send to {to}: {e}")))
-        }
+        async move { socket.send_to(&bytes, to).await.map_err(|e| Error::Other(format!("cannot send to {to}: {e}"))) }
     };
     let mut buf = [0u8; MAX_DATAGRAM];
     if let Command::Identify = cmd {

@@ -219,8 +219,9 @@ impl Auth {
     fn get(&self) -> Result<String, Error> {
         match &self.password {
             Some(p) => Ok(p.clone()),
-            None => rpassword::prompt_password("configuration password: ")
-                .map_err(|e| Error::Other(format!("no password given and none could be asked for ({e}): set REMODAQ_PASSWORD"))),
+            None => rpassword::prompt_password("configuration password: ").map_err(|e| {
+                Error::Other(format!("no password given and none could be asked for ({e}): set REMODAQ_PASSWORD"))
+            }),
         }
     }
 }
@@ -232,7 +233,9 @@ fn new_password(given: Option<String>) -> Result<String, Error> {
         None => {
             let ask = |prompt: &str| {
                 rpassword::prompt_password(prompt).map_err(|e| {
-                    Error::Other(format!("no new password given and none could be asked for ({e}): set REMODAQ_NEW_PASSWORD"))
+                    Error::Other(format!(
+                        "no new password given and none could be asked for ({e}): set REMODAQ_NEW_PASSWORD"
+                    ))
                 })
             };
             let first = ask("new password: ")?;

@@ -85,15 +85,48 @@ fn network_settings_password_and_restart() {
     let seed = SimModule::start(&firmware("8318"), &flash);
     let mac = search(&seed)["mac"].as_str().unwrap().to_string();
     let to = seed.discovery.to_string();
-    let (code, _, err) =
-        remodaq(&["net", "set", "--mac", &mac, "--to", &to, "--password", "wrong", "--port", &p1.to_string()]);
+    let (code, _, err) = remodaq(&[
+        "net",
+        "set",
+        "--mac",
+        &mac,
+        "--to",
+        &to,
+        "--password",
+        "wrong",
+        "--ip",
+        "192.168.0.1",
+        "--mask",
+        "255.255.255.0",
+        "--gateway",
+        "0.0.0.0",
+        "--port",
+        &p1.to_string(),
+    ]);
     assert_eq!(code, 5, "wrong password");
     assert!(err.contains("wrong password"), "{err}");
     assert_eq!(search(&seed)["stored"]["port"].as_u64(), Some(8000), "nothing changed");
-    let (code, out, _) =
-        remodaq(&["net", "set", "--mac", &mac, "--to", &to, "--password", "remodaq", "--port", &p1.to_string()]);
+    let (code, out, _) = remodaq(&[
+        "net",
+        "set",
+        "--mac",
+        &mac,
+        "--to",
+        &to,
+        "--password",
+        "remodaq",
+        "--ip",
+        "192.168.0.1",
+        "--mask",
+        "255.255.255.0",
+        "--gateway",
+        "0.0.0.0",
+        "--port",
+        &p1.to_string(),
+    ]);
     assert_eq!(code, 0);
     assert!(out.contains("stored"), "{out}");
+    assert!(out.contains("factory password"), "the tool says the factory password is in force: {out}");
     assert_eq!(search(&seed)["stored"]["port"].as_u64(), Some(u64::from(p1)));
     seed.kill();
 
@@ -143,10 +176,14 @@ fn network_settings_password_and_restart() {
     // Identify; a password change; a MAC that is not there.
     let to = module.discovery.to_string();
     assert_eq!(remodaq(&["identify", "--mac", &mac, "--to", &to]).0, 0);
+    let short = remodaq(&["password", "--mac", &mac, "--to", &to, "--password", "remodaq", "--new", "short"]);
+    assert_eq!(short.0, 1, "at least 8 characters: {}", short.2);
+    assert_eq!(search(&module)["factory_password"].as_bool(), Some(true));
     assert_eq!(
         remodaq(&["password", "--mac", &mac, "--to", &to, "--password", "remodaq", "--new", "line 4 secret"]).0,
         0
     );
+    assert_eq!(search(&module)["factory_password"].as_bool(), Some(false));
     assert_eq!(remodaq(&["restart", "--mac", &mac, "--to", &to, "--password", "remodaq"]).0, 5);
     let (code, _, err) = remodaq(&["--timeout", "0.5", "identify", "--mac", "02:00:00:00:00:01", "--to", &to]);
     assert_eq!(code, 3, "no module with that MAC");
@@ -262,8 +299,14 @@ fn watchdog_safe_state_and_access_through_the_tool() {
     assert_eq!(remodaq(&["config", &addr, "watchdog", "off"]).0, 0);
     assert_eq!(read()["watchdog"]["tripped"].as_bool(), Some(false));
 
-    // The allow-list: only 127.0.0.2 may write; this PC (127.0.0.1) gets exception 01.
-    let target = ["--mac", &mac, "--to", &to, "--password", "remodaq"];
+    // The allow-list: only 127.0.0.2 may write; this PC (127.0.0.1) gets exception 01. Not
+    // while the factory password is in force: a password first.
+    let factory = ["--mac", &mac, "--to", &to, "--password", "remodaq"];
+    let refused = remodaq(&[&["access", "set"][..], &factory, &["127.0.0.2/32"]].concat());
+    assert_eq!(refused.0, 5, "{}", refused.2);
+    assert!(refused.2.contains("set a password first"), "{}", refused.2);
+    assert_eq!(remodaq(&[&["password", "--new", "plant password"][..], &factory].concat()).0, 0);
+    let target = ["--mac", &mac, "--to", &to, "--password", "plant password"];
     let set = [&["access", "set"][..], &target, &["127.0.0.2/32", "10.1.0.0/16"]].concat();
     assert_eq!(remodaq(&set).0, 0);
     let shown = json(&[&["access", "show"][..], &target].concat());

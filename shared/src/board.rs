@@ -254,7 +254,7 @@ impl<B: Board, M: Module> App<B, M> {
         match parts {
             Some((dfu, state)) => {
                 crate::update::run(&self.net, &self.map, M::MODULE_NAME, self.identity.mac, dfu, state).await
-            },
+            }
             None => core::future::pending().await,
         }
     }

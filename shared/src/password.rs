@@ -7,8 +7,8 @@ use core::cell::RefCell;
 
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::blocking_mutex::Mutex;
-pub use remodaq_protocol::auth::{Credential, CREDENTIAL_LEN, KEY_LEN, NONCE_LEN};
 use remodaq_protocol::auth::{hmac, verify_proof};
+pub use remodaq_protocol::auth::{Credential, CREDENTIAL_LEN, KEY_LEN, NONCE_LEN};
 
 use crate::settings::{RecordReader, RecordWriter};
 

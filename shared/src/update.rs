@@ -186,8 +186,13 @@ impl UpdateService {
         if credential.is_factory() {
             flags |= crate::discovery::info_flags::FACTORY_PASSWORD;
         }
-        let greeting =
-            Greeting { mac: self.mac, salt: credential.salt, iterations: credential.iterations, snonce: *snonce, flags };
+        let greeting = Greeting {
+            mac: self.mac,
+            salt: credential.salt,
+            iterations: credential.iterations,
+            snonce: *snonce,
+            flags,
+        };
         if !send(io, &greeting.encode()).await {
             return Err(Refused::Gone);
         }

@@ -6,12 +6,12 @@ use common::{Live, S};
 use embassy_sync::blocking_mutex::raw::{CriticalSectionRawMutex, NoopRawMutex};
 use embassy_sync::mutex::Mutex;
 use futures_executor::block_on;
-use remodaq_shared::access::{AllowList, Network};
 use remodaq_protocol::auth;
 use remodaq_protocol::discovery::client::{self, transact, Ask, Failure};
+use remodaq_shared::access::{AllowList, Network};
 use remodaq_shared::discovery::{
-    decode_challenge, decode_info, decode_reply, decode_request, encode_request, info_flags, op, Auth, Command,
-    Effect, Identity, Reply, Request, Service, Status, Writer, MAX_DATAGRAM,
+    decode_challenge, decode_info, decode_reply, decode_request, encode_request, info_flags, op, Auth, Command, Effect,
+    Identity, Reply, Request, Service, Status, Writer, MAX_DATAGRAM,
 };
 use remodaq_shared::net::NetConfig;
 use remodaq_shared::ram_flash::RamFlash;
@@ -165,11 +165,11 @@ fn set_network_with_right_and_wrong_password() {
 #[test]
 fn replayed_and_altered_commands_change_nothing() {
     let (mut service, mut module) = setup();
-    let (reply, set_network) =
-        run(&mut service, &mut module, ADMIN, 0, "remodaq", Ask::SetNetwork(NEW_NET)).unwrap();
+    let (reply, set_network) = run(&mut service, &mut module, ADMIN, 0, "remodaq", Ask::SetNetwork(NEW_NET)).unwrap();
     assert_eq!(reply.status, Status::Ok);
     // Back to the factory settings, by the administrator.
-    let (reply, _) = run(&mut service, &mut module, ADMIN, 100, "remodaq", Ask::SetNetwork(NetConfig::FACTORY)).unwrap();
+    let (reply, _) =
+        run(&mut service, &mut module, ADMIN, 100, "remodaq", Ask::SetNetwork(NetConfig::FACTORY)).unwrap();
     assert_eq!(reply.status, Status::Ok);
     // The captured SET_NETWORK replayed (from anywhere, now or later): its nonce is spent.
     for (from, at) in [(ADMIN, 200), ([192, 168, 0, 66], 5_000)] {
@@ -184,7 +184,11 @@ fn replayed_and_altered_commands_change_nothing() {
     let challenge = decode_challenge(&ask(&mut service, &mut module, &buf[..n], 300).unwrap().0).unwrap();
     let (client_key, _) = auth::derive(b"remodaq", &challenge.salt, challenge.iterations);
     let command = Command::SetNetwork(NEW_NET);
-    let request = Request::Command { mac: MAC, auth: Auth { cnonce: [1; 16], snonce: challenge.snonce, proof: [0; 32] }, command };
+    let request = Request::Command {
+        mac: MAC,
+        auth: Auth { cnonce: [1; 16], snonce: challenge.snonce, proof: [0; 32] },
+        command,
+    };
     let n = encode_request(4, &request, &mut buf).unwrap();
     assert!(client::prove(&mut buf[..n], &client_key));
     let mut altered = buf[..n].to_vec();
@@ -199,7 +203,11 @@ fn replayed_and_altered_commands_change_nothing() {
     // A nonce expires after 30 s.
     let n = encode_request(5, &Request::Challenge { mac: MAC, cnonce: [2; 16] }, &mut buf).unwrap();
     let challenge = decode_challenge(&ask(&mut service, &mut module, &buf[..n], 1_000).unwrap().0).unwrap();
-    let request = Request::Command { mac: MAC, auth: Auth { cnonce: [2; 16], snonce: challenge.snonce, proof: [0; 32] }, command };
+    let request = Request::Command {
+        mac: MAC,
+        auth: Auth { cnonce: [2; 16], snonce: challenge.snonce, proof: [0; 32] },
+        command,
+    };
     let n = encode_request(6, &request, &mut buf).unwrap();
     client::prove(&mut buf[..n], &client_key);
     let (reply, _) = ask(&mut service, &mut module, &buf[..n], 31_000).unwrap();
@@ -261,7 +269,7 @@ fn factory_password_then_a_sealed_password_change() {
     assert_eq!(reply.status, Status::Ok);
     let (_, expected) = auth::derive(new.as_bytes(), &[0x21; 16], 4096);
     assert_eq!(module.settings().password, expected, "the module stores the new credential");
-    for secret in [&new.as_bytes()[..], &expected.stored_key, &expected.server_key] {
+    for secret in [new.as_bytes(), &expected.stored_key, &expected.server_key] {
         assert!(!request.windows(secret.len()).any(|w| w == secret), "not on the wire");
     }
     let searched = ask(&mut service, &mut module, &request_search(), 200).unwrap().0;
@@ -326,7 +334,8 @@ fn valid_requests() -> Vec<Vec<u8>> {
         Command::SetAccess(AllowList::EMPTY),
         Command::SetPassword { public: [5; 32], sealed: [6; auth::CREDENTIAL_LEN] },
     ];
-    let mut requests = vec![Request::Search, Request::Identify { mac: MAC }, Request::Challenge { mac: MAC, cnonce: [7; 16] }];
+    let mut requests =
+        vec![Request::Search, Request::Identify { mac: MAC }, Request::Challenge { mac: MAC, cnonce: [7; 16] }];
     requests.extend(commands.map(|command| Request::Command { mac: MAC, auth, command }));
     requests
         .iter()

@@ -7,14 +7,14 @@ mod common;
 use core::cell::Cell;
 
 use common::{Live, Script, S};
-use remodaq_protocol::auth::{client_proof, derive, server_signature, Credential};
-use remodaq_protocol::update::{answer_message, auth_message, Greeting, GREETING_LEN, HEADER_LEN};
 use ed25519_dalek::{Signer, SigningKey};
 use embassy_boot::{BootLoader, BootLoaderConfig, FirmwareUpdater, FirmwareUpdaterConfig, State};
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::mutex::Mutex;
 use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
 use futures_executor::block_on;
+use remodaq_protocol::auth::{client_proof, derive, server_signature, Credential};
+use remodaq_protocol::update::{answer_message, auth_message, Greeting, GREETING_LEN, HEADER_LEN};
 use remodaq_shared::ram_flash::{RamFlash, RamFlashError};
 use remodaq_shared::settings::Schema;
 use remodaq_shared::update::{BootUpdater, Header, Outcome, Status, UpdateService};
@@ -489,4 +489,3 @@ fn power_cut_at_every_write_and_erase_of_the_swap_and_the_revert() {
     eprintln!("power cut at each of {swap_ops} operations of the swap and {revert_ops} of the revert");
     assert!(swap_ops > 100 && revert_ops > 100, "every page copy was cut: {swap_ops} / {revert_ops}");
 }
-

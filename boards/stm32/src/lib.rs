@@ -228,8 +228,7 @@ fn init(spawner: Spawner) -> (Stm32Board, SettingsFlash, Io) {
             outputs: [p.PF12.into(), p.PF13.into(), p.PF14.into(), p.PF15.into(), p.PF3.into(), p.PF5.into()],
         },
     };
-    let board =
-        Stm32Board {
+    let board = Stm32Board {
         mac,
         factory_reset,
         eth,

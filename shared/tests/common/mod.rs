@@ -131,7 +131,11 @@ pub struct S {
 impl Schema for S {
     const VERSION: u8 = 1;
     fn defaults() -> Self {
-        Self { net: NetConfig::FACTORY, password: remodaq_shared::password::Credential::FACTORY, allow: AllowList::EMPTY }
+        Self {
+            net: NetConfig::FACTORY,
+            password: remodaq_shared::password::Credential::FACTORY,
+            allow: AllowList::EMPTY,
+        }
     }
     fn encode(&self, w: &mut RecordWriter<'_>) {
         self.net.encode(w);
@@ -139,7 +143,11 @@ impl Schema for S {
         remodaq_shared::access::encode(&self.allow, w);
     }
     fn decode(_: u8, r: &RecordReader<'_>) -> Self {
-        Self { net: NetConfig::decode(r), password: remodaq_shared::password::decode(r), allow: remodaq_shared::access::decode(r) }
+        Self {
+            net: NetConfig::decode(r),
+            password: remodaq_shared::password::decode(r),
+            allow: remodaq_shared::access::decode(r),
+        }
     }
 }
 

@@ -10,11 +10,10 @@ use std::net::{SocketAddr, TcpListener};
 use std::process::{Child, Command, ExitCode, Stdio};
 use std::time::{Duration, Instant};
 
-use remodaq_protocol::diag;
 use remodaq_protocol::auth;
+use remodaq_protocol::diag;
 use remodaq_protocol::discovery::client::{transact, Ask};
 use remodaq_protocol::discovery::{decode_info, encode_request, Request, Status, MAX_DATAGRAM};
-use remodaq_protocol::update::{answer_message, auth_message, Greeting, GREETING_LEN, HEADER_LEN};
 use remodaq_protocol::identity::{FIRMWARE_VERSION, REG_NAME, REG_VERSION};
 use remodaq_protocol::m8318::{REG_CJC, REG_INPUT_TYPE, REG_VALUE};
 use remodaq_protocol::m8350::{
@@ -22,6 +21,7 @@ use remodaq_protocol::m8350::{
     REG_WD_STATUS, REG_WD_TIMEOUT,
 };
 use remodaq_protocol::net::NetConfig;
+use remodaq_protocol::update::{answer_message, auth_message, Greeting, GREETING_LEN, HEADER_LEN};
 use tokio::time::{sleep, timeout};
 use tokio_modbus::client::{tcp, Context, Reader, Writer as _};
 
@@ -659,7 +659,10 @@ async fn session(update: SocketAddr, password: &str, file: &[u8], send: usize) -
     let cnonce = [0x5C; 16];
     stream.write_all(&cnonce).await.map_err(|e| e.to_string())?;
     let mut greeting = [0u8; GREETING_LEN];
-    timeout(STEP, stream.read_exact(&mut greeting)).await.map_err(|_| "no greeting".to_string())?.map_err(|e| e.to_string())?;
+    timeout(STEP, stream.read_exact(&mut greeting))
+        .await
+        .map_err(|_| "no greeting".to_string())?
+        .map_err(|e| e.to_string())?;
     let greeting = Greeting::decode(&greeting);
     let (client_key, credential) = auth::derive(password.as_bytes(), &greeting.salt, greeting.iterations);
     let mut header = [0u8; HEADER_LEN];
@@ -678,7 +681,10 @@ async fn session(update: SocketAddr, password: &str, file: &[u8], send: usize) -
         }
         if Status::from_code(status[0]).is_some_and(Status::after_proof) {
             let mut signature = [0u8; 32];
-            timeout(STEP, stream.read_exact(&mut signature)).await.map_err(|_| "no signature".to_string())?.map_err(|e| e.to_string())?;
+            timeout(STEP, stream.read_exact(&mut signature))
+                .await
+                .map_err(|_| "no signature".to_string())?
+                .map_err(|e| e.to_string())?;
             let expected = auth::server_signature(&credential.server_key, &answer_message(&message, &[step], &status));
             if !auth::same(&expected, &signature) {
                 return Err(format!("answer {step}: not signed by the module"));
