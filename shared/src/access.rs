@@ -33,6 +33,7 @@ pub fn is_write(function: u8) -> bool {
 /// answers exception 01; reads, and anything from an allowed client, go on.
 pub fn admit(list: &AllowList, from: [u8; 4], function: u8) -> Result<(), Exception> {
     if is_write(function) && !list.allows(from) {
+        crate::diagnostics::DIAGNOSTICS.security(crate::diagnostics::Security::AccessRefusal, from);
         return Err(Exception::IllegalFunction);
     }
     Ok(())
