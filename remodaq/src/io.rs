@@ -304,13 +304,30 @@ struct Diagnostics {
     connections: u16,
     requests: u32,
     exceptions: u16,
+    security: SecurityEvents,
+}
+
+/// The security event registers (docs/diagnostics.md).
+#[derive(Serialize)]
+struct SecurityEvents {
+    factory_password: bool,
+    auth_failures: u16,
+    last_failed_source: Option<std::net::Ipv4Addr>,
+    budget_refusals: u16,
+    access_refusals: u16,
+    update_refusals: u16,
+    update_key: String,
 }
 
 async fn read_diagnostics(m: &mut Module) -> Result<Diagnostics, Error> {
     let base = diag::REG_MODULE_STATUS;
-    let r = m.regs(base, diag::REG_EXCEPTIONS - base + 1).await?;
+    let r = m.regs(base, diag::REG_UPDATE_REFUSALS - base + 1).await?;
+    let key = m.regs(diag::REG_UPDATE_KEY, 4).await?;
     let at = |reg: u16| r[usize::from(reg - base)];
     let status = at(diag::REG_MODULE_STATUS);
+    let [a, b] = at(diag::REG_LAST_FAILED_SOURCE).to_be_bytes();
+    let [c, d] = at(diag::REG_LAST_FAILED_SOURCE + 1).to_be_bytes();
+    let source = std::net::Ipv4Addr::new(a, b, c, d);
     Ok(Diagnostics {
         status: diag::status::NAMES.iter().filter(|(bit, _)| status & bit != 0).map(|(_, name)| *name).collect(),
         status_raw: status,
@@ -319,6 +336,15 @@ async fn read_diagnostics(m: &mut Module) -> Result<Diagnostics, Error> {
         connections: at(diag::REG_CONNECTIONS),
         requests: remodaq_protocol::u32_low_first(at(diag::REG_REQUESTS), at(diag::REG_REQUESTS + 1)),
         exceptions: at(diag::REG_EXCEPTIONS),
+        security: SecurityEvents {
+            factory_password: at(diag::REG_SECURITY) & diag::security::FACTORY_PASSWORD != 0,
+            auth_failures: at(diag::REG_AUTH_FAILURES),
+            last_failed_source: (!source.is_unspecified()).then_some(source),
+            budget_refusals: at(diag::REG_BUDGET_REFUSALS),
+            access_refusals: at(diag::REG_ACCESS_REFUSALS),
+            update_refusals: at(diag::REG_UPDATE_REFUSALS),
+            update_key: key.iter().map(|w| format!("{w:04x}")).collect(),
+        },
     })
 }
 
@@ -328,6 +354,16 @@ fn print_diagnostics(d: &Diagnostics) {
         "  module: {status}; up {} s, reset cause {}; {} client(s), {} requests, {} exceptions",
         d.uptime_s, d.reset_cause, d.connections, d.requests, d.exceptions
     );
+    let e = &d.security;
+    let last = e.last_failed_source.map_or(String::new(), |ip| format!(" (last from {ip})"));
+    println!(
+        "  security: {} failed authentication(s){last}, {} refused by the guessing budget, {} write(s) refused by \
+         the allow-list, {} update(s) refused; update key {}",
+        e.auth_failures, e.budget_refusals, e.access_refusals, e.update_refusals, e.update_key
+    );
+    if e.factory_password {
+        println!("  security: the factory password is in force: set one (remodaq password --mac MAC)");
+    }
 }
 
 #[derive(Serialize)]

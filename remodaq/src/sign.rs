@@ -46,12 +46,23 @@ pub fn keygen(key: &Path) -> Result<(), Error> {
     let mut secret = [0u8; 32];
     getrandom::fill(&mut secret).map_err(|e| Error::Other(format!("no random numbers from the OS: {e}")))?;
     let signing = SigningKey::from_bytes(&secret);
-    let write = |path: &Path, bytes: &[u8]| {
-        std::fs::write(path, format!("{}\n", hex(bytes)))
-            .map_err(|e| Error::Other(format!("cannot write {}: {e}", path.display())))
+    let write = |path: &Path, bytes: &[u8], secret: bool| {
+        let fail = |e: std::io::Error| Error::Other(format!("cannot write {}: {e}", path.display()));
+        let mut options = std::fs::OpenOptions::new();
+        options.write(true).create_new(true);
+        // The secret key readable and writable by its owner only (on Windows the file takes the
+        // folder's permissions: keep it in a folder only you can read).
+        #[cfg(unix)]
+        if secret {
+            use std::os::unix::fs::OpenOptionsExt;
+            options.mode(0o600);
+        }
+        let _ = secret;
+        let mut file = options.open(path).map_err(fail)?;
+        std::io::Write::write_all(&mut file, format!("{}\n", hex(bytes)).as_bytes()).map_err(fail)
     };
-    write(key, &secret)?;
-    write(&public, signing.verifying_key().as_bytes())?;
+    write(key, &secret, true)?;
+    write(&public, signing.verifying_key().as_bytes(), false)?;
     println!(
         "secret key {} (keep it safe), public key {}: {}",
         key.display(),
@@ -112,6 +123,12 @@ mod tests {
         let key = dir.join("vendor.key");
         keygen(&key).unwrap();
         assert!(keygen(&key).is_err(), "never overwrites a key");
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            let mode = std::fs::metadata(&key).unwrap().permissions().mode() & 0o777;
+            assert_eq!(mode, 0o600, "the secret key is its owner's only");
+        }
         let firmware = dir.join("fw.bin");
         std::fs::write(&firmware, (0..5000u32).map(|i| i as u8).collect::<Vec<_>>()).unwrap();
         let out = dir.join("fw.rdq");

@@ -106,6 +106,11 @@ fn network_settings_password_and_restart() {
     assert_eq!(code, 5, "wrong password");
     assert!(err.contains("wrong password"), "{err}");
     assert_eq!(search(&seed)["stored"]["port"].as_u64(), Some(8000), "nothing changed");
+    // The failure is a security event the diagnostics registers show.
+    let security = json(&["read", &seed.addr.to_string()])["diagnostics"]["security"].clone();
+    assert_eq!(security["auth_failures"].as_u64(), Some(1), "{security}");
+    assert_eq!(security["last_failed_source"].as_str(), Some("127.0.0.1"), "{security}");
+    assert_eq!(security["factory_password"].as_bool(), Some(true), "{security}");
     let (code, out, _) = remodaq(&[
         "net",
         "set",

@@ -115,15 +115,58 @@ fn byte_at_a_time_pipelined_stream() {
     assert_eq!(out, hex("00 01 00 00 00 05 01 03 02 83 18 00 02 00 00 00 05 01 03 02 83 18"));
 }
 
+/// A distinct source address per slot.
+fn ip(slot: usize) -> [u8; 4] {
+    [10, 0, 0, slot as u8]
+}
+
+#[test]
+fn one_source_holds_at_most_four_connections() {
+    let slots = Slots::<NoopRawMutex, 10>::new(8);
+    let hog = [10, 9, 9, 9];
+    assert_eq!(slots.open(0, ip(0), false), None, "another client, idle the longest");
+    for slot in 1..=4 {
+        assert_eq!(slots.open(slot, hog, false), None);
+    }
+    // The fifth from the same address closes that address's own idlest, not the other client.
+    assert_eq!(slots.open(5, hog, false), Some(1));
+    assert_eq!(slots.open(6, hog, false), Some(2));
+    assert_eq!(slots.active(), 5);
+}
+
+#[test]
+fn an_admitted_client_is_never_closed_for_one_the_allow_list_does_not_admit() {
+    let slots = Slots::<NoopRawMutex, 10>::new(8);
+    let master = [192, 168, 0, 10];
+    assert_eq!(slots.open(0, master, true), None, "the SCADA master, on the allow-list, idle the longest");
+    for slot in 1..8 {
+        assert_eq!(slots.open(slot, ip(slot), false), None);
+    }
+    // 64 other clients, one after another: each closes the idlest unadmitted one, never the master.
+    let mut slot = 8;
+    for n in 0..64 {
+        let victim = slots.open(slot, [10, 1, 0, n], false).expect("a connection closes");
+        assert_ne!(victim, 0, "the master stays");
+        slot = victim;
+    }
+    // When only admitted clients are left, an unadmitted newcomer is the one closed.
+    let slots = Slots::<NoopRawMutex, 10>::new(8);
+    for slot in 0..8 {
+        assert_eq!(slots.open(slot, [192, 168, 0, slot as u8], true), None);
+    }
+    assert_eq!(slots.open(8, [10, 2, 0, 1], false), Some(8), "the newcomer goes");
+    assert_eq!(slots.open(9, [192, 168, 0, 99], true), Some(0), "an admitted newcomer takes the idlest");
+}
+
 #[test]
 fn slots_evict_the_longest_idle() {
     let slots = Slots::<NoopRawMutex, 3>::new(2);
-    assert_eq!(slots.open(0), None);
+    assert_eq!(slots.open(0, ip(0), false), None);
     std::thread::sleep(std::time::Duration::from_millis(2));
-    assert_eq!(slots.open(1), None);
+    assert_eq!(slots.open(1, ip(1), false), None);
     std::thread::sleep(std::time::Duration::from_millis(2));
     slots.touch(0); // slot 1 is now the longest idle
-    assert_eq!(slots.open(2), Some(1));
+    assert_eq!(slots.open(2, ip(2), false), Some(1));
     assert_eq!(slots.active(), 2);
     slots.close(1); // the evicted task closing does not disturb the count
     assert_eq!(slots.active(), 2);
@@ -136,16 +179,16 @@ fn slots_opened_in_one_tick_evict_in_the_order_they_opened() {
     let slots = Slots::<NoopRawMutex, 10>::new(8);
     let order = [9, 4, 0, 7, 2, 5, 8, 1];
     for slot in order {
-        assert_eq!(slots.open(slot), None);
+        assert_eq!(slots.open(slot, ip(slot), false), None);
     }
     // No time passes: slots 3 and 6 open, each closing the one opened first of the rest.
-    assert_eq!(slots.open(3), Some(9));
-    assert_eq!(slots.open(6), Some(4));
+    assert_eq!(slots.open(3, ip(3), false), Some(9));
+    assert_eq!(slots.open(6, ip(6), false), Some(4));
     // Slot 0 receives a request: 7 is now the one idle longest; the newest, 6, stays.
     slots.touch(0);
-    assert_eq!(slots.open(9), Some(7));
-    assert_eq!(slots.open(4), Some(2));
-    assert_eq!(slots.open(7), Some(5));
+    assert_eq!(slots.open(9, ip(9), false), Some(7));
+    assert_eq!(slots.open(4, ip(4), false), Some(2));
+    assert_eq!(slots.open(7, ip(7), false), Some(5));
     assert_eq!(slots.active(), 8);
 }
 
@@ -189,6 +232,6 @@ fn a_peer_that_stops_reading_is_still_evicted() {
     let mut server = std::pin::pin!(serve(&mut io, [127, 0, 0, 1], &map, &slots, 0));
     let mut cx = Context::from_waker(Waker::noop());
     assert!(server.as_mut().poll(&mut cx).is_pending(), "stuck sending the answer");
-    assert_eq!(slots.open(1), Some(0), "the newcomer evicts it");
+    assert_eq!(slots.open(1, ip(1), false), Some(0), "the newcomer evicts it");
     assert_eq!(server.as_mut().poll(&mut cx), Poll::Ready(Ended::Evicted));
 }

@@ -54,6 +54,10 @@ impl<F: NorFlash> RegisterMap for Map8318<'_, F> {
         remodaq_protocol::m8318::access(table, addr)
     }
 
+    fn protects(&self, from: [u8; 4]) -> bool {
+        !self.settings.allow.is_empty() && self.settings.allow.allows(from)
+    }
+
     fn admit(&mut self, from: [u8; 4], function: u8) -> Result<(), Exception> {
         access::admit(&self.settings.allow, from, function)
     }

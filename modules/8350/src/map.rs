@@ -203,9 +203,17 @@ impl<F: NorFlash, R: RawMutex> RegisterMap for Map8350<'_, F, R> {
         remodaq_protocol::m8350::access(table, addr)
     }
 
+    fn protects(&self, from: [u8; 4]) -> bool {
+        !self.settings.allow.is_empty() && self.settings.allow.allows(from)
+    }
+
     fn admit(&mut self, from: [u8; 4], function: u8) -> Result<(), Exception> {
         access::admit(&self.settings.allow, from, function)?;
-        io::with(self.io, |s| s.request(access::is_write(function)));
+        // With an allow-list, only its clients feed (and auto-clear) the host watchdog: a
+        // reader elsewhere on the LAN cannot keep a dead master's outputs alive (docs/security.md).
+        if self.settings.allow.allows(from) {
+            io::with(self.io, |s| s.request(access::is_write(function)));
+        }
         Ok(())
     }
 

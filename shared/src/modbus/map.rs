@@ -129,6 +129,13 @@ pub trait RegisterMap {
         Ok(())
     }
 
+    /// Whether a write allow-list is set and admits the client at `from`: such a client is never
+    /// closed to make room for one the list does not admit. The default protects nobody.
+    fn protects(&self, from: [u8; 4]) -> bool {
+        let _ = from;
+        false
+    }
+
     /// Whether every address of `start..start + count` (inside the 16-bit space, checked by the
     /// engine) allows reading, or writing when `write`.
     fn allows(&self, table: Table, start: u16, count: u16, write: bool) -> bool {

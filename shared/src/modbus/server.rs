@@ -4,7 +4,13 @@
 //! Connection policy (spec §1.1): at most [`MAX_CONNECTIONS`] clients are served at once. A
 //! board runs [`SOCKETS`] = `MAX_CONNECTIONS + 2` connection tasks, so a newcomer is always
 //! accepted, even one right behind another; when that makes one too many, [`Slots`] closes the
-//! connection idle the longest.
+//! connection idle the longest, with two rules against a client that would starve the others
+//! (IEC 62443-4-2 CR 7.1, docs/modbus.md):
+//! - one source address holds at most [`PER_SOURCE`] connections: its own idlest one makes room
+//!   for its next;
+//! - while a write allow-list is set, a client it admits is never closed to make room for one it
+//!   does not admit (such a newcomer is closed instead when only admitted clients are left).
+//!
 //! A connection idle for [`IDLE_TIMEOUT`] is closed.
 
 use core::cell::RefCell;
@@ -25,6 +31,8 @@ use super::RegisterMap;
 
 /// Clients served at once.
 pub const MAX_CONNECTIONS: usize = 8;
+/// Connections one source address may hold at once.
+pub const PER_SOURCE: usize = 4;
 /// Connection tasks a board runs: two more than [`MAX_CONNECTIONS`], so that while one accepts a
 /// newcomer (and the connection idle the longest is being closed to make room) another still
 /// listens: a TCP stack without a listen backlog (smoltcp) refuses a SYN no socket listens for.
@@ -63,10 +71,18 @@ pub struct Slots<R: RawMutex, const N: usize> {
     max_active: usize,
 }
 
-/// Each slot's last activity, and the count of activity events so far.
+/// Each slot's last activity, its client, and the count of activity events so far.
 struct Activity<const N: usize> {
     last: [Option<u64>; N],
+    client: [Client; N],
     events: u64,
+}
+
+/// Who a slot serves: the source address, and whether the write allow-list (when set) admits it.
+#[derive(Clone, Copy, Default)]
+struct Client {
+    ip: [u8; 4],
+    protected: bool,
 }
 
 impl<const N: usize> Activity<N> {
@@ -81,31 +97,42 @@ impl<R: RawMutex, const N: usize> Slots<R, N> {
     /// `N` connection tasks of which at most `max_active` may serve a client at once.
     pub const fn new(max_active: usize) -> Self {
         Self {
-            last_activity: BlockingMutex::new(RefCell::new(Activity { last: [None; N], events: 0 })),
+            last_activity: BlockingMutex::new(RefCell::new(Activity {
+                last: [None; N],
+                client: [Client { ip: [0; 4], protected: false }; N],
+                events: 0,
+            })),
             evict: [const { Signal::new() }; N],
             max_active,
         }
     }
 
-    /// Marks `slot` as serving a new client; returns the slot told to close to make room.
-    pub fn open(&self, slot: usize) -> Option<usize> {
+    /// Marks `slot` as serving a new client at `ip` (`protected`: a write allow-list is set
+    /// and admits it); returns the slot told to close to make room (`slot` itself when the
+    /// newcomer must go).
+    pub fn open(&self, slot: usize, ip: [u8; 4], protected: bool) -> Option<usize> {
         self.evict[slot].reset();
         self.last_activity.lock(|cell| {
             let mut activity = cell.borrow_mut();
             activity.event(slot);
-            let slots = &mut activity.last;
-            let active = slots.iter().filter(|s| s.is_some()).count();
-            if active <= self.max_active {
-                return None;
-            }
-            let victim = slots
-                .iter()
-                .enumerate()
-                .filter(|(i, _)| *i != slot)
-                .filter_map(|(i, s)| s.map(|t| (i, t)))
-                .min_by_key(|(_, t)| *t)
-                .map(|(i, _)| i)?;
-            slots[victim] = None;
+            activity.client[slot] = Client { ip, protected };
+            let Activity { last, client, .. } = &mut *activity;
+            let open = |i: usize| last[i].is_some();
+            let same_source = (0..N).filter(|&i| open(i) && client[i].ip == ip).count();
+            let active = (0..N).filter(|&i| open(i)).count();
+            // The idlest other connection among those `may_go` allows.
+            let idlest = |may_go: &dyn Fn(usize) -> bool| {
+                (0..N).filter(|&i| i != slot && open(i) && may_go(i)).min_by_key(|&i| last[i])
+            };
+            let victim = if same_source > PER_SOURCE {
+                idlest(&|i| client[i].ip == ip)
+            } else if active > self.max_active {
+                // Unprotected clients go first; a protected one only for another protected one.
+                idlest(&|i| !client[i].protected).or_else(|| if protected { idlest(&|_| true) } else { Some(slot) })
+            } else {
+                None
+            }?;
+            last[victim] = None;
             self.evict[victim].signal(());
             Some(victim)
         })
@@ -142,10 +169,18 @@ pub async fn serve<R: RawMutex, M: RegisterMap, T: Read + Write, const N: usize>
     slot: usize,
 ) -> Ended {
     crate::diagnostics::DIAGNOSTICS.connection(true);
-    if let Some(victim) = slots.open(slot) {
-        crate::info!("modbus: connection limit reached, closing idle connection {}", victim);
-    }
-    let ended = serve_frames(io, from, map, slots, slot).await;
+    let protected = map.lock().await.protects(from);
+    let ended = match slots.open(slot, from, protected) {
+        Some(victim) if victim == slot => {
+            crate::info!("modbus: connection limit reached, only admitted clients left: newcomer closed");
+            Ended::Evicted
+        }
+        Some(victim) => {
+            crate::info!("modbus: connection limit reached, closing idle connection {}", victim);
+            serve_frames(io, from, map, slots, slot).await
+        }
+        None => serve_frames(io, from, map, slots, slot).await,
+    };
     slots.close(slot);
     crate::diagnostics::DIAGNOSTICS.connection(false);
     ended
