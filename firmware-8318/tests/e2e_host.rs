@@ -15,6 +15,18 @@ async fn connect(addr: SocketAddr) -> Context {
     timeout(LIMIT, tcp::connect(addr)).await.expect("connect in time").expect("connect")
 }
 
+/// A connection from the loopback address `from` (a module takes at most 4 connections from one
+/// address: docs/modbus.md, so tests of many clients give each its own).
+async fn connect_from(from: [u8; 4], addr: SocketAddr) -> Context {
+    tcp::attach(stream_from(from, addr).await)
+}
+
+async fn stream_from(from: [u8; 4], addr: SocketAddr) -> tokio::net::TcpStream {
+    let socket = tokio::net::TcpSocket::new_v4().unwrap();
+    socket.bind(SocketAddr::from((from, 0))).expect("bind a loopback source");
+    timeout(LIMIT, socket.connect(addr)).await.expect("connect in time").expect("connect")
+}
+
 async fn read(ctx: &mut Context, addr: u16, n: u16) -> Result<Vec<u16>, ExceptionCode> {
     timeout(LIMIT, ctx.read_holding_registers(addr, n)).await.expect("answer in time").expect("transport")
 }
@@ -76,8 +88,8 @@ async fn settings_survive_a_restart() {
 async fn ninth_client_is_served_and_the_longest_idle_is_closed() {
     let module = SimModule::start(BIN, &flash_file("nine.flash"));
     let mut clients = Vec::new();
-    for _ in 0..8 {
-        let mut ctx = connect(module.addr).await;
+    for client in 0..8 {
+        let mut ctx = connect_from([127, 0, 1, client], module.addr).await;
         assert_eq!(read(&mut ctx, 0xD2, 1).await, Ok(vec![0x8318]));
         clients.push(ctx);
         tokio::time::sleep(Duration::from_millis(20)).await;
@@ -104,7 +116,8 @@ async fn nine_simultaneous_clients_all_get_answers() {
             // Each client asks 30 times; a connection closed to make room is reopened.
             let mut answers = 0;
             let mut reconnects = 0;
-            let mut ctx = connect(addr).await;
+            let from = [127, 0, 1, client as u8];
+            let mut ctx = connect_from(from, addr).await;
             while answers < 30 {
                 match timeout(LIMIT, ctx.read_holding_registers(0xD2, 1)).await.expect("answer in time") {
                     Ok(Ok(v)) => {
@@ -115,7 +128,7 @@ async fn nine_simultaneous_clients_all_get_answers() {
                     Err(_) => {
                         reconnects += 1;
                         assert!(reconnects < 100, "client {client} kept losing its connection");
-                        ctx = connect(addr).await;
+                        ctx = connect_from(from, addr).await;
                     }
                 }
                 tokio::time::sleep(Duration::from_millis(5)).await;
@@ -287,10 +300,10 @@ async fn a_newcomer_is_answered_during_a_flood_of_64_connections() {
     // rule makes room (the longest idle goes), and the newcomer is answered within 100 ms.
     let module = SimModule::start(BIN, &flash_file("flood.flash"));
     let addr = module.addr;
-    let flood: Vec<_> = (0..64).map(|_| tokio::spawn(tokio::net::TcpStream::connect(addr))).collect();
+    let flood: Vec<_> = (0..64).map(|i| tokio::spawn(stream_from([127, 0, 3, i], addr))).collect();
     let mut open = Vec::new();
     for c in flood {
-        if let Ok(Ok(stream)) = c.await {
+        if let Ok(stream) = c.await {
             open.push(stream);
         }
     }
@@ -300,6 +313,32 @@ async fn a_newcomer_is_answered_during_a_flood_of_64_connections() {
     let took = started.elapsed();
     eprintln!("newcomer answered {took:?} after {} flood connections were opened", open.len());
     assert!(took < Duration::from_millis(100), "newcomer answered after {took:?}");
+}
+
+/// docs/modbus.md: one address holds at most 4 connections; its fifth closes its own idlest,
+/// never another client's.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn one_address_cannot_push_other_clients_out() {
+    let module = SimModule::start(BIN, &flash_file("per-source.flash"));
+    let mut master = connect_from([127, 0, 0, 1], module.addr).await;
+    assert_eq!(read(&mut master, 0xD2, 1).await, Ok(vec![0x8318]));
+    let mut hog = Vec::new();
+    for _ in 0..12 {
+        let mut ctx = connect_from([127, 0, 0, 66], module.addr).await;
+        assert_eq!(read(&mut ctx, 0xD2, 1).await, Ok(vec![0x8318]), "each new one is served");
+        hog.push(ctx);
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    // 12 connections from one address, the master idle the longest: the master still answers,
+    // and only the hog's 4 newest are open.
+    assert_eq!(read(&mut master, 0xD4, 1).await, Ok(vec![0xA100]), "the master is never closed for them");
+    let mut open = 0;
+    for ctx in &mut hog {
+        if matches!(timeout(LIMIT, ctx.read_holding_registers(0xD2, 1)).await.expect("no hang"), Ok(Ok(_))) {
+            open += 1;
+        }
+    }
+    assert_eq!(open, 4, "one address holds at most 4");
 }
 
 /// Extensions §2: every channel status produced from a scenario and read over Modbus, in the

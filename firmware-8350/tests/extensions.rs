@@ -253,8 +253,8 @@ async fn allow_list_and_per_source_lock_out() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn reads_are_answered_while_the_flash_commits() {
-    // Every flash write and erase takes 100 ms longer: a commit takes a second or more.
-    let module = SimModule::start_with(BIN, &temp("slow.flash"), &["--listen", "127.0.0.1:0", "--slow-flash", "100"]);
+    // Every flash write and erase takes 200 ms longer: a commit takes a second or more.
+    let module = SimModule::start_with(BIN, &temp("slow.flash"), &["--listen", "127.0.0.1:0", "--slow-flash", "200"]);
     let addr = module.addr;
     let mac = mac(&module).await;
     let mut reader = connect(addr).await;
@@ -293,4 +293,34 @@ async fn reads_are_answered_while_the_flash_commits() {
         assert!(worst < Duration::from_millis(100), "each read answered at once: {worst:?}");
     }
     assert_eq!(regs(&mut reader, REG_DI_MODE + 3, 1).await, [4], "the write took effect");
+}
+
+/// With an allow-list set, a client outside it cannot keep the host watchdog fed: its reads are
+/// served, but the outputs still go to their safe levels when the listed master goes silent
+/// (docs/security.md).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn only_allow_listed_clients_feed_the_host_watchdog() {
+    let module = SimModule::start(BIN, &temp("wd-access.flash"));
+    let (mac, d) = (mac(&module).await, module.discovery);
+    assert_eq!(command(d, [127, 0, 0, 1], mac, "remodaq", new_password(PASSWORD)).await.status, Status::Ok);
+    let list = AllowList::of(&[Network::new([127, 0, 0, 2], 32).unwrap()]).unwrap();
+    assert_eq!(command(d, [127, 0, 0, 1], mac, PASSWORD, Ask::SetAccess(list)).await.status, Status::Ok);
+    let mut master = connect_from([127, 0, 0, 2], module.addr).await;
+    let mut outsider = connect_from([127, 0, 0, 9], module.addr).await;
+    // The master arms a 0.5 s watchdog fed by any request, then goes silent.
+    write_reg(&mut master, REG_WD_MODE, 0).await.unwrap();
+    write_reg(&mut master, REG_WD_TIMEOUT, 5).await.unwrap();
+    let armed = Instant::now();
+    // The outsider polls every 100 ms: its reads are answered, and feed nothing.
+    loop {
+        let status = regs(&mut outsider, REG_WD_STATUS, 1).await[0];
+        if status == 1 {
+            break;
+        }
+        assert!(armed.elapsed() < Duration::from_secs(3), "the outsider's reads kept the watchdog fed");
+        sleep(Duration::from_millis(100)).await;
+    }
+    let tripped = armed.elapsed();
+    eprintln!("tripped {tripped:?} after the master's last write, with the outsider polling");
+    assert!(tripped >= Duration::from_millis(450), "{tripped:?}");
 }

@@ -101,6 +101,53 @@ fn segment_to(frame: &[u8], port: u16) -> Option<(Peer, u8)> {
     (destination_port == port).then_some((Peer { ip: source, port: source_port }, flags))
 }
 
+/// SYNs one source address may have held at once: its newest replaces its oldest.
+pub const HELD_PER_SOURCE: usize = 4;
+
+/// The RFC 1071 ones'-complement sum of `parts` (as one byte string), folded to 16 bits.
+fn ones_sum(parts: &[&[u8]]) -> u16 {
+    let mut sum = 0u32;
+    let mut odd: Option<u8> = None;
+    for part in parts {
+        for &byte in *part {
+            match odd.take() {
+                Some(high) => sum += u32::from(u16::from_be_bytes([high, byte])),
+                None => odd = Some(byte),
+            }
+        }
+    }
+    if let Some(high) = odd {
+        sum += u32::from(u16::from_be_bytes([high, 0]));
+    }
+    while sum > 0xFFFF {
+        sum = (sum & 0xFFFF) + (sum >> 16);
+    }
+    sum as u16
+}
+
+/// Whether a TCP/IPv4 frame is for the module with `mac` and `ip` and intact: the destination
+/// MAC and IP are the module's, and the IPv4 header checksum (RFC 791 §3.1) and the TCP
+/// checksum over its pseudo-header (RFC 9293 §3.1) are right. (A checksum field of 0 is a
+/// checksum like any other for TCP: RFC 9293 makes it mandatory.)
+pub fn for_me(frame: &[u8], mac: &[u8; 6], ip: &[u8; 4]) -> bool {
+    let check = || -> Option<bool> {
+        let packet = frame.get(14..)?;
+        let ihl = usize::from(packet.first()? & 0x0F) * 4;
+        let total = usize::from(u16::from_be_bytes([*packet.get(2)?, *packet.get(3)?]));
+        let header = packet.get(..ihl)?;
+        let segment = packet.get(ihl..total)?;
+        let (source, destination) = (header.get(12..16)?, header.get(16..20)?);
+        let length = (segment.len() as u16).to_be_bytes();
+        Some(
+            frame.get(..6)? == mac
+                && destination == ip
+                && ones_sum(&[header]) == 0xFFFF
+                && ones_sum(&[source, destination, &[0, 6], &length, segment]) == 0xFFFF,
+        )
+    };
+    check().unwrap_or(false)
+}
+
 /// What becomes of a received frame.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Verdict {
@@ -125,6 +172,11 @@ pub struct Backlog {
     /// SYNs let through whose handshakes are under way, and when.
     in_flight: Vec<(Peer, u64), SOCKETS>,
     held: Deque<HeldSyn, HELD>,
+    /// The module's MAC and IPv4 address, once the board said: SYNs for anything else, or
+    /// damaged, are dropped before they can take a listening task's place.
+    me: Option<([u8; 6], [u8; 4])>,
+    /// SYNs one source address may have held ([`HELD`] until the board says otherwise).
+    per_source: usize,
 }
 
 impl Default for Backlog {
@@ -136,7 +188,16 @@ impl Default for Backlog {
 impl Backlog {
     /// Empty, no task listening.
     pub const fn new() -> Self {
-        Self { port: 0, accepting: 0, in_flight: Vec::new(), held: Deque::new() }
+        Self { port: 0, accepting: 0, in_flight: Vec::new(), held: Deque::new(), me: None, per_source: HELD }
+    }
+
+    /// The module's MAC and IPv4 address: from now on only SYNs to them, with right checksums,
+    /// count.
+    /// `per_source`: SYNs one source address may have held ([`HELD_PER_SOURCE`]; [`HELD`] on
+    /// a board whose clients all arrive through one address, QEMU's user network).
+    pub fn identify(&mut self, mac: [u8; 6], ip: [u8; 4], per_source: usize) {
+        self.me = Some((mac, ip));
+        self.per_source = per_source.clamp(1, HELD);
     }
 
     /// SYN frames held now.
@@ -189,6 +250,11 @@ impl Backlog {
         if flags & (SYN | ACK | FIN) != SYN {
             return Verdict::Pass;
         }
+        if self.me.is_some_and(|(mac, ip)| !for_me(frame, &mac, &ip)) {
+            // Junk (another address, a damaged or forged frame): dropped here, so it never
+            // takes a listening task's place (smoltcp would drop it, after that).
+            return Verdict::Hold;
+        }
         if in_flight.is_some() {
             // Sent again during its handshake: dropped (see the module's notes).
             return Verdict::Hold;
@@ -208,13 +274,33 @@ impl Backlog {
             }
             return Verdict::Pass;
         }
-        if self.held.is_full() {
+        if self.held.iter().filter(|h| h.peer.ip == peer.ip).count() >= self.per_source {
+            // One source's SYNs never fill the backlog: its newest replaces its oldest.
+            if let Some(i) = self.held.iter().position(|h| h.peer.ip == peer.ip) {
+                self.remove_held(i);
+            }
+        } else if self.held.is_full() {
             self.held.pop_front();
         }
         let mut held = HeldSyn { peer, at_ms: now_ms, len: frame.len(), frame: [0; MAX_SYN_FRAME] };
         held.frame[..frame.len()].copy_from_slice(frame);
         let _ = self.held.push_back(held);
         Verdict::Hold
+    }
+
+    /// Removes the held SYN at `index` (order kept).
+    fn remove_held(&mut self, index: usize) {
+        for _ in 0..index {
+            if let Some(h) = self.held.pop_front() {
+                let _ = self.held.push_back(h);
+            }
+        }
+        self.held.pop_front();
+        for _ in index..self.held.len() {
+            if let Some(h) = self.held.pop_front() {
+                let _ = self.held.push_back(h);
+            }
+        }
     }
 
     /// When the backlog changes by itself next (a held SYN or a handshake lapses), while SYNs
@@ -287,6 +373,12 @@ impl SynGate {
         if let Some(waker) = waker {
             waker.wake();
         }
+    }
+
+    /// The module's MAC and IPv4 address, and the SYNs one source may have held (the board,
+    /// when its network starts; [`Backlog::identify`]).
+    pub fn identify(&self, mac: [u8; 6], ip: [u8; 4], per_source: usize) {
+        self.with(|backlog, _| backlog.identify(mac, ip, per_source));
     }
 
     /// A connection task's accept ended, with a connection from `peer` or without.
@@ -490,6 +582,60 @@ mod tests {
         f.extend_from_slice(&[1, 1, 1, 1]);
         f.extend_from_slice(&plain[34..]);
         assert_eq!(syn_to(&f, PORT), Some(peer(40001)));
+    }
+
+    /// A SYN from 10.0.2.2:40000 to 10.0.2.15:8000 (MAC 02:00:00:00:00:15) with both checksums
+    /// right, computed independently (Python, RFC 1071).
+    const GOOD_SYN: &str = "02 00 00 00 00 15 52 55 0a 00 02 02 08 00 45 00 00 28 00 01 40 00 40 06 22 bf \
+        0a 00 02 02 0a 00 02 0f 9c 40 1f 40 00 00 00 01 00 00 00 00 50 02 fa f0 e1 5f 00 00";
+    const MY_MAC: [u8; 6] = [0x02, 0, 0, 0, 0, 0x15];
+    const MY_IP: [u8; 4] = [10, 0, 2, 15];
+
+    fn good_syn() -> StdVec<u8> {
+        GOOD_SYN.split_whitespace().map(|b| u8::from_str_radix(b, 16).unwrap()).collect()
+    }
+
+    #[test]
+    fn only_intact_syns_for_this_module_take_a_listener() {
+        let good = good_syn();
+        assert!(for_me(&good, &MY_MAC, &MY_IP));
+        let mut good_with_fcs = good.clone();
+        good_with_fcs.extend_from_slice(&[0xDE, 0xAD, 0xBE, 0xEF]);
+        assert!(for_me(&good_with_fcs, &MY_MAC, &MY_IP), "the frame check sequence after the packet");
+        let junk = |at: usize| {
+            let mut f = good.clone();
+            f[at] ^= 0x01;
+            f
+        };
+        // Another MAC, another destination IP, a damaged IP header, a damaged TCP segment.
+        for (what, frame) in [("mac", junk(5)), ("ip", junk(33)), ("ip header", junk(22)), ("tcp", junk(49))] {
+            assert!(!for_me(&frame, &MY_MAC, &MY_IP), "{what}");
+            let mut b = Backlog::new();
+            b.identify(MY_MAC, MY_IP, HELD_PER_SOURCE);
+            b.listening(PORT);
+            assert_eq!(b.arrive(&frame, 0), Verdict::Hold, "{what}: dropped");
+            assert_eq!((b.held(), b.free()), (0, 1), "{what}: the listener is still free");
+            assert_eq!(b.arrive(&good, 0), Verdict::Pass, "{what}: then a real client gets it");
+        }
+    }
+
+    #[test]
+    fn one_source_holds_at_most_four_syns() {
+        let mut b = Backlog::new();
+        b.identify([0x02, 0, 0, 0, 0, 0x15], [10, 0, 2, 15], HELD_PER_SOURCE);
+        b.me = None; // the hand-built frames carry no checksums
+        b.listening(PORT);
+        assert_eq!(b.arrive(&syn(1), 0), Verdict::Pass, "takes the one listener");
+        for port in 2..20 {
+            assert_eq!(b.arrive(&syn(port), 0), Verdict::Hold);
+        }
+        assert_eq!(b.held(), HELD_PER_SOURCE);
+        // The newest ones, in order.
+        b.accepted(Some(peer(1)));
+        b.listening(PORT);
+        let mut out = [0u8; MAX_SYN_FRAME];
+        let n = b.release(0, &mut out).unwrap();
+        assert_eq!(syn_to(&out[..n], PORT), Some(peer(16)));
     }
 
     #[test]

@@ -37,6 +37,9 @@ pub trait Board: Sized + 'static {
     type Flash: NorFlash + 'static;
     /// Size of the settings region, bytes.
     const SETTINGS_SIZE: u32;
+    /// Modbus connections one source address may hold (docs/modbus.md): 4, unless every
+    /// client reaches the board through one address (QEMU's user network).
+    const CONNECTIONS_PER_SOURCE: usize = crate::modbus::server::PER_SOURCE;
     /// The running network (Modbus/TCP, discovery, firmware updates).
     type Net: Network;
     /// The bootloader's update (DFU) partition (firmware updates, docs/update.md).
@@ -232,7 +235,15 @@ where
     let (net, running) = board.start_network(spawner, stored);
     let identity = Identity { model: M::MODULE_NAME, name: M::MODEL, version: FIRMWARE_VERSION, mac, running };
     crate::info!("{} running, firmware {:04X}", M::MODEL, FIRMWARE_VERSION);
-    let app = statics.app.init(App { map, store, boot, net, slots: Slots::new(MAX_CONNECTIONS), identity, state });
+    let app = statics.app.init(App {
+        map,
+        store,
+        boot,
+        net,
+        slots: Slots::new(MAX_CONNECTIONS, B::CONNECTIONS_PER_SOURCE),
+        identity,
+        state,
+    });
     (app, io)
 }
 

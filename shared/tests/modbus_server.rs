@@ -5,11 +5,11 @@ use common::{hex, Script, TestMap};
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::mutex::Mutex;
 use futures_executor::block_on;
-use remodaq_shared::modbus::server::{serve, Ended, Slots};
+use remodaq_shared::modbus::server::{serve, Ended, Slots, PER_SOURCE};
 
 fn run(segments: &[&[u8]]) -> (Vec<u8>, Ended) {
     let map = Mutex::<NoopRawMutex, _>::new(TestMap::default());
-    let slots = Slots::<NoopRawMutex, 2>::new(1);
+    let slots = Slots::<NoopRawMutex, 2>::new(1, PER_SOURCE);
     let mut io = Script::new(segments);
     let ended = block_on(serve(&mut io, [127, 0, 0, 1], &map, &slots, 0));
     assert_eq!(slots.active(), 0, "slot released");
@@ -26,7 +26,7 @@ fn manual_framing_example() {
     // field as 06, the correct value for 1 + 1 + 1 + 4 bytes is 07 (erratum).
     let map = Mutex::<NoopRawMutex, _>::new(TestMap::default());
     block_on(async { map.lock().await.regs[6..8].copy_from_slice(&[0x7FFF, 0x7FFF]) });
-    let slots = Slots::<NoopRawMutex, 1>::new(1);
+    let slots = Slots::<NoopRawMutex, 1>::new(1, PER_SOURCE);
     let mut io = Script::new(&[&hex("00 00 00 00 00 06 01 04 00 06 00 02")]);
     assert_eq!(block_on(serve(&mut io, [127, 0, 0, 1], &map, &slots, 0)), Ended::PeerClosed);
     assert_eq!(io.outgoing, hex("00 00 00 00 00 07 01 04 04 7F FF 7F FF"));
@@ -122,7 +122,7 @@ fn ip(slot: usize) -> [u8; 4] {
 
 #[test]
 fn one_source_holds_at_most_four_connections() {
-    let slots = Slots::<NoopRawMutex, 10>::new(8);
+    let slots = Slots::<NoopRawMutex, 10>::new(8, PER_SOURCE);
     let hog = [10, 9, 9, 9];
     assert_eq!(slots.open(0, ip(0), false), None, "another client, idle the longest");
     for slot in 1..=4 {
@@ -136,7 +136,7 @@ fn one_source_holds_at_most_four_connections() {
 
 #[test]
 fn an_admitted_client_is_never_closed_for_one_the_allow_list_does_not_admit() {
-    let slots = Slots::<NoopRawMutex, 10>::new(8);
+    let slots = Slots::<NoopRawMutex, 10>::new(8, PER_SOURCE);
     let master = [192, 168, 0, 10];
     assert_eq!(slots.open(0, master, true), None, "the SCADA master, on the allow-list, idle the longest");
     for slot in 1..8 {
@@ -150,7 +150,7 @@ fn an_admitted_client_is_never_closed_for_one_the_allow_list_does_not_admit() {
         slot = victim;
     }
     // When only admitted clients are left, an unadmitted newcomer is the one closed.
-    let slots = Slots::<NoopRawMutex, 10>::new(8);
+    let slots = Slots::<NoopRawMutex, 10>::new(8, PER_SOURCE);
     for slot in 0..8 {
         assert_eq!(slots.open(slot, [192, 168, 0, slot as u8], true), None);
     }
@@ -160,7 +160,7 @@ fn an_admitted_client_is_never_closed_for_one_the_allow_list_does_not_admit() {
 
 #[test]
 fn slots_evict_the_longest_idle() {
-    let slots = Slots::<NoopRawMutex, 3>::new(2);
+    let slots = Slots::<NoopRawMutex, 3>::new(2, PER_SOURCE);
     assert_eq!(slots.open(0, ip(0), false), None);
     std::thread::sleep(std::time::Duration::from_millis(2));
     assert_eq!(slots.open(1, ip(1), false), None);
@@ -176,7 +176,7 @@ fn slots_evict_the_longest_idle() {
 /// so the newest (the newcomer) is never the one closed, whatever its slot number.
 #[test]
 fn slots_opened_in_one_tick_evict_in_the_order_they_opened() {
-    let slots = Slots::<NoopRawMutex, 10>::new(8);
+    let slots = Slots::<NoopRawMutex, 10>::new(8, PER_SOURCE);
     let order = [9, 4, 0, 7, 2, 5, 8, 1];
     for slot in order {
         assert_eq!(slots.open(slot, ip(slot), false), None);
@@ -227,7 +227,7 @@ fn a_peer_that_stops_reading_is_still_evicted() {
     use std::future::Future;
     use std::task::{Context, Poll, Waker};
     let map = Mutex::<NoopRawMutex, _>::new(TestMap::default());
-    let slots = Slots::<NoopRawMutex, 2>::new(1);
+    let slots = Slots::<NoopRawMutex, 2>::new(1, PER_SOURCE);
     let mut io = Stalled(Some(hex("00 01 00 00 00 06 01 03 00 00 00 01")));
     let mut server = std::pin::pin!(serve(&mut io, [127, 0, 0, 1], &map, &slots, 0));
     let mut cx = Context::from_waker(Waker::noop());

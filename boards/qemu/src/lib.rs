@@ -95,6 +95,8 @@ pub struct QemuBoard {
 impl Board for QemuBoard {
     type Flash = flash::SettingsFlash;
     const SETTINGS_SIZE: u32 = flash::SIZE as u32;
+    /// QEMU's user network shows every client as its gateway, 10.0.2.2: one address for all.
+    const CONNECTIONS_PER_SOURCE: usize = remodaq_shared::modbus::server::MAX_CONNECTIONS;
     type Net = EmbassyNet<QemuEffects>;
     type Dfu = flash::DfuFlash;
     type BootState = flash::StateFlash;
@@ -165,6 +167,9 @@ impl Board for QemuBoard {
             gateway: Some(Ipv4Address::from(GATEWAY)),
             dns_servers: heapless::Vec::new(),
         });
+        // Only intact SYNs to this MAC and address wait in the backlog; every client comes from
+        // QEMU's user-network gateway (10.0.2.2), so one source may fill it.
+        MODBUS_BACKLOG.identify(self.mac, GUEST_IP, remodaq_shared::backlog::HELD);
         static RESOURCES: StaticCell<StackResources<STACK_SOCKETS>> = StaticCell::new();
         let (stack, runner) = embassy_net::new(
             Backlogged::new(device, &MODBUS_BACKLOG),

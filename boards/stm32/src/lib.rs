@@ -302,7 +302,9 @@ impl Board for Stm32Board {
     /// Starts the network with the stored settings (static IPv4), the watchdog and the
     /// identify LED.
     fn start_network(self, spawner: Spawner, net: NetConfig) -> (EmbassyNet<Stm32Effects>, NetConfig) {
-        let Stm32Board { eth, seed, led, .. } = self;
+        let Stm32Board { eth, seed, led, mac, .. } = self;
+        // Only intact SYNs to this MAC and address wait in the Modbus port's backlog.
+        MODBUS_BACKLOG.identify(mac, net.ip, remodaq_shared::backlog::HELD_PER_SOURCE);
         let prefix = net.prefix_len().unwrap_or(24);
         let gateway = (net.gateway != [0; 4]).then(|| Ipv4Address::from(net.gateway));
         let config = embassy_net::Config::ipv4_static(StaticConfigV4 {

@@ -52,7 +52,7 @@ const REQUEST: [u8; 12] = [0, 1, 0, 0, 0, 6, 1, 3, 0, 0, 0, 1];
 /// The map, one connection slot, and a peer that has sent one request.
 fn connection() -> (Mutex<NoopRawMutex, OneRegister>, Slots<NoopRawMutex, 1>, Rc<RefCell<VecDeque<Vec<u8>>>>) {
     let peer = Rc::new(RefCell::new(VecDeque::from([REQUEST.to_vec()])));
-    (Mutex::new(OneRegister), Slots::new(1), peer)
+    (Mutex::new(OneRegister), Slots::new(1, 1), peer)
 }
 
 #[test]

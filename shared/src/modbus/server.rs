@@ -69,6 +69,7 @@ pub struct Slots<R: RawMutex, const N: usize> {
     last_activity: BlockingMutex<R, RefCell<Activity<N>>>,
     evict: [Signal<R, ()>; N],
     max_active: usize,
+    per_source: usize,
 }
 
 /// Each slot's last activity, its client, and the count of activity events so far.
@@ -94,8 +95,9 @@ impl<const N: usize> Activity<N> {
 }
 
 impl<R: RawMutex, const N: usize> Slots<R, N> {
-    /// `N` connection tasks of which at most `max_active` may serve a client at once.
-    pub const fn new(max_active: usize) -> Self {
+    /// `N` connection tasks of which at most `max_active` may serve a client at once, at most
+    /// `per_source` of them the same source address.
+    pub const fn new(max_active: usize, per_source: usize) -> Self {
         Self {
             last_activity: BlockingMutex::new(RefCell::new(Activity {
                 last: [None; N],
@@ -104,6 +106,7 @@ impl<R: RawMutex, const N: usize> Slots<R, N> {
             })),
             evict: [const { Signal::new() }; N],
             max_active,
+            per_source,
         }
     }
 
@@ -124,7 +127,7 @@ impl<R: RawMutex, const N: usize> Slots<R, N> {
             let idlest = |may_go: &dyn Fn(usize) -> bool| {
                 (0..N).filter(|&i| i != slot && open(i) && may_go(i)).min_by_key(|&i| last[i])
             };
-            let victim = if same_source > PER_SOURCE {
+            let victim = if same_source > self.per_source {
                 idlest(&|i| client[i].ip == ip)
             } else if active > self.max_active {
                 // Unprotected clients go first; a protected one only for another protected one.
