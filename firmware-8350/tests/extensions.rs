@@ -324,3 +324,27 @@ async fn only_allow_listed_clients_feed_the_host_watchdog() {
     eprintln!("tripped {tripped:?} after the master's last write, with the outsider polling");
     assert!(tripped >= Duration::from_millis(450), "{tripped:?}");
 }
+
+/// Alternating writes of a persisted register cannot wear the settings flash out: a write that
+/// changes nothing is not committed, and beyond the commit budget (a burst of 100, then one
+/// every 3 minutes) a write answers exception 04, changes nothing, and is counted (40256).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn alternating_writes_meet_the_commit_budget() {
+    let module = SimModule::start(BIN, &temp("wear.flash"));
+    let mut ctx = connect(module.addr).await;
+    for _ in 0..200 {
+        write_reg(&mut ctx, REG_DI_MODE, 0).await.expect("the same value: nothing to commit");
+    }
+    let mut committed = 0;
+    let refused = loop {
+        match write_reg(&mut ctx, REG_DI_MODE, (committed % 2 + 1) as u16).await {
+            Ok(()) => committed += 1,
+            Err(e) => break e,
+        }
+        assert!(committed <= 100, "more than the budget's burst of 100 commits");
+    };
+    assert_eq!((committed, refused), (100, ExceptionCode::ServerDeviceFailure));
+    assert_eq!(regs(&mut ctx, REG_DI_MODE, 1).await, [2], "the refused write changed nothing");
+    assert_eq!(regs(&mut ctx, 0x00FF, 1).await, [1], "counted in 40256");
+    write_reg(&mut ctx, REG_DI_MODE, 2).await.expect("the value in force: still answered");
+}

@@ -27,6 +27,8 @@ pub const REG_BUDGET_REFUSALS: u16 = 0x00FC;
 pub const REG_ACCESS_REFUSALS: u16 = 0x00FD;
 /// 40255: firmware updates refused (authentication, signature, model, password), 16 bits.
 pub const REG_UPDATE_REFUSALS: u16 = 0x00FE;
+/// 40256: settings writes refused because the commit budget was spent (flash wear), 16 bits.
+pub const REG_WRITE_BUDGET_REFUSALS: u16 = 0x00FF;
 /// 40321-40324: the first 8 bytes of the SHA-256 of the firmware update key, high byte first.
 pub const REG_UPDATE_KEY: u16 = 0x0140;
 
@@ -118,6 +120,8 @@ pub enum Diag {
     AccessRefusals,
     /// Updates refused.
     UpdateRefusals,
+    /// Writes refused by the commit budget.
+    WriteBudgetRefusals,
     /// Word 0-3 of the update key's fingerprint.
     UpdateKey(u8),
 }
@@ -139,6 +143,7 @@ pub fn decode(addr: u16) -> Option<Diag> {
         REG_BUDGET_REFUSALS => Diag::BudgetRefusals,
         REG_ACCESS_REFUSALS => Diag::AccessRefusals,
         REG_UPDATE_REFUSALS => Diag::UpdateRefusals,
+        REG_WRITE_BUDGET_REFUSALS => Diag::WriteBudgetRefusals,
         a if (REG_UPDATE_KEY..REG_UPDATE_KEY + 4).contains(&a) => Diag::UpdateKey((a - REG_UPDATE_KEY) as u8),
         _ => return None,
     })
@@ -160,6 +165,7 @@ impl Diag {
             Diag::BudgetRefusals => REG_BUDGET_REFUSALS,
             Diag::AccessRefusals => REG_ACCESS_REFUSALS,
             Diag::UpdateRefusals => REG_UPDATE_REFUSALS,
+            Diag::WriteBudgetRefusals => REG_WRITE_BUDGET_REFUSALS,
             Diag::UpdateKey(i) => REG_UPDATE_KEY + u16::from(i),
         }
     }
@@ -172,8 +178,8 @@ mod tests {
     #[test]
     fn the_registers_of_extensions_1_and_the_security_events() {
         let mapped: std::vec::Vec<u16> = (0..=u16::MAX).filter(|a| decode(*a).is_some()).collect();
-        // 40241-40248 (extensions §1), 40249-40255 and 40321-40324 (docs/diagnostics.md).
-        let expected = (40241..=40255).chain(40321..=40324).map(|r| r - 40001);
+        // 40241-40248 (extensions §1), 40249-40256 and 40321-40324 (docs/diagnostics.md).
+        let expected = (40241..=40256).chain(40321..=40324).map(|r| r - 40001);
         assert_eq!(mapped, expected.collect::<std::vec::Vec<_>>());
         for a in mapped {
             assert_eq!(decode(a).map(Diag::addr), Some(a));

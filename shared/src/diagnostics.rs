@@ -39,6 +39,8 @@ pub enum Security {
     AccessRefusal,
     /// A firmware update refused.
     UpdateRefusal,
+    /// A settings write refused: the commit budget was spent.
+    WriteBudgetRefusal,
 }
 
 /// The counters and flags behind the diagnostics registers.
@@ -54,6 +56,7 @@ pub struct Diagnostics {
     budget_refusals: AtomicU16,
     access_refusals: AtomicU16,
     update_refusals: AtomicU16,
+    write_budget_refusals: AtomicU16,
     update_key: AtomicU32x2,
 }
 
@@ -78,6 +81,7 @@ impl Diagnostics {
             budget_refusals: AtomicU16::new(0),
             access_refusals: AtomicU16::new(0),
             update_refusals: AtomicU16::new(0),
+            write_budget_refusals: AtomicU16::new(0),
             update_key: AtomicU32x2([AtomicU32::new(0), AtomicU32::new(0)]),
         }
     }
@@ -92,6 +96,7 @@ impl Diagnostics {
             Security::BudgetRefusal => &self.budget_refusals,
             Security::AccessRefusal => &self.access_refusals,
             Security::UpdateRefusal => &self.update_refusals,
+            Security::WriteBudgetRefusal => &self.write_budget_refusals,
         };
         counter.fetch_add(1, Ordering::Relaxed);
     }
@@ -188,6 +193,7 @@ impl Diagnostics {
             Diag::BudgetRefusals => self.budget_refusals.load(Ordering::Relaxed),
             Diag::AccessRefusals => self.access_refusals.load(Ordering::Relaxed),
             Diag::UpdateRefusals => self.update_refusals.load(Ordering::Relaxed),
+            Diag::WriteBudgetRefusals => self.write_budget_refusals.load(Ordering::Relaxed),
             Diag::UpdateKey(i) => {
                 let half = self.update_key.0[usize::from(i / 2) % 2].load(Ordering::Relaxed);
                 if i % 2 == 0 {

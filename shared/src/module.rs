@@ -42,6 +42,30 @@ pub trait SettingsAccess {
     fn committed(&mut self, settings: &Self::Settings);
 }
 
+/// Settings commits allowed in a burst (docs/security.md, "Flash wear").
+pub const COMMIT_BURST: u32 = 100;
+/// One settings commit more is allowed every this many ms: the worst rate the budget allows
+/// wears the settings sectors by at most 10 000 erase cycles in 10 years
+/// (`modules/8350/tests/wear.rs` measures it).
+pub const COMMIT_REFILL_MS: u64 = 180_000;
+
+/// The module-wide commit budget: a token bucket kept as the time it is full again.
+static COMMIT_BUDGET: embassy_sync::blocking_mutex::Mutex<CriticalSectionRawMutex, core::cell::Cell<u64>> =
+    embassy_sync::blocking_mutex::Mutex::new(core::cell::Cell::new(0));
+
+/// Takes one commit from the budget at `now_ms`; false (nothing taken) when it is spent.
+pub fn take_commit(now_ms: u64) -> bool {
+    COMMIT_BUDGET.lock(|full_at| {
+        let debt = full_at.get().saturating_sub(now_ms);
+        let refill = COMMIT_REFILL_MS;
+        if debt + refill > u64::from(COMMIT_BURST) * refill {
+            return false;
+        }
+        full_at.set(full_at.get().max(now_ms) + refill);
+        true
+    })
+}
+
 /// Why [`update`] changed nothing.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum UpdateError<E> {
@@ -67,6 +91,12 @@ where
     let mut settings = *store.get();
     let out = change(&mut settings).map_err(UpdateError::Refused)?;
     if settings != *store.get() {
+        // A change that changes nothing never reaches the flash; one beyond the budget neither.
+        if !take_commit(embassy_time::Instant::now().as_millis()) {
+            crate::warn!("settings: commit budget spent, write refused");
+            crate::diagnostics::DIAGNOSTICS.security(crate::diagnostics::Security::WriteBudgetRefusal, [0; 4]);
+            return Err(UpdateError::Store(StoreError::Budget));
+        }
         store.commit(settings).await.map_err(UpdateError::Store)?;
         map.lock().await.committed(&settings);
     }

@@ -139,6 +139,8 @@ pub enum StoreError {
     Corrupted,
     /// The record does not fit.
     TooLarge,
+    /// The commit budget is spent (flash wear, docs/security.md): nothing written.
+    Budget,
 }
 
 #[repr(C, align(4))]
