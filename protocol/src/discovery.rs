@@ -80,6 +80,9 @@ pub enum Status {
     /// The factory password is still in force: set a password first (firmware updates and
     /// allow-list changes are refused until then).
     SetPasswordFirst = 7,
+    /// Firmware update only: the image's security counter is below the module's (an older
+    /// release, anti-rollback). Nothing changed.
+    Downgrade = 8,
 }
 
 impl Status {
@@ -94,6 +97,7 @@ impl Status {
             5 => Status::BadSignature,
             6 => Status::StaleNonce,
             7 => Status::SetPasswordFirst,
+            8 => Status::Downgrade,
             _ => return None,
         })
     }

@@ -1,9 +1,12 @@
 //! Firmware update (TCP, port [`PORT`]): the signed image file and the session's wire format.
 //! See `docs/update.md`.
 //!
-//! An image file is a [`Header`] then the firmware bytes. The signature is ed25519 over the
-//! SHA-512 digest of the firmware bytes (what `embassy-boot` verifies before it marks the
-//! update). A session authenticates as the discovery protocol's commands do (`crate::auth`,
+//! An image file is a [`Header`] then the firmware bytes. The header names the model, the
+//! version, a security counter, the length and the SHA-512 digest of the firmware bytes; its
+//! ed25519 signature covers all of that (the first [`SIGNED_LEN`] bytes), so neither the model
+//! nor the version nor the counter can be changed without the signing key. The module checks
+//! the model and the counter before it takes the firmware, the digest and the signature after;
+//! the bootloaders check digest and signature again before a swap ([`check_before_swap`]). A session authenticates as the discovery protocol's commands do (`crate::auth`,
 //! docs/security.md), with no password on the wire:
 //! 1. the PC sends its nonce ([`NONCE_LEN`] bytes);
 //! 2. the module answers a [`Greeting`]: its MAC, the salt and iterations of its password, its
@@ -88,10 +91,14 @@ pub const SIGNED_ANSWER_LEN: usize = 1 + KEY_LEN;
 pub const PORT: u16 = 8301;
 /// First bytes of an image file.
 pub const MAGIC: [u8; 4] = *b"RDQU";
-/// Image file format version.
-pub const FORMAT: u8 = 1;
+/// Image file format version (2: the signature covers the header).
+pub const FORMAT: u8 = 2;
+/// Bytes of a [`Header`] the signature covers.
+pub const SIGNED_LEN: usize = 4 + 1 + 1 + 2 + 2 + 4 + 4 + 64;
 /// Bytes of an encoded [`Header`].
-pub const HEADER_LEN: usize = 4 + 1 + 1 + 2 + 2 + 4 + 64;
+pub const HEADER_LEN: usize = SIGNED_LEN + 64;
+
+include!(concat!(env!("OUT_DIR"), "/update_key.rs"));
 
 /// The header of an image file.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -100,9 +107,14 @@ pub struct Header {
     pub model: u16,
     /// Firmware version of the image (register 40213).
     pub version: u16,
+    /// Security counter: a module refuses an image whose counter is below the highest it has
+    /// confirmed (anti-rollback, docs/update.md).
+    pub counter: u32,
     /// Length of the firmware bytes that follow.
     pub length: u32,
-    /// ed25519 signature of the SHA-512 digest of the firmware bytes.
+    /// SHA-512 of the firmware bytes.
+    pub digest: [u8; 64],
+    /// ed25519 signature of the first [`SIGNED_LEN`] bytes of the encoded header.
     pub signature: [u8; 64],
 }
 
@@ -114,8 +126,10 @@ impl Header {
         out[4] = FORMAT;
         out[6..8].copy_from_slice(&self.model.to_be_bytes());
         out[8..10].copy_from_slice(&self.version.to_be_bytes());
-        out[10..14].copy_from_slice(&self.length.to_be_bytes());
-        out[14..].copy_from_slice(&self.signature);
+        out[10..14].copy_from_slice(&self.counter.to_be_bytes());
+        out[14..18].copy_from_slice(&self.length.to_be_bytes());
+        out[18..82].copy_from_slice(&self.digest);
+        out[82..].copy_from_slice(&self.signature);
         out
     }
 
@@ -124,14 +138,95 @@ impl Header {
         if bytes[..4] != MAGIC || bytes[4] != FORMAT || bytes[5] != 0 {
             return None;
         }
+        let mut digest = [0u8; 64];
+        digest.copy_from_slice(&bytes[18..82]);
         let mut signature = [0u8; 64];
-        signature.copy_from_slice(&bytes[14..]);
+        signature.copy_from_slice(&bytes[82..]);
         Some(Self {
             model: u16::from_be_bytes([bytes[6], bytes[7]]),
             version: u16::from_be_bytes([bytes[8], bytes[9]]),
-            length: u32::from_be_bytes([bytes[10], bytes[11], bytes[12], bytes[13]]),
+            counter: u32::from_be_bytes([bytes[10], bytes[11], bytes[12], bytes[13]]),
+            length: u32::from_be_bytes([bytes[14], bytes[15], bytes[16], bytes[17]]),
+            digest,
             signature,
         })
+    }
+
+    /// Whether the signature is `key`'s over this header, and `digest` (of the firmware bytes
+    /// as received or as in flash) is the one it names.
+    pub fn verify(&self, digest: &[u8; 64], key: &[u8; 32]) -> bool {
+        let encoded = self.encode();
+        let Ok(public) = salty::PublicKey::try_from(key) else { return false };
+        self.digest == *digest && public.verify(&encoded[..SIGNED_LEN], &salty::Signature::from(&self.signature)).is_ok()
+    }
+}
+
+/// The SHA-512 of `length` bytes read through `read` (offset, buffer; false: a read error) in
+/// chunks of `chunk.len()`; `None` on a read error.
+pub fn digest_of(length: u32, chunk: &mut [u8], mut read: impl FnMut(u32, &mut [u8]) -> bool) -> Option<[u8; 64]> {
+    use sha2::{Digest, Sha512};
+    let mut hash = Sha512::new();
+    let mut offset = 0u32;
+    while offset < length {
+        let n = ((length - offset) as usize).min(chunk.len());
+        if !read(offset, &mut chunk[..n]) {
+            return None;
+        }
+        hash.update(&chunk[..n]);
+        offset += n as u32;
+    }
+    Some(hash.finalize().into())
+}
+
+/// What a bootloader does with the update partition before it lets embassy-boot run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BeforeSwap {
+    /// No swap is about to start (none requested, one under way, or a revert): go on.
+    Nothing,
+    /// A swap is requested and its image checks out: go on.
+    Verified,
+    /// A swap is requested, but the update partition holds no image signed with the key (its
+    /// manifest missing or changed, its firmware changed): cancel the swap (mark booted).
+    Refuse,
+}
+
+/// The bootloaders' check before a swap: if the state partition asks for one that has not
+/// started (embassy-boot's layout: the swap magic in the first word, its progress words still
+/// erased), the manifest the application wrote at the start of the update partition's last
+/// page (`manifest_at`, the swap's scratch page, which the swap's first step overwrites) must
+/// be a header signed with `key` whose digest is that of the firmware in the partition.
+#[cfg(feature = "bootloader")]
+pub fn check_before_swap<D, S>(dfu: &mut D, state: &mut S, manifest_at: u32, key: &[u8; 32]) -> BeforeSwap
+where
+    D: embedded_storage::nor_flash::ReadNorFlash,
+    S: embedded_storage::nor_flash::NorFlash,
+{
+    /// embassy-boot 0.7's swap magic and erased state value (`lib.rs`).
+    const SWAP_MAGIC: u8 = 0xF0;
+    const ERASED: u8 = 0xFF;
+    let write = S::WRITE_SIZE.clamp(1, 32);
+    let mut word = [0u8; 32];
+    let mut read_word = |at: usize, out: &mut [u8; 32]| state.read((at * write) as u32, &mut out[..write]).is_ok();
+    if !read_word(0, &mut word) || word[..write].iter().any(|&b| b != SWAP_MAGIC) {
+        return BeforeSwap::Nothing;
+    }
+    // Progress valid (word 1) and the first progress index (word 2) still erased: not started.
+    for at in [1, 2] {
+        if !read_word(at, &mut word) || word[..write].iter().any(|&b| b != ERASED) {
+            return BeforeSwap::Nothing;
+        }
+    }
+    let mut header = [0u8; HEADER_LEN];
+    if dfu.read(manifest_at, &mut header).is_err() {
+        return BeforeSwap::Refuse;
+    }
+    let Some(header) = Header::decode(&header).filter(|h| h.length <= manifest_at) else {
+        return BeforeSwap::Refuse;
+    };
+    let mut chunk = [0u8; 256];
+    match digest_of(header.length, &mut chunk, |at, buf| dfu.read(at, buf).is_ok()) {
+        Some(digest) if header.verify(&digest, key) => BeforeSwap::Verified,
+        _ => BeforeSwap::Refuse,
     }
 }
 
@@ -146,13 +241,25 @@ mod tests {
 
     #[test]
     fn header_round_trip() {
-        let h = Header { model: 0x8350, version: 0xA101, length: 123_456, signature: [7; 64] };
+        let h = Header { model: 0x8350, version: 0xA101, counter: 7, length: 123_456, digest: [3; 64], signature: [7; 64] };
         let bytes = h.encode();
-        assert_eq!(&bytes[..14], b"RDQU\x01\x00\x83\x50\xA1\x01\x00\x01\xE2\x40");
+        assert_eq!(&bytes[..18], b"RDQU\x02\x00\x83\x50\xA1\x01\x00\x00\x00\x07\x00\x01\xE2\x40");
         assert_eq!(Header::decode(&bytes), Some(h));
         let mut bad = bytes;
-        bad[4] = 2;
-        assert_eq!(Header::decode(&bad), None);
+        bad[4] = 1;
+        assert_eq!(Header::decode(&bad), None, "format 1 (unsigned header) is not taken");
         assert_eq!(Status::from_code(5), Some(Status::BadSignature));
+    }
+
+    /// RFC 8032 §7.1 TEST 1: the empty message's signature verifies with salty (the check the
+    /// module and the bootloaders run).
+    #[test]
+    fn ed25519_rfc8032_test_1() {
+        let hex = |s: &str| -> std::vec::Vec<u8> { (0..s.len() / 2).map(|i| u8::from_str_radix(&s[2 * i..2 * i + 2], 16).unwrap()).collect() };
+        let public: [u8; 32] = hex("d75a980182b10ab7d54bfed3c964073a0ee172f3daa62325af021a68f707511a").try_into().unwrap();
+        let signature: [u8; 64] = hex("e5564300c360ac729086e2cc806e828a84877f1eb8e5d974d873e065224901555fb8821590a33bacc61e39701cf9b46bd25bf5f0595bbe24655141438e7a100b").try_into().unwrap();
+        let key = salty::PublicKey::try_from(&public).unwrap();
+        assert!(key.verify(b"", &salty::Signature::from(&signature)).is_ok());
+        assert!(key.verify(b"x", &salty::Signature::from(&signature)).is_err());
     }
 }

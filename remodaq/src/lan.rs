@@ -425,7 +425,7 @@ fn status(reply: Reply, mac: Mac) -> Result<Reply, Error> {
         }
         Status::Invalid => "the module refused the settings (mask, address, port or password)",
         Status::StoreFailed => "the module could not store the settings",
-        Status::BadSignature => "the module answered a status of the update service (bad signature)",
+        Status::BadSignature | Status::Downgrade => "the module answered a status of the update service",
     };
     Err(Error::Other(format!("{mac}: {message}")))
 }

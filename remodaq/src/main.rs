@@ -118,6 +118,10 @@ enum Command {
         /// The firmware version (register 40213), in hex, e.g. A101.
         #[arg(long, value_parser = hex16)]
         version: u16,
+        /// The security counter (anti-rollback): a module refuses images below the highest
+        /// counter it has confirmed. Raise it when a release fixes a vulnerability.
+        #[arg(long, default_value_t = 0)]
+        counter: u32,
         /// The firmware binary (the application image, as the bootloader starts it).
         firmware: std::path::PathBuf,
         /// The image file to write.
@@ -359,7 +363,9 @@ async fn run(cli: Cli) -> Result<(), Error> {
         Command::Update { module, image, password, port } => {
             update::update(&module, &image, &password.get()?, port, timeout, json).await
         }
-        Command::Sign { key, model, version, firmware, out } => sign::sign(&key, &firmware, model, version, &out),
+        Command::Sign { key, model, version, counter, firmware, out } => {
+            sign::sign(&key, &firmware, model, version, counter, &out)
+        }
     }
 }
 

@@ -1,12 +1,13 @@
-//! Signing firmware images for the update service (`remodaq keygen`, `remodaq sign`): ed25519
-//! over the SHA-512 digest of the firmware bytes, as the module's bootloader library
-//! (embassy-boot) verifies it. Keys are files of 64 hex digits: the secret key in `KEY`, the
+//! Signing firmware images for the update service (`remodaq keygen`, `remodaq sign`): an
+//! ed25519 signature over the image header (model, version, security counter, length and the
+//! SHA-512 digest of the firmware bytes), as the module and its bootloader verify it
+//! (docs/update.md). Keys are files of 64 hex digits: the secret key in `KEY`, the
 //! public key in `KEY.pub` (what the firmware is built with).
 
 use std::path::{Path, PathBuf};
 
 use ed25519_dalek::{Signer, SigningKey};
-use remodaq_protocol::update::Header;
+use remodaq_protocol::update::{Header, SIGNED_LEN};
 use sha2::{Digest, Sha512};
 
 use crate::Error;
@@ -72,24 +73,25 @@ pub fn keygen(key: &Path) -> Result<(), Error> {
     Ok(())
 }
 
-/// The image file of `firmware` for `model` and `version`, signed with `key`.
-pub fn image_file(firmware: &[u8], model: u16, version: u16, key: &SigningKey) -> Result<Vec<u8>, Error> {
+/// The image file of `firmware` for `model`, `version` and security `counter`, signed with
+/// `key`.
+pub fn image_file(firmware: &[u8], model: u16, version: u16, counter: u32, key: &SigningKey) -> Result<Vec<u8>, Error> {
     let length = u32::try_from(firmware.len()).map_err(|_| Error::Other("the firmware is too large".into()))?;
-    let signature = key.sign(&Sha512::digest(firmware)).to_bytes();
-    let header = Header { model, version, length, signature };
+    let mut header = Header { model, version, counter, length, digest: Sha512::digest(firmware).into(), signature: [0; 64] };
+    header.signature = key.sign(&header.encode()[..SIGNED_LEN]).to_bytes();
     Ok([&header.encode()[..], firmware].concat())
 }
 
 /// `remodaq sign`: writes the signed image file of a firmware binary.
-pub fn sign(key: &Path, firmware: &Path, model: u16, version: u16, out: &Path) -> Result<(), Error> {
+pub fn sign(key: &Path, firmware: &Path, model: u16, version: u16, counter: u32, out: &Path) -> Result<(), Error> {
     let text = std::fs::read_to_string(key).map_err(|e| Error::Other(format!("cannot read {}: {e}", key.display())))?;
     let signing = SigningKey::from_bytes(&unhex32(&text, key)?);
     let bytes =
         std::fs::read(firmware).map_err(|e| Error::Other(format!("cannot read {}: {e}", firmware.display())))?;
-    let file = image_file(&bytes, model, version, &signing)?;
+    let file = image_file(&bytes, model, version, counter, &signing)?;
     std::fs::write(out, &file).map_err(|e| Error::Other(format!("cannot write {}: {e}", out.display())))?;
     println!(
-        "{}: {} bytes of firmware for {model:04X}, version {version:04X}, signed for public key {}",
+        "{}: {} bytes of firmware for {model:04X}, version {version:04X}, security counter {counter}, signed for public key {}",
         out.display(),
         bytes.len(),
         hex(signing.verifying_key().as_bytes())
@@ -109,9 +111,12 @@ mod tests {
             return false;
         };
         let Some(header) = Header::decode(head) else { return false };
+        let digest: [u8; 64] = Sha512::digest(firmware).into();
+        // The module's own check (salty), and ed25519-dalek's strict one.
         firmware.len() == header.length as usize
+            && header.verify(&digest, public.as_bytes())
             && public
-                .verify_strict(&Sha512::digest(firmware), &ed25519_dalek::Signature::from_bytes(&header.signature))
+                .verify_strict(&head[..SIGNED_LEN], &ed25519_dalek::Signature::from_bytes(&header.signature))
                 .is_ok()
     }
 
@@ -132,16 +137,22 @@ mod tests {
         let firmware = dir.join("fw.bin");
         std::fs::write(&firmware, (0..5000u32).map(|i| i as u8).collect::<Vec<_>>()).unwrap();
         let out = dir.join("fw.rdq");
-        sign(&key, &firmware, 0x8350, 0xA101, &out).unwrap();
+        sign(&key, &firmware, 0x8350, 0xA101, 3, &out).unwrap();
         let file = std::fs::read(&out).unwrap();
         let public = unhex32(&std::fs::read_to_string(public_path(&key)).unwrap(), &key).unwrap();
         let public = VerifyingKey::from_bytes(&public).unwrap();
         assert!(verify(&file, &public));
         let header = Header::decode(file.first_chunk().unwrap()).unwrap();
-        assert_eq!((header.model, header.version, header.length), (0x8350, 0xA101, 5000));
+        assert_eq!((header.model, header.version, header.counter, header.length), (0x8350, 0xA101, 3, 5000));
         let mut tampered = file.clone();
-        tampered[100] ^= 1;
-        assert!(!verify(&tampered, &public), "a changed byte");
+        tampered[200] ^= 1;
+        assert!(!verify(&tampered, &public), "a changed byte of the firmware");
+        // The header is signed: another model, version or counter breaks the signature.
+        for at in [7, 9, 13] {
+            let mut tampered = file.clone();
+            tampered[at] ^= 1;
+            assert!(!verify(&tampered, &public), "a changed header byte {at}");
+        }
         let other = SigningKey::from_bytes(&[9; 32]).verifying_key();
         assert!(!verify(&file, &other), "another key");
         let _ = std::fs::remove_dir_all(&dir);

@@ -33,6 +33,9 @@ fn refused(status: Option<Status>, module: SocketAddr) -> Error {
             "{module}: the signature does not match (another key, or a changed file); nothing changed"
         )),
         Some(Status::StoreFailed) => Error::Other(format!("{module}: the module could not write the update")),
+        Some(Status::Downgrade) => Error::Refused(format!(
+            "{module}: the image's security counter is below the module's (an older release); nothing changed"
+        )),
         Some(Status::StaleNonce) => Error::Reply(format!("{module}: not an update service answer")),
         Some(Status::SetPasswordFirst) => Error::Refused(format!(
             "{module}: the factory password is in force: set a password first (remodaq password); nothing changed"

@@ -95,9 +95,10 @@ pub trait Network: 'static {
     ) -> !;
     /// Serves firmware update sessions (TCP port 8301) into `target`, one at a time, forever;
     /// restarts the module after an image was verified and marked.
-    async fn serve_update<A: SettingsAccess, U: UpdateTarget>(
+    async fn serve_update<A: SettingsAccess, F: NorFlash, U: UpdateTarget>(
         &'static self,
         map: &'static Shared<A>,
+        store: &'static Store<F, A::Settings>,
         service: &mut UpdateService,
         target: &mut U,
     ) -> !;
@@ -264,7 +265,7 @@ impl<B: Board, M: Module> App<B, M> {
         let parts = self.boot.lock().await.take();
         match parts {
             Some((dfu, state)) => {
-                crate::update::run(&self.net, &self.map, M::MODULE_NAME, self.identity.mac, dfu, state).await
+                crate::update::run(&self.net, &self.map, self.store, M::MODULE_NAME, self.identity.mac, dfu, state).await
             }
             None => core::future::pending().await,
         }

@@ -92,9 +92,10 @@ impl<E: Effects> Network for EmbassyNet<E> {
         serve(&mut datagrams, map, store, identity, async |effect| self.effects.apply(effect).await).await
     }
 
-    async fn serve_update<A: SettingsAccess, U: UpdateTarget>(
+    async fn serve_update<A: SettingsAccess, F: NorFlash, U: UpdateTarget>(
         &'static self,
         map: &'static Shared<A>,
+        store: &'static Store<F, A::Settings>,
         service: &mut UpdateService,
         target: &mut U,
     ) -> ! {
@@ -109,7 +110,7 @@ impl<E: Effects> Network for EmbassyNet<E> {
             }
             let now_ms = embassy_time::Instant::now().as_millis();
             let from = peer(&socket);
-            let outcome = service.session(&mut socket, from, now_ms, map, target).await;
+            let outcome = service.session(&mut socket, from, now_ms, map, store, target).await;
             close(&mut socket).await;
             reset(&mut socket).await;
             if let Outcome::Updated { .. } = outcome {

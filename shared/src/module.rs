@@ -24,6 +24,10 @@ pub trait CommonSettings: Schema + Copy {
     fn allow_list(&self) -> AllowList;
     /// Changes the Modbus write allow-list.
     fn set_allow_list(&mut self, list: AllowList);
+    /// The firmware update security counters (anti-rollback).
+    fn update_counter(&self) -> crate::update::Counter;
+    /// Changes them.
+    fn set_update_counter(&mut self, counter: crate::update::Counter);
 }
 
 /// The settings store behind its own lock, shared by the register map (Modbus writes) and the
@@ -66,6 +70,12 @@ pub fn take_commit(now_ms: u64) -> bool {
     })
 }
 
+/// Fills the commit budget again (tests that run thousands of sessions in one process).
+#[doc(hidden)]
+pub fn reset_commit_budget_for_tests() {
+    COMMIT_BUDGET.lock(|full_at| full_at.set(0));
+}
+
 /// Why [`update`] changed nothing.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum UpdateError<E> {
@@ -104,7 +114,7 @@ where
 }
 
 /// Implements [`CommonSettings`] for a settings struct with the fields `net: NetConfig`,
-/// `password: Credential` and `allow: AllowList`.
+/// `password: Credential`, `allow: AllowList` and `update: update::Counter`.
 #[macro_export]
 macro_rules! impl_common_settings {
     ($settings:ty) => {
@@ -126,6 +136,12 @@ macro_rules! impl_common_settings {
             }
             fn set_allow_list(&mut self, list: $crate::protocol::access::AllowList) {
                 self.allow = list;
+            }
+            fn update_counter(&self) -> $crate::update::Counter {
+                self.update
+            }
+            fn set_update_counter(&mut self, counter: $crate::update::Counter) {
+                self.update = counter;
             }
         }
     };

@@ -11,11 +11,46 @@ use embassy_time::{with_timeout, Duration};
 use embedded_io_async::{Read, Write};
 use embedded_storage_async::nor_flash::NorFlash;
 
-use crate::module::{CommonSettings, SettingsAccess};
+use crate::module::{CommonSettings, SettingsAccess, Store};
 use crate::password::{Check, AUTH, KEY_LEN, NONCE_LEN};
 use remodaq_protocol::auth::server_signature;
 
-include!(concat!(env!("OUT_DIR"), "/update_key.rs"));
+
+/// The firmware update security counters kept in the settings (anti-rollback, docs/update.md):
+/// the highest counter of an image this module confirmed, and the counter of the image marked
+/// and not yet confirmed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Counter {
+    /// Images with a lower counter are refused ([`Status::Downgrade`]).
+    pub confirmed: u32,
+    /// The counter of the image marked for the bootloader: it becomes `confirmed` when that
+    /// image confirms itself.
+    pub pending: u32,
+}
+
+/// The settings tag of the counters.
+const TAG_COUNTER: u8 = 9;
+
+impl Counter {
+    /// Writes the counters into a settings record.
+    pub fn encode(&self, w: &mut crate::settings::RecordWriter<'_>) {
+        let mut b = [0u8; 8];
+        b[..4].copy_from_slice(&self.confirmed.to_le_bytes());
+        b[4..].copy_from_slice(&self.pending.to_le_bytes());
+        w.put(TAG_COUNTER, &b);
+    }
+    /// The counters of a settings record (0, 0 if absent: a record of before counters).
+    pub fn decode(r: &crate::settings::RecordReader<'_>) -> Self {
+        match r.array::<8>(TAG_COUNTER) {
+            Some(b) => Counter {
+                confirmed: u32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+                pending: u32::from_le_bytes([b[4], b[5], b[6], b[7]]),
+            },
+            None => Counter::default(),
+        }
+    }
+}
 
 /// How long a new image may take to pass its self-test before the module restarts (and the
 /// bootloader reverts to the previous image).
@@ -36,9 +71,12 @@ pub trait UpdateTarget {
     async fn begin(&mut self) -> Result<(), Status>;
     /// Writes firmware bytes at `offset` (erasing sectors as it goes).
     async fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Status>;
-    /// Verifies the `length` bytes written against `signature` and this module's key, and if
-    /// they match marks them for the bootloader to swap in at the next start.
-    async fn verify_and_mark(&mut self, signature: &[u8; 64], length: u32) -> Result<(), Status>;
+    /// Verifies the firmware written against `header` (its digest) and the header's signature
+    /// against this module's key; `Err(BadSignature)` if they do not match.
+    async fn verify(&mut self, header: &Header) -> Result<(), Status>;
+    /// Marks the verified image for the bootloader to swap in at the next start, with its
+    /// header (the manifest the bootloader checks again before the swap).
+    async fn mark(&mut self, header: &Header) -> Result<(), Status>;
 }
 
 /// How a session ended.
@@ -81,18 +119,21 @@ impl UpdateService {
 
     /// Serves one session from the client at `from` at `now_ms`. The map is locked only to
     /// copy the credential.
-    pub async fn session<T, R, A, U>(
+    #[allow(clippy::too_many_arguments)]
+    pub async fn session<T, R, A, F, U>(
         &mut self,
         io: &mut T,
         from: [u8; 4],
         now_ms: u64,
         map: &Mutex<R, A>,
+        store: &Store<F, A::Settings>,
         target: &mut U,
     ) -> Outcome
     where
         T: Read + Write,
         R: RawMutex,
         A: SettingsAccess,
+        F: NorFlash,
         U: UpdateTarget,
     {
         let settings = *map.lock().await.settings();
@@ -153,7 +194,21 @@ impl UpdateService {
             }
             offset += n as u32;
         }
-        match target.verify_and_mark(&header.signature, header.length).await {
+        let verified = match target.verify(&header).await {
+            // The counter of the image to come, kept until it confirms itself.
+            Ok(()) => match crate::module::commit_change(map, store, |s| {
+                let mut c = s.update_counter();
+                c.pending = header.counter;
+                s.set_update_counter(c);
+            })
+            .await
+            {
+                Ok(()) => target.mark(&header).await,
+                Err(_) => Err(Status::StoreFailed),
+            },
+            Err(status) => Err(status),
+        };
+        match verified {
             Ok(()) => {
                 crate::info!("update: version {:04X} verified and marked", header.version);
                 // Marked: the bootloader swaps it in at the next start, answer sent or not.
@@ -210,7 +265,14 @@ impl UpdateService {
             return Err(Refused::Late(Status::SetPasswordFirst));
         }
         match Header::decode(header) {
-            Some(h) if h.model == self.model && h.length > 0 && h.length <= self.capacity => Ok(h),
+            Some(h) if h.model == self.model && h.length > 0 && h.length <= self.capacity => {
+                let confirmed = settings.update_counter().confirmed;
+                if h.counter < confirmed {
+                    crate::warn!("update: refused, counter {} below the module's {}", h.counter, confirmed);
+                    return Err(Refused::Late(Status::Downgrade));
+                }
+                Ok(h)
+            }
             _ => Err(Refused::Late(Status::Invalid)),
         }
     }
@@ -260,12 +322,18 @@ async fn read_exact<T: Read>(io: &mut T, buf: &mut [u8]) -> Option<()> {
     Some(())
 }
 
+/// Bytes of the manifest written for the bootloader: the header, padded to a multiple of
+/// every flash's write size (4 on the STM32 and the QEMU board, up to 32).
+pub const MANIFEST_LEN: usize = HEADER_LEN.next_multiple_of(32);
+
 /// The update target of the boards: `embassy-boot`'s updater with this module's public key.
 pub struct BootUpdater<'d, DFU: NorFlash, STATE: NorFlash> {
     /// The updater over the update and state partitions.
     pub updater: embassy_boot::FirmwareUpdater<'d, DFU, STATE>,
     /// The public key images are signed for.
     pub public_key: [u8; 32],
+    /// Where the manifest goes: the start of the update partition's last page.
+    pub manifest_at: u32,
 }
 
 impl<DFU, STATE> UpdateTarget for BootUpdater<'_, DFU, STATE>
@@ -284,12 +352,25 @@ where
         self.updater.write_firmware(offset as usize, data).await.map_err(|_| Status::StoreFailed)
     }
 
-    async fn verify_and_mark(&mut self, signature: &[u8; 64], length: u32) -> Result<(), Status> {
-        match self.updater.verify_and_mark_updated(&self.public_key, signature, length).await {
-            Ok(()) => Ok(()),
-            Err(embassy_boot::FirmwareUpdaterError::Signature(_)) => Err(Status::BadSignature),
+    async fn verify(&mut self, header: &Header) -> Result<(), Status> {
+        let mut chunk = [0u8; 256];
+        let mut digest = [0u8; 64];
+        let hashed = self.updater.hash::<sha2::Sha512>(header.length, &mut chunk, &mut digest).await;
+        match hashed {
+            Ok(()) if header.verify(&digest, &self.public_key) => Ok(()),
+            Ok(()) => Err(Status::BadSignature),
             Err(_) => Err(Status::StoreFailed),
         }
+    }
+
+    async fn mark(&mut self, header: &Header) -> Result<(), Status> {
+        // The manifest at the start of the partition's last page (the swap's scratch page,
+        // beyond any firmware), where the bootloader reads it before the swap.
+        let mut manifest = [0xFFu8; MANIFEST_LEN];
+        manifest[..HEADER_LEN].copy_from_slice(&header.encode());
+        let write = self.updater.write_firmware(self.manifest_at as usize, &manifest).await;
+        write.map_err(|_| Status::StoreFailed)?;
+        self.updater.mark_updated().await.map_err(|_| Status::StoreFailed)
     }
 }
 
@@ -305,9 +386,11 @@ pub fn self_test_passed(network_up: bool) -> bool {
 /// The update task of a board with a bootloader: confirms a new (or reverted-to) image once its
 /// self-test passes, or restarts it (the bootloader then reverts) when it has not passed after
 /// [`TRIAL`]; then serves update sessions forever on `net`.
-pub async fn run<N, A, DFU, STATE>(
+#[allow(clippy::too_many_arguments)]
+pub async fn run<N, A, F, DFU, STATE>(
     net: &'static N,
     map: &'static crate::board::Shared<A>,
+    store: &'static Store<F, A::Settings>,
     model: u16,
     mac: [u8; 6],
     dfu: DFU,
@@ -316,6 +399,7 @@ pub async fn run<N, A, DFU, STATE>(
 where
     N: crate::board::Network,
     A: SettingsAccess,
+    F: NorFlash,
     DFU: NorFlash,
     STATE: NorFlash,
 {
@@ -328,36 +412,67 @@ where
         embassy_boot::FirmwareUpdaterConfig { dfu, state },
         &mut aligned[..STATE::WRITE_SIZE],
     );
-    let mut target = BootUpdater { updater, public_key: UPDATE_KEY };
-    confirm(net, &mut target).await;
+    let mut target = BootUpdater { updater, public_key: UPDATE_KEY, manifest_at: capacity };
+    confirm(net, map, store, &mut target).await;
     let mut service = UpdateService::new(model, mac, capacity);
-    net.serve_update(map, &mut service, &mut target).await
+    net.serve_update(map, store, &mut service, &mut target).await
 }
 
-async fn confirm<N, DFU, STATE>(net: &N, target: &mut BootUpdater<'_, DFU, STATE>)
-where
+async fn confirm<N, A, F, DFU, STATE>(
+    net: &N,
+    map: &crate::board::Shared<A>,
+    store: &Store<F, A::Settings>,
+    target: &mut BootUpdater<'_, DFU, STATE>,
+) where
     N: crate::board::Network,
+    A: SettingsAccess,
+    F: NorFlash,
     DFU: NorFlash,
     STATE: NorFlash,
 {
     use embassy_boot::State;
-    let state = target.updater.get_state().await;
-    let what = match state {
-        Ok(State::Swap) => "a new image",
-        Ok(State::Revert) => "the previous image (the new one did not confirm itself)",
+    // The counters once the image in the state `reverted` (or not) is confirmed: a new image's
+    // counter becomes the module's; after a revert, the pending one is dropped.
+    let settle = |reverted: bool| {
+        move |s: &mut A::Settings| {
+            let mut c = s.update_counter();
+            if !reverted {
+                c.confirmed = c.confirmed.max(c.pending);
+            }
+            c.pending = 0;
+            s.set_update_counter(c);
+        }
+    };
+    match target.updater.get_state().await {
+        Ok(State::Swap) => crate::info!("update: running a new image on trial"),
+        Ok(State::Revert) => {
+            // The previous image was confirmed before: it needs no trial (the bootloader does
+            // nothing more in this state, so a trial would only restart it for ever).
+            crate::warn!("update: the new image did not confirm itself; running the previous one");
+            if target.updater.mark_booted().await.is_err() {
+                crate::error!("update: the previous image could not be confirmed");
+            }
+            if crate::module::commit_change(map, store, settle(true)).await.is_err() {
+                crate::error!("update: the counters could not be stored");
+            }
+            return;
+        }
         Ok(_) => return,
         Err(_) => {
             crate::error!("update: the bootloader's state cannot be read");
             return;
         }
-    };
-    crate::info!("update: running {} on trial", what);
+    }
     let deadline = embassy_time::Instant::now() + TRIAL;
     loop {
         if self_test_passed(net.is_up()) && !cfg!(feature = "never-confirm") {
             match target.updater.mark_booted().await {
                 Ok(()) => crate::info!("update: self-test passed, image confirmed"),
                 Err(_) => crate::error!("update: the image could not be confirmed"),
+            }
+            // Anti-rollback: from now on, images below this one's counter are refused.
+            if crate::module::commit_change(map, store, settle(false)).await.is_err() {
+                crate::error!("update: the security counter could not be stored");
             }
             return;
         }

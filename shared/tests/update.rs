@@ -14,7 +14,12 @@ use embassy_sync::mutex::Mutex;
 use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
 use futures_executor::block_on;
 use remodaq_protocol::auth::{client_proof, derive, server_signature, Credential};
-use remodaq_protocol::update::{answer_message, auth_message, Greeting, GREETING_LEN, HEADER_LEN};
+use remodaq_protocol::update::{
+    answer_message, auth_message, check_before_swap, BeforeSwap, Greeting, GREETING_LEN, HEADER_LEN, SIGNED_LEN,
+};
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use remodaq_shared::settings::SettingsStore;
+use remodaq_shared::update::Counter;
 use remodaq_shared::ram_flash::{RamFlash, RamFlashError};
 use remodaq_shared::settings::Schema;
 use remodaq_shared::update::{BootUpdater, Header, Outcome, Status, UpdateService};
@@ -39,11 +44,17 @@ fn image(seed: u8, len: usize) -> Vec<u8> {
     (0..len).map(|i| (i as u8).wrapping_mul(31).wrapping_add(seed)).collect()
 }
 
-/// An image file: header (signed with `key`) and firmware.
+/// An image file: header (signed with `key`) and firmware, security counter 0.
 fn signed(firmware: &[u8], version: u16, key: &SigningKey) -> Vec<u8> {
-    let digest = Sha512::digest(firmware);
-    let signature = key.sign(&digest).to_bytes();
-    let header = Header { model: MODEL, version, length: firmware.len() as u32, signature };
+    signed_as(firmware, MODEL, version, 0, key)
+}
+
+/// An image file as `remodaq sign` writes it (docs/update.md): the header's first SIGNED_LEN
+/// bytes signed.
+fn signed_as(firmware: &[u8], model: u16, version: u16, counter: u32, key: &SigningKey) -> Vec<u8> {
+    let digest = Sha512::digest(firmware).into();
+    let mut header = Header { model, version, counter, length: firmware.len() as u32, digest, signature: [0; 64] };
+    header.signature = key.sign(&header.encode()[..SIGNED_LEN]).to_bytes();
     [&header.encode()[..], firmware].concat()
 }
 
@@ -141,30 +152,51 @@ fn credential() -> Credential {
 /// Runs sessions, one after the other, against the update and state partitions through one
 /// service and one updater (as the module does); the module's answers and the outcome of each.
 fn sessions(dfu: &mut Dfu, state: &mut StateFlash, each: Vec<Plan>) -> Vec<(Vec<u8>, Outcome)> {
-    sessions_with(credential(), dfu, state, each)
+    let settings = S { password: credential(), ..S::defaults() };
+    sessions_with(settings, dfu, state, each).0
 }
 
+type SettingsFlash = RamFlash<4096, 1024>;
+
+/// Sessions against a module with `settings`; the answers and outcomes, and the settings after.
 fn sessions_with(
-    password: Credential,
+    settings: S,
     dfu: &mut Dfu,
     state: &mut StateFlash,
     each: Vec<Plan>,
-) -> Vec<(Vec<u8>, Outcome)> {
-    let map = Mutex::<NoopRawMutex, _>::new(Live(S { password, ..S::defaults() }));
+) -> (Vec<(Vec<u8>, Outcome)>, S) {
+    let mut store = block_on(SettingsStore::open(
+        SettingsFlash::new(),
+        const { SettingsStore::<SettingsFlash, S>::config(0..4096) },
+    ));
+    block_on(store.commit(settings)).unwrap();
+    let store = Mutex::<CriticalSectionRawMutex, _>::new(store);
+    let map = Mutex::<NoopRawMutex, _>::new(Live(settings));
     let mut aligned = [0u8; 4];
     let updater = FirmwareUpdater::new(FirmwareUpdaterConfig { dfu, state }, &mut aligned);
-    let mut target = BootUpdater { updater, public_key: key().verifying_key().to_bytes() };
+    let mut target = BootUpdater { updater, public_key: key().verifying_key().to_bytes(), manifest_at: MANIFEST_AT };
     let mut service = UpdateService::new(MODEL, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
-    each.into_iter()
+    let results = each
+        .into_iter()
         .enumerate()
         .map(|(i, plan)| {
             let mut pc = Pc::new(plan);
+            // This process runs thousands of sessions: the module's commit budget (one commit
+            // per verified image) is the wear tests' business (modules/8350/tests/wear.rs).
+            remodaq_shared::module::reset_commit_budget_for_tests();
             // Each session a minute after the last: the guessing budget is full again.
-            let outcome = block_on(service.session(&mut pc, [127, 0, 0, 1], i as u64 * 60_000, &map, &mut target));
+            let now = i as u64 * 60_000;
+            let outcome = block_on(service.session(&mut pc, [127, 0, 0, 1], now, &map, &store, &mut target));
             (pc.statuses(), outcome)
         })
-        .collect()
+        .collect();
+    let after = block_on(map.lock()).0;
+    (results, after)
 }
+
+/// Where the module writes the manifest for the bootloader: the start of the update
+/// partition's last page.
+const MANIFEST_AT: u32 = 4 * PAGE as u32;
 
 /// One session.
 fn session(dfu: &mut Dfu, state: &mut StateFlash, plan: Plan) -> (Vec<u8>, Outcome) {
@@ -297,12 +329,93 @@ fn a_signed_image_is_streamed_verified_and_marked() {
 }
 
 #[test]
+fn an_older_counter_or_the_other_models_image_is_refused_and_the_counter_moves_on_confirmation() {
+    let (old, new) = (image(1, 3000), image(2, 3001));
+    // The module confirmed an image with counter 5.
+    let settings = S { password: credential(), update: Counter { confirmed: 5, pending: 0 }, ..S::defaults() };
+    let cases = [
+        ("counter 4: an older release", signed_as(&new, MODEL, 0xA101, 4, &key()), vec![Status::Downgrade as u8]),
+        ("the 8318's image", signed_as(&new, 0x8318, 0xA101, 9, &key()), vec![Status::Invalid as u8]),
+    ];
+    for (what, file, want) in cases {
+        let mut m = module_with(&old);
+        let (mut results, after) = sessions_with(settings, &mut m.dfu, &mut m.state, vec![session_bytes(PASSWORD, &file, None)]);
+        assert_eq!(results.remove(0), (want, Outcome::NotUpdated), "{what}");
+        assert_eq!(after.update, settings.update, "{what}: the counters unchanged");
+        assert_eq!((m.boot(None), m.running(&old, &new)), (Ok(State::Boot), "old"), "{what}");
+    }
+    // Counter 6: taken, and pending until the image confirms itself.
+    let mut m = module_with(&old);
+    let file = signed_as(&new, MODEL, 0xA101, 6, &key());
+    let (mut results, after) = sessions_with(settings, &mut m.dfu, &mut m.state, vec![session_bytes(PASSWORD, &file, None)]);
+    assert_eq!(results.remove(0), (vec![0, 0], Outcome::Updated { version: 0xA101 }));
+    assert_eq!(after.update, Counter { confirmed: 5, pending: 6 });
+}
+
+#[test]
+fn the_bootloader_checks_the_manifest_before_the_swap() {
+    let (old, new) = (image(1, 3000), image(2, 3001));
+    let public = key().verifying_key().to_bytes();
+    let mut m = module_with(&old);
+    let check = |m: &mut Module| check_before_swap(&mut m.dfu, &mut m.state, MANIFEST_AT, &public);
+    assert_eq!(check(&mut m), BeforeSwap::Nothing, "no swap requested");
+    let file = signed(&new, 0xA101, &key());
+    let (answers, _) = session(&mut m.dfu, &mut m.state, session_bytes(PASSWORD, &file, None));
+    assert_eq!(answers, [0, 0]);
+    assert_eq!(&m.dfu.image()[MANIFEST_AT as usize..][..HEADER_LEN], &file[..HEADER_LEN], "the manifest");
+    assert_eq!(check(&mut m.copy()), BeforeSwap::Verified);
+    // Something else wrote the update partition after the module verified it: a firmware byte,
+    // the manifest's counter, or no manifest at all.
+    for (what, at) in [("firmware", 100), ("manifest", MANIFEST_AT as usize + 13)] {
+        let mut image = m.dfu.image().to_vec();
+        image[at] ^= 1;
+        let mut tampered = m.copy();
+        tampered.dfu = RamFlash::from_image(&image);
+        assert_eq!(check(&mut tampered), BeforeSwap::Refuse, "{what}");
+    }
+    let mut image = m.dfu.image().to_vec();
+    image[MANIFEST_AT as usize..].fill(0xFF);
+    let mut erased = m.copy();
+    erased.dfu = RamFlash::from_image(&image);
+    assert_eq!(check(&mut erased), BeforeSwap::Refuse, "no manifest");
+    // The power cut at every step of the swap, then the check at the next start: before the
+    // swap has recorded progress, ACTIVE is untouched and the check may cancel (the old image
+    // runs); once it has, the check stands aside and the swap finishes (the new image runs).
+    // Never a mix.
+    let mut seen = std::collections::BTreeMap::new();
+    for cut in 0.. {
+        let mut started = m.copy();
+        if started.boot(Some(cut)).is_ok() {
+            break;
+        }
+        let verdict = check(&mut started);
+        *seen.entry(format!("{verdict:?}")).or_insert(0) += 1;
+        match verdict {
+            BeforeSwap::Nothing => {
+                started.boot(None).unwrap();
+                assert_eq!(started.running(&old, &new), "new", "cut {cut}: the swap finished");
+            }
+            _ => {
+                assert_eq!(started.running(&old, &new), "old", "cut {cut}: ACTIVE untouched");
+                if verdict == BeforeSwap::Verified {
+                    started.boot(None).unwrap();
+                    assert_eq!(started.running(&old, &new), "new", "cut {cut}");
+                }
+            }
+        }
+    }
+    eprintln!("the check after a cut in the swap: {seen:?}");
+    assert!(seen.contains_key("Nothing"), "{seen:?}");
+}
+
+#[test]
 fn no_update_while_the_factory_password_is_in_force() {
     let (old, new) = (image(1, 3000), image(2, 3001));
     let mut m = module_with(&old);
     let file = signed(&new, 0xA101, &key());
     let plan = session_bytes(remodaq_protocol::auth::FACTORY_PASSWORD, &file, None);
-    let (answers, outcome) = sessions_with(Credential::FACTORY, &mut m.dfu, &mut m.state, vec![plan]).remove(0);
+    let settings = S { password: Credential::FACTORY, ..S::defaults() };
+    let (answers, outcome) = sessions_with(settings, &mut m.dfu, &mut m.state, vec![plan]).0.remove(0);
     assert_eq!((answers, outcome), (vec![Status::SetPasswordFirst as u8], Outcome::NotUpdated));
     assert_eq!((m.boot(None), m.running(&old, &new)), (Ok(State::Boot), "old"));
 }

@@ -169,9 +169,10 @@ impl Network for HostNet {
     }
 
     /// The simulated module has no bootloader: it serves no firmware updates.
-    async fn serve_update<A: SettingsAccess, U: UpdateTarget>(
+    async fn serve_update<A: SettingsAccess, F: NorFlash, U: UpdateTarget>(
         &'static self,
         _: &'static Shared<A>,
+        _: &'static remodaq_shared::module::Store<F, A::Settings>,
         _: &mut UpdateService,
         _: &mut U,
     ) -> ! {

@@ -26,6 +26,8 @@ pub struct Settings {
     pub downscale: bool,
     /// Modbus write allow-list (extensions §4).
     pub allow: AllowList,
+    /// Firmware update security counters (anti-rollback, docs/update.md).
+    pub update: remodaq_shared::update::Counter,
 }
 
 mod tag {
@@ -49,6 +51,7 @@ impl Schema for Settings {
             enable_mask: 0xFF,
             downscale: false,
             allow: AllowList::EMPTY,
+            update: remodaq_shared::update::Counter::default(),
         }
     }
 
@@ -60,6 +63,7 @@ impl Schema for Settings {
         w.put(tag::ENABLE_MASK, &[self.enable_mask]);
         w.put(tag::OPEN_VALUE, &[u8::from(self.downscale)]);
         access::encode(&self.allow, w);
+        self.update.encode(w);
     }
 
     fn decode(_version: u8, r: &RecordReader<'_>) -> Self {
@@ -80,6 +84,7 @@ impl Schema for Settings {
             enable_mask: r.array::<1>(tag::ENABLE_MASK).map(|[m]| m).unwrap_or(d.enable_mask),
             downscale: r.array::<1>(tag::OPEN_VALUE).is_some_and(|[v]| v == 1),
             allow: access::decode(r),
+            update: remodaq_shared::update::Counter::decode(r),
         }
     }
 }

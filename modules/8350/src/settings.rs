@@ -32,6 +32,8 @@ pub struct Settings {
     pub power_on: u8,
     /// Modbus write allow-list (extensions §4).
     pub allow: AllowList,
+    /// Firmware update security counters (anti-rollback, docs/update.md).
+    pub update: remodaq_shared::update::Counter,
 }
 
 /// Whether `v` is a valid output-values register (bits 6-15 zero).
@@ -93,6 +95,7 @@ impl Schema for Settings {
             safe: 0,
             power_on: 0,
             allow: AllowList::EMPTY,
+            update: remodaq_shared::update::Counter::default(),
         }
     }
 
@@ -109,6 +112,7 @@ impl Schema for Settings {
         w.put(tag::SAFE, &[self.safe]);
         w.put(tag::POWER_ON, &[self.power_on]);
         access::encode(&self.allow, w);
+        self.update.encode(w);
     }
 
     fn decode(_version: u8, r: &RecordReader<'_>) -> Self {
@@ -138,6 +142,7 @@ impl Schema for Settings {
         s.safe = values(tag::SAFE);
         s.power_on = values(tag::POWER_ON);
         s.allow = access::decode(r);
+        s.update = remodaq_shared::update::Counter::decode(r);
         s
     }
 }

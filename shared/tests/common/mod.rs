@@ -126,6 +126,7 @@ pub struct S {
     pub net: NetConfig,
     pub password: remodaq_shared::password::Credential,
     pub allow: AllowList,
+    pub update: remodaq_shared::update::Counter,
 }
 
 impl Schema for S {
@@ -135,18 +136,21 @@ impl Schema for S {
             net: NetConfig::FACTORY,
             password: remodaq_shared::password::Credential::FACTORY,
             allow: AllowList::EMPTY,
+            update: Default::default(),
         }
     }
     fn encode(&self, w: &mut RecordWriter<'_>) {
         self.net.encode(w);
         remodaq_shared::password::encode(&self.password, w);
         remodaq_shared::access::encode(&self.allow, w);
+        self.update.encode(w);
     }
     fn decode(_: u8, r: &RecordReader<'_>) -> Self {
         Self {
             net: NetConfig::decode(r),
             password: remodaq_shared::password::decode(r),
             allow: remodaq_shared::access::decode(r),
+            update: remodaq_shared::update::Counter::decode(r),
         }
     }
 }

@@ -3,7 +3,9 @@
 //! application in ACTIVE runs. At QEMU's power-on the code memory is all zeros: the bootloader
 //! then copies the first application from SEED into ACTIVE and erases the state and update
 //! partitions, as a factory would program the module's flash. The flash layout is in
-//! `../layout.x`; docs/update.md explains it.
+//! `../layout.x`; docs/update.md explains it. As on the STM32, a swap starts only for an image
+//! signed with the key (`remodaq_protocol::update::check_before_swap`); otherwise it is
+//! cancelled and the running image starts again.
 #![cfg_attr(target_os = "none", no_std, no_main)]
 
 #[cfg(not(target_os = "none"))]
@@ -13,7 +15,8 @@ fn main() {
 
 #[cfg(target_os = "none")]
 mod boot {
-    use embassy_boot::{BootLoader, BootLoaderConfig};
+    use embassy_boot::{BlockingFirmwareState, BootLoader, BootLoaderConfig};
+    use remodaq_protocol::update::{check_before_swap, BeforeSwap, UPDATE_KEY};
     use embedded_storage::nor_flash::{NorFlash, ReadNorFlash};
     use remodaq_ram_nor::RamNor;
 
@@ -57,6 +60,14 @@ mod boot {
             ok = ok && dfu.erase(0, dfu.capacity() as u32).is_ok() && state.erase(0, state.capacity() as u32).is_ok();
             if !ok {
                 fail("programming the first application failed");
+            }
+        }
+        // The manifest sits where the swap's scratch page starts: right after ACTIVE's size.
+        if check_before_swap(&mut dfu, &mut state, size as u32, &UPDATE_KEY) == BeforeSwap::Refuse {
+            cortex_m_semihosting::hprintln!("bootloader: the marked update is not signed with the key: not swapped");
+            let mut word = [0u8; 4];
+            if BlockingFirmwareState::new(&mut state, &mut word).mark_booted().is_err() {
+                fail("cancelling the swap failed");
             }
         }
         let mut aligned = [0u8; 1024];

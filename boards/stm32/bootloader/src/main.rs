@@ -9,6 +9,11 @@
 //!
 //! Each partition lies inside one of embassy-stm32's flash regions, whose erase size is that of
 //! its sectors (16 KiB in region 1, 128 KiB in region 3), so every erase is a whole sector.
+//!
+//! Before a swap starts, the update partition must hold an image signed with the module's key:
+//! the manifest the application wrote at the start of DFU's last page, and the digest of the
+//! firmware it names (`remodaq_protocol::update::check_before_swap`). Otherwise the swap is
+//! cancelled (the state marked booted) and the running image starts again.
 #![cfg_attr(target_os = "none", no_std, no_main)]
 
 #[cfg(not(target_os = "none"))]
@@ -20,7 +25,9 @@ fn main() {
 mod boot {
     use core::cell::RefCell;
 
-    use embassy_boot_stm32::{BootLoader, BootLoaderConfig};
+    use embassy_boot_stm32::{BlockingFirmwareState, BootLoader, BootLoaderConfig};
+    use embedded_storage::nor_flash::NorFlash;
+    use remodaq_protocol::update::{check_before_swap, BeforeSwap, UPDATE_KEY};
     use embassy_embedded_hal::flash::partition::BlockingPartition;
     use embassy_stm32::flash::{Flash, FLASH_BASE};
     use embassy_stm32::gpio::{Flex, Pull, Speed};
@@ -53,6 +60,14 @@ mod boot {
         let active = Mutex::<NoopRawMutex, _>::new(RefCell::new(layout.bank1_region3));
         let dfu = Mutex::<NoopRawMutex, _>::new(RefCell::new(layout.bank2_region3));
         let state = Mutex::<NoopRawMutex, _>::new(RefCell::new(layout.bank1_region1));
+        {
+            // The manifest sits where the swap's scratch page starts: right after ACTIVE's size.
+            let mut dfu = BlockingPartition::new(&dfu, 0, DFU_SIZE);
+            let mut state = BlockingPartition::new(&state, STATE_OFFSET, STATE_SIZE);
+            if check_before_swap(&mut dfu, &mut state, ACTIVE_SIZE, &UPDATE_KEY) == BeforeSwap::Refuse {
+                cancel(state);
+            }
+        }
         let config = BootLoaderConfig {
             active: BlockingPartition::new(&active, ACTIVE_OFFSET, ACTIVE_SIZE),
             dfu: BlockingPartition::new(&dfu, 0, DFU_SIZE),
@@ -68,6 +83,15 @@ mod boot {
     }
 
     const _: () = assert!(FLASH_BASE as u32 + 0x2_0000 == REGION3);
+
+    /// Cancels a swap: the state marked booted (embassy-boot's own marking).
+    fn cancel<S: NorFlash>(state: S) {
+        #[repr(align(32))]
+        struct Aligned([u8; 32]);
+        let mut aligned = Aligned([0; 32]);
+        const { assert!(S::WRITE_SIZE <= 32) };
+        let _ = BlockingFirmwareState::new(state, &mut aligned.0[..S::WRITE_SIZE]).mark_booted();
+    }
 
     #[panic_handler]
     fn panic(_: &core::panic::PanicInfo) -> ! {
