@@ -77,7 +77,8 @@ pub fn keygen(key: &Path) -> Result<(), Error> {
 /// `key`.
 pub fn image_file(firmware: &[u8], model: u16, version: u16, counter: u32, key: &SigningKey) -> Result<Vec<u8>, Error> {
     let length = u32::try_from(firmware.len()).map_err(|_| Error::Other("the firmware is too large".into()))?;
-    let mut header = Header { model, version, counter, length, digest: Sha512::digest(firmware).into(), signature: [0; 64] };
+    let mut header =
+        Header { model, version, counter, length, digest: Sha512::digest(firmware).into(), signature: [0; 64] };
     header.signature = key.sign(&header.encode()[..SIGNED_LEN]).to_bytes();
     Ok([&header.encode()[..], firmware].concat())
 }

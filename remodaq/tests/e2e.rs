@@ -190,6 +190,13 @@ fn network_settings_password_and_restart() {
     );
     assert_eq!(search(&module)["factory_password"].as_bool(), Some(false));
     assert_eq!(remodaq(&["restart", "--mac", &mac, "--to", &to, "--password", "remodaq"]).0, 5);
+    // The new password is in the settings: it is the one after a restart too.
+    assert_eq!(remodaq(&["restart", "--mac", &mac, "--to", &to, "--password", "line 4 secret"]).0, 0);
+    module.wait_listening();
+    let to = module.discovery.to_string();
+    assert_eq!(search(&module)["factory_password"].as_bool(), Some(false), "after the restart");
+    let shown = remodaq(&["access", "show", "--mac", &mac, "--to", &to, "--password", "line 4 secret"]);
+    assert_eq!(shown.0, 0, "the new password after a restart: {}", shown.2);
     let (code, _, err) = remodaq(&["--timeout", "0.5", "identify", "--mac", "02:00:00:00:00:01", "--to", &to]);
     assert_eq!(code, 3, "no module with that MAC");
     assert!(err.contains("timeout"), "{err}");

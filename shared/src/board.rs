@@ -265,7 +265,8 @@ impl<B: Board, M: Module> App<B, M> {
         let parts = self.boot.lock().await.take();
         match parts {
             Some((dfu, state)) => {
-                crate::update::run(&self.net, &self.map, self.store, M::MODULE_NAME, self.identity.mac, dfu, state).await
+                crate::update::run(&self.net, &self.map, self.store, M::MODULE_NAME, self.identity.mac, dfu, state)
+                    .await
             }
             None => core::future::pending().await,
         }

@@ -12,10 +12,11 @@ pub use remodaq_protocol::auth::{Credential, CREDENTIAL_LEN, KEY_LEN, NONCE_LEN}
 
 use crate::settings::{RecordReader, RecordWriter};
 
-/// The settings tag of the credential. (Tags 5 and 6 held the salted SHA-256 hash of settings
+/// The settings tag of the credential (tags: 1-4 network, 5-6 the old hash, 7 the allow-list, 9
+/// the update counters; `settings_round_trip` tests check none collide). (Tags 5 and 6 held the salted SHA-256 hash of settings
 /// version 1: a hash cannot be turned into SCRAM keys, so such a record loads with the factory
 /// credential, which the module then reports: docs/security.md, "Migration".)
-const TAG_CREDENTIAL: u8 = 7;
+const TAG_CREDENTIAL: u8 = 8;
 
 /// Writes the credential into a settings record.
 pub fn encode(c: &Credential, w: &mut RecordWriter<'_>) {

@@ -15,7 +15,6 @@ use crate::module::{CommonSettings, SettingsAccess, Store};
 use crate::password::{Check, AUTH, KEY_LEN, NONCE_LEN};
 use remodaq_protocol::auth::server_signature;
 
-
 /// The firmware update security counters kept in the settings (anti-rollback, docs/update.md):
 /// the highest counter of an image this module confirmed, and the counter of the image marked
 /// and not yet confirmed.
@@ -353,13 +352,21 @@ where
     }
 
     async fn verify(&mut self, header: &Header) -> Result<(), Status> {
+        // The digest of what is in the partition (read back), as the bootloader will see it.
+        let mut hash = salty::Sha512::new();
         let mut chunk = [0u8; 256];
-        let mut digest = [0u8; 64];
-        let hashed = self.updater.hash::<sha2::Sha512>(header.length, &mut chunk, &mut digest).await;
-        match hashed {
-            Ok(()) if header.verify(&digest, &self.public_key) => Ok(()),
-            Ok(()) => Err(Status::BadSignature),
-            Err(_) => Err(Status::StoreFailed),
+        let mut offset = 0u32;
+        while offset < header.length {
+            let n = ((header.length - offset) as usize).min(chunk.len());
+            if self.updater.read_dfu(offset, &mut chunk[..n]).await.is_err() {
+                return Err(Status::StoreFailed);
+            }
+            hash.update(&chunk[..n]);
+            offset += n as u32;
+        }
+        match header.verify(&hash.finalize(), &self.public_key) {
+            true => Ok(()),
+            false => Err(Status::BadSignature),
         }
     }
 
@@ -414,8 +421,52 @@ where
     );
     let mut target = BootUpdater { updater, public_key: UPDATE_KEY, manifest_at: capacity };
     confirm(net, map, store, &mut target).await;
+    #[cfg(feature = "test-unsigned-swap")]
+    forge_unsigned_swap(net, &mut target).await;
     let mut service = UpdateService::new(model, mac, capacity);
     net.serve_update(map, store, &mut service, &mut target).await
+}
+
+/// Test images only (feature `test-unsigned-swap`, the QEMU check of the bootloader): once
+/// confirmed, the image writes junk into the update partition with a manifest whose signature
+/// is not the key's, marks it for a swap and restarts, as code that took over the module might.
+/// The bootloader must refuse the swap: this same image starts again, finds its junk there and
+/// goes on serving.
+#[cfg(feature = "test-unsigned-swap")]
+async fn forge_unsigned_swap<N, DFU, STATE>(net: &N, target: &mut BootUpdater<'_, DFU, STATE>)
+where
+    N: crate::board::Network,
+    DFU: NorFlash,
+    STATE: NorFlash,
+{
+    const MARK: &[u8; 8] = b"RDQ-JUNK";
+    let mut first = [0u8; 8];
+    if target.updater.read_dfu(0, &mut first).await.is_ok() && first == *MARK {
+        crate::warn!("update: the forged swap was refused: still running this image");
+        return;
+    }
+    let mut junk = [0xA5u8; 4096];
+    junk[..8].copy_from_slice(MARK);
+    let digest = salty::Sha512::new().updated(&junk).finalize();
+    let forged =
+        Header { model: 0x8350, version: 0xFFFF, counter: u32::MAX, length: 4096, digest, signature: [0x42; 64] };
+    let mut manifest = [0xFFu8; MANIFEST_LEN];
+    manifest[..HEADER_LEN].copy_from_slice(&forged.encode());
+    let manifest_at = target.manifest_at as usize;
+    let u = &mut target.updater;
+    let written = async {
+        u.prepare_update().await?;
+        u.write_firmware(0, &junk).await?;
+        u.write_firmware(manifest_at, &manifest).await?;
+        u.mark_updated().await
+    };
+    match written.await {
+        Ok(()) => {
+            crate::warn!("update: junk with a forged manifest marked for a swap: restarting");
+            net.restart().await
+        }
+        Err(_) => crate::error!("update: the forged swap could not be written"),
+    }
 }
 
 async fn confirm<N, A, F, DFU, STATE>(

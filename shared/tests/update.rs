@@ -9,6 +9,7 @@ use core::cell::Cell;
 use common::{Live, Script, S};
 use ed25519_dalek::{Signer, SigningKey};
 use embassy_boot::{BootLoader, BootLoaderConfig, FirmwareUpdater, FirmwareUpdaterConfig, State};
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::mutex::Mutex;
 use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
@@ -17,11 +18,10 @@ use remodaq_protocol::auth::{client_proof, derive, server_signature, Credential}
 use remodaq_protocol::update::{
     answer_message, auth_message, check_before_swap, BeforeSwap, Greeting, GREETING_LEN, HEADER_LEN, SIGNED_LEN,
 };
-use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-use remodaq_shared::settings::SettingsStore;
-use remodaq_shared::update::Counter;
 use remodaq_shared::ram_flash::{RamFlash, RamFlashError};
 use remodaq_shared::settings::Schema;
+use remodaq_shared::settings::SettingsStore;
+use remodaq_shared::update::Counter;
 use remodaq_shared::update::{BootUpdater, Header, Outcome, Status, UpdateService};
 use sha2::{Digest, Sha512};
 
@@ -159,12 +159,7 @@ fn sessions(dfu: &mut Dfu, state: &mut StateFlash, each: Vec<Plan>) -> Vec<(Vec<
 type SettingsFlash = RamFlash<4096, 1024>;
 
 /// Sessions against a module with `settings`; the answers and outcomes, and the settings after.
-fn sessions_with(
-    settings: S,
-    dfu: &mut Dfu,
-    state: &mut StateFlash,
-    each: Vec<Plan>,
-) -> (Vec<(Vec<u8>, Outcome)>, S) {
+fn sessions_with(settings: S, dfu: &mut Dfu, state: &mut StateFlash, each: Vec<Plan>) -> (Vec<(Vec<u8>, Outcome)>, S) {
     let mut store = block_on(SettingsStore::open(
         SettingsFlash::new(),
         const { SettingsStore::<SettingsFlash, S>::config(0..4096) },
@@ -339,7 +334,8 @@ fn an_older_counter_or_the_other_models_image_is_refused_and_the_counter_moves_o
     ];
     for (what, file, want) in cases {
         let mut m = module_with(&old);
-        let (mut results, after) = sessions_with(settings, &mut m.dfu, &mut m.state, vec![session_bytes(PASSWORD, &file, None)]);
+        let (mut results, after) =
+            sessions_with(settings, &mut m.dfu, &mut m.state, vec![session_bytes(PASSWORD, &file, None)]);
         assert_eq!(results.remove(0), (want, Outcome::NotUpdated), "{what}");
         assert_eq!(after.update, settings.update, "{what}: the counters unchanged");
         assert_eq!((m.boot(None), m.running(&old, &new)), (Ok(State::Boot), "old"), "{what}");
@@ -347,7 +343,8 @@ fn an_older_counter_or_the_other_models_image_is_refused_and_the_counter_moves_o
     // Counter 6: taken, and pending until the image confirms itself.
     let mut m = module_with(&old);
     let file = signed_as(&new, MODEL, 0xA101, 6, &key());
-    let (mut results, after) = sessions_with(settings, &mut m.dfu, &mut m.state, vec![session_bytes(PASSWORD, &file, None)]);
+    let (mut results, after) =
+        sessions_with(settings, &mut m.dfu, &mut m.state, vec![session_bytes(PASSWORD, &file, None)]);
     assert_eq!(results.remove(0), (vec![0, 0], Outcome::Updated { version: 0xA101 }));
     assert_eq!(after.update, Counter { confirmed: 5, pending: 6 });
 }

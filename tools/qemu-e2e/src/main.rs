@@ -669,8 +669,10 @@ async fn session(update: SocketAddr, password: &str, file: &[u8], send: usize) -
     header.copy_from_slice(&file[..HEADER_LEN]);
     let message = auth_message(&greeting.mac, &cnonce, &greeting.snonce, &header);
     let proof = auth::client_proof(&client_key, &message);
-    let bytes = [&proof[..], &file[..send.min(file.len())]].concat();
-    stream.write_all(&bytes).await.map_err(|e| e.to_string())?;
+    let send = send.min(file.len());
+    // The proof and the header; the firmware only once the module said go on (a refusal
+    // closes the connection: bytes still arriving would reset it before the answer is read).
+    stream.write_all(&[&proof[..], &header[..]].concat()).await.map_err(|e| e.to_string())?;
     let mut answers = Vec::new();
     for step in 0..2u8 {
         let mut status = [0u8; 1];
@@ -690,8 +692,12 @@ async fn session(update: SocketAddr, password: &str, file: &[u8], send: usize) -
                 return Err(format!("answer {step}: not signed by the module"));
             }
         }
-        if status[0] != 0 || send < file.len() {
-            // Refused, or cut: the module answered the header; close without the rest.
+        if status[0] != 0 || step == 1 {
+            break;
+        }
+        stream.write_all(&file[HEADER_LEN..send]).await.map_err(|e| e.to_string())?;
+        if send < file.len() {
+            // Cut: close without the rest.
             break;
         }
     }
@@ -712,8 +718,10 @@ async fn updates(report: &mut Report, image: &str, addr: SocketAddr, update: Soc
             v => Err(format!("{when}: DO0's pulse low width reads {v:?}, written [25, 0]")),
         }
     };
-    let (Ok(v2), Ok(v3)) = (std::fs::read(format!("{image}-v2.rdq")), std::fs::read(format!("{image}-v3.rdq"))) else {
-        report.check("update images", Err("the v2/v3 images are missing: run scripts/qemu variants".into()));
+    let read = |name: &str| std::fs::read(format!("{image}-{name}.rdq"));
+    let (Ok(v2), Ok(v3), Ok(v4), Ok(old), Ok(other)) = (read("v2"), read("v3"), read("v4"), read("old"), read("other"))
+    else {
+        report.check("update images", Err("the test images are missing: run scripts/qemu variants".into()));
         return;
     };
     // Updates are refused while the factory password is in force; then a password is set.
@@ -742,16 +750,18 @@ async fn updates(report: &mut Report, image: &str, addr: SocketAddr, update: Soc
             other => Err(format!("{other:?}")),
         },
     );
-    let refused = async |what: &str, file: &[u8], send: usize, want: &[u8]| -> Result<(), String> {
+    let refused_at = async |running: u16, what: &str, file: &[u8], send: usize, want: &[u8]| -> Result<(), String> {
         let answers = session(update, PASSWORD, file, send).await?;
         if answers != want {
             return Err(format!("{what}: the module answered {answers:?}, expected {want:?}"));
         }
         match version(addr).await? {
-            0xA100 => setting_intact(what).await,
-            v => Err(format!("{what}: version {v:04X} afterwards, expected A100 (nothing changed)")),
+            v if v == running => setting_intact(what).await,
+            v => Err(format!("{what}: version {v:04X} afterwards, expected {running:04X} (nothing changed)")),
         }
     };
+    let refused =
+        async |what: &str, file: &[u8], send: usize, want: &[u8]| refused_at(0xA100, what, file, send, want).await;
     let mut tampered = v2.clone();
     let last = tampered.len() - 1;
     tampered[last] ^= 0x01;
@@ -762,6 +772,10 @@ async fn updates(report: &mut Report, image: &str, addr: SocketAddr, update: Soc
     report.check(
         "update: a truncated image is refused, nothing changed",
         refused("truncated", &v2, v2.len() / 2, &[0]).await,
+    );
+    report.check(
+        "update: the other model's image is refused (status 3), nothing changed",
+        refused("the 8318's image", &other, usize::MAX, &[3]).await,
     );
 
     // v1 -> v2 with the tool.
@@ -793,6 +807,10 @@ async fn updates(report: &mut Report, image: &str, addr: SocketAddr, update: Soc
     };
     println!("qemu-8350: v1 -> v2 in {:.1} s", started.elapsed().as_secs_f64());
     report.check("update: v1 -> v2 through the emulated NIC, v2 answers (Modbus, search) after the reset", v1_to_v2);
+    report.check(
+        "update: after v2 (counter 2), its firmware signed with counter 1 is refused (status 8), nothing changed",
+        refused_at(0xA101, "an older counter", &old, usize::MAX, &[8]).await,
+    );
 
     // v3 never confirms: it runs on trial, then the reset reverts to v2.
     let rollback = async {
@@ -817,6 +835,38 @@ async fn updates(report: &mut Report, image: &str, addr: SocketAddr, update: Soc
         setting_intact("after the rollback").await
     };
     report.check("update: a v3 that never confirms rolls back to v2 after its reset", rollback.await);
+
+    // v4 confirms itself, then (as code that took the module over might) writes junk with a
+    // forged manifest into the update partition, marks it and restarts: the bootloader refuses
+    // the swap and v4 starts again.
+    let forged = async {
+        let answers = session(update, PASSWORD, &v4, usize::MAX).await?;
+        if answers != [0, 0] {
+            return Err(format!("v4: the module answered {answers:?}"));
+        }
+        let log = format!("{image}.qemu.log");
+        let started = Instant::now();
+        loop {
+            let text = std::fs::read_to_string(&log).unwrap_or_default();
+            let refused = text.contains("bootloader: the marked update is not signed with the key: not swapped");
+            if refused {
+                if let Ok(0xA103) = version(addr).await {
+                    println!(
+                        "qemu-8350: the bootloader refused the forged swap; v4 answers again after {:.1} s",
+                        started.elapsed().as_secs_f64()
+                    );
+                    break;
+                }
+            }
+            if started.elapsed() > Duration::from_secs(120) {
+                return Err(format!("no refusal by the bootloader within 120 s (refused: {refused})"));
+            }
+            sleep(Duration::from_secs(1)).await;
+        }
+        setting_intact("after the forged swap").await
+    };
+    report
+        .check("update: junk marked in the update partition without a valid signature is not swapped in", forged.await);
 }
 
 fn main() -> ExitCode {

@@ -16,8 +16,8 @@ fn main() {
 #[cfg(target_os = "none")]
 mod boot {
     use embassy_boot::{BlockingFirmwareState, BootLoader, BootLoaderConfig};
-    use remodaq_protocol::update::{check_before_swap, BeforeSwap, UPDATE_KEY};
     use embedded_storage::nor_flash::{NorFlash, ReadNorFlash};
+    use remodaq_protocol::update::{check_before_swap, BeforeSwap, UPDATE_KEY};
     use remodaq_ram_nor::RamNor;
 
     /// The swap's page: as the STM32F429's 128 KiB sectors of ACTIVE and DFU.

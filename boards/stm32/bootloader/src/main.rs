@@ -26,13 +26,13 @@ mod boot {
     use core::cell::RefCell;
 
     use embassy_boot_stm32::{BlockingFirmwareState, BootLoader, BootLoaderConfig};
-    use embedded_storage::nor_flash::NorFlash;
-    use remodaq_protocol::update::{check_before_swap, BeforeSwap, UPDATE_KEY};
     use embassy_embedded_hal::flash::partition::BlockingPartition;
     use embassy_stm32::flash::{Flash, FLASH_BASE};
     use embassy_stm32::gpio::{Flex, Pull, Speed};
     use embassy_sync::blocking_mutex::raw::NoopRawMutex;
     use embassy_sync::blocking_mutex::Mutex;
+    use embedded_storage::nor_flash::NorFlash;
+    use remodaq_protocol::update::{check_before_swap, BeforeSwap, UPDATE_KEY};
 
     /// ACTIVE: the start of bank 1 region 3 (sector 5), six sectors.
     const ACTIVE_OFFSET: u32 = 0;
