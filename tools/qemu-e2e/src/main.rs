@@ -652,18 +652,30 @@ async fn version(addr: SocketAddr) -> Result<u16, String> {
 /// bytes); the statuses the module answered (each signature checked).
 async fn session(update: SocketAddr, password: &str, file: &[u8], send: usize) -> Result<Vec<u8>, String> {
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
-    let mut stream = timeout(STEP, tokio::net::TcpStream::connect(update))
-        .await
-        .map_err(|_| "update service: connect timed out".to_string())?
-        .map_err(|e| e.to_string())?;
     let cnonce = [0x5C; 16];
-    stream.write_all(&cnonce).await.map_err(|e| e.to_string())?;
-    let mut greeting = [0u8; GREETING_LEN];
-    timeout(STEP, stream.read_exact(&mut greeting))
-        .await
-        .map_err(|_| "no greeting".to_string())?
-        .map_err(|e| e.to_string())?;
-    let greeting = Greeting::decode(&greeting);
+    // The module serves one session at a time and listens again a moment after one ends: a
+    // connection reset before the greeting is tried again, for a few seconds (as remodaq does).
+    let started = Instant::now();
+    let (mut stream, greeting) = loop {
+        let attempt = async {
+            let mut stream = timeout(STEP, tokio::net::TcpStream::connect(update))
+                .await
+                .map_err(|_| "update service: connect timed out".to_string())?
+                .map_err(|e| e.to_string())?;
+            stream.write_all(&cnonce).await.map_err(|e| e.to_string())?;
+            let mut greeting = [0u8; GREETING_LEN];
+            timeout(STEP, stream.read_exact(&mut greeting))
+                .await
+                .map_err(|_| "no greeting".to_string())?
+                .map_err(|e| e.to_string())?;
+            Ok::<_, String>((stream, Greeting::decode(&greeting)))
+        };
+        match attempt.await {
+            Ok(connected) => break connected,
+            Err(e) if started.elapsed() > Duration::from_secs(10) => return Err(e),
+            Err(_) => sleep(Duration::from_millis(300)).await,
+        }
+    };
     let (client_key, credential) = auth::derive(password.as_bytes(), &greeting.salt, greeting.iterations);
     let mut header = [0u8; HEADER_LEN];
     header.copy_from_slice(&file[..HEADER_LEN]);
