@@ -47,6 +47,9 @@ pub const NONCES: usize = 16;
 struct Nonce {
     value: [u8; NONCE_LEN],
     issued_ms: u64,
+    /// Who asked for it: only a command from there may use it (a forged source inside the
+    /// subnet never sees the unicast answer, so it cannot spend the budget with it).
+    to: [u8; 4],
 }
 
 /// The module side of the protocol.
@@ -81,13 +84,14 @@ impl Service {
         context[8..].copy_from_slice(&from);
         AUTH.random(&context, &mut value);
         let slot = (0..NONCES).min_by_key(|&i| self.nonces[i].map_or(0, |n| n.issued_ms + 1)).unwrap_or(0);
-        self.nonces[slot] = Some(Nonce { value, issued_ms: now_ms });
+        self.nonces[slot] = Some(Nonce { value, issued_ms: now_ms, to: from });
         value
     }
 
-    /// Takes a nonce handed out less than [`NONCE_LIFETIME_S`] ago: it can never be used again.
-    fn redeem(&mut self, value: &[u8; NONCE_LEN], now_ms: u64) -> bool {
-        let live = |n: &Nonce| now_ms.saturating_sub(n.issued_ms) < NONCE_LIFETIME_S * 1000;
+    /// Takes a nonce handed out to `from` less than [`NONCE_LIFETIME_S`] ago: it can never be
+    /// used again.
+    fn redeem(&mut self, value: &[u8; NONCE_LEN], from: [u8; 4], now_ms: u64) -> bool {
+        let live = |n: &Nonce| now_ms.saturating_sub(n.issued_ms) < NONCE_LIFETIME_S * 1000 && n.to == from;
         match self.nonces.iter_mut().find(|n| n.is_some_and(|n| n.value == *value)) {
             Some(slot) => slot.take().is_some_and(|n| live(&n)),
             None => false,
@@ -136,7 +140,7 @@ impl Service {
         };
         let opcode = command.opcode();
         let message = auth_message(datagram)?;
-        let status = if !self.redeem(&auth.snonce, now_ms) {
+        let status = if !self.redeem(&auth.snonce, from, now_ms) {
             Status::StaleNonce
         } else {
             match AUTH.check(&credential, &message, &auth.proof, from, now_ms) {

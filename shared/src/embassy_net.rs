@@ -104,8 +104,17 @@ impl<E: Effects> Network for EmbassyNet<E> {
         let mut tx = [0u8; 64];
         loop {
             let mut socket = TcpSocket::new(self.stack, &mut rx, &mut tx);
-            if let Err(e) = socket.accept(crate::update::PORT).await {
+            // A handshake that never completes (a SYN from a forged or vanished host) must not
+            // hold the update port: smoltcp would wait for ever.
+            socket.set_timeout(Some(Duration::from_millis(HANDSHAKE_TIMEOUT_MS)));
+            let accepted = socket.accept(crate::update::PORT).await;
+            socket.set_timeout(None);
+            if let Err(e) = accepted {
                 warn!("update: accept failed: {:?}", e);
+                continue;
+            }
+            if socket.state() == State::Closed {
+                // The handshake timed out.
                 continue;
             }
             let now_ms = embassy_time::Instant::now().as_millis();
@@ -187,6 +196,9 @@ fn peer(socket: &TcpSocket<'_>) -> [u8; 4] {
     client(socket).map_or([0; 4], |client| client.ip)
 }
 
+/// How long a discovery reply may take to leave.
+const SEND_WAIT: Duration = Duration::from_millis(500);
+
 struct NetDatagrams<'a>(UdpSocket<'a>);
 
 impl Datagrams for NetDatagrams<'_> {
@@ -199,7 +211,27 @@ impl Datagrams for NetDatagrams<'_> {
         }
     }
 
+    /// A reply to an address that never answers ARP (a forged source inside the subnet) stays
+    /// at the head of smoltcp's queue for ever, and every later reply behind it: a reply not
+    /// out within [`SEND_WAIT`] empties the queue (close, bind again), so one forged datagram
+    /// cannot silence discovery.
     async fn send(&mut self, buf: &[u8], ip: [u8; 4], port: u16) -> Result<(), ()> {
-        self.0.send_to(buf, IpEndpoint::new(IpAddress::Ipv4(ip.into()), port)).await.map_err(|_| ())
+        let sent = with_timeout(SEND_WAIT, async {
+            self.0.send_to(buf, IpEndpoint::new(IpAddress::Ipv4(ip.into()), port)).await.map_err(|_| ())?;
+            self.0.flush().await;
+            Ok(())
+        })
+        .await;
+        match sent {
+            Ok(result) => result,
+            Err(_) => {
+                warn!("discovery: a reply could not leave (no ARP answer?): queue emptied");
+                self.0.close();
+                if self.0.bind(PORT).is_err() {
+                    error!("discovery: cannot bind UDP port {} again", PORT);
+                }
+                Err(())
+            }
+        }
     }
 }

@@ -46,35 +46,7 @@ pub trait SettingsAccess {
     fn committed(&mut self, settings: &Self::Settings);
 }
 
-/// Settings commits allowed in a burst (docs/security.md, "Flash wear").
-pub const COMMIT_BURST: u32 = 100;
-/// One settings commit more is allowed every this many ms: the worst rate the budget allows
-/// wears the settings sectors by at most 10 000 erase cycles in 10 years
-/// (`modules/8350/tests/wear.rs` measures it).
-pub const COMMIT_REFILL_MS: u64 = 180_000;
-
-/// The module-wide commit budget: a token bucket kept as the time it is full again.
-static COMMIT_BUDGET: embassy_sync::blocking_mutex::Mutex<CriticalSectionRawMutex, core::cell::Cell<u64>> =
-    embassy_sync::blocking_mutex::Mutex::new(core::cell::Cell::new(0));
-
-/// Takes one commit from the budget at `now_ms`; false (nothing taken) when it is spent.
-pub fn take_commit(now_ms: u64) -> bool {
-    COMMIT_BUDGET.lock(|full_at| {
-        let debt = full_at.get().saturating_sub(now_ms);
-        let refill = COMMIT_REFILL_MS;
-        if debt + refill > u64::from(COMMIT_BURST) * refill {
-            return false;
-        }
-        full_at.set(full_at.get().max(now_ms) + refill);
-        true
-    })
-}
-
-/// Fills the commit budget again (tests that run thousands of sessions in one process).
-#[doc(hidden)]
-pub fn reset_commit_budget_for_tests() {
-    COMMIT_BUDGET.lock(|full_at| full_at.set(0));
-}
+pub use crate::settings::{COMMIT_AT_START, COMMIT_BURST, COMMIT_REFILL_MS};
 
 /// Why [`update`] changed nothing.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -86,7 +58,8 @@ pub enum UpdateError<E> {
 }
 
 /// Applies `change` to the latest settings and commits them (when they changed) holding the
-/// store's lock only, then puts them in force in `map`. Returns what `change` returned.
+/// store's lock only, then puts them in force in `map`. Returns what `change` returned. For
+/// authenticated changes (discovery, updates); Modbus writes go through [`write_update`].
 pub async fn update<R, A, F, T, E>(
     map: &Mutex<R, A>,
     store: &Store<F, A::Settings>,
@@ -97,12 +70,43 @@ where
     A: SettingsAccess,
     F: NorFlash,
 {
+    commit_within(map, store, change, false).await
+}
+
+/// [`update`] for a Modbus write: a commit beyond the commit budget is refused (flash wear,
+/// docs/security.md). Authenticated changes do not draw on it, so a Modbus writer cannot keep
+/// the administrator from changing the password, the allow-list or the firmware.
+pub async fn write_update<R, A, F, T, E>(
+    map: &Mutex<R, A>,
+    store: &Store<F, A::Settings>,
+    change: impl FnOnce(&mut A::Settings) -> Result<T, E>,
+) -> Result<T, UpdateError<E>>
+where
+    R: RawMutex,
+    A: SettingsAccess,
+    F: NorFlash,
+{
+    commit_within(map, store, change, true).await
+}
+
+async fn commit_within<R, A, F, T, E>(
+    map: &Mutex<R, A>,
+    store: &Store<F, A::Settings>,
+    change: impl FnOnce(&mut A::Settings) -> Result<T, E>,
+    budgeted: bool,
+) -> Result<T, UpdateError<E>>
+where
+    R: RawMutex,
+    A: SettingsAccess,
+    F: NorFlash,
+{
     let mut store = store.lock().await;
     let mut settings = *store.get();
     let out = change(&mut settings).map_err(UpdateError::Refused)?;
     if settings != *store.get() {
-        // A change that changes nothing never reaches the flash; one beyond the budget neither.
-        if !take_commit(embassy_time::Instant::now().as_millis()) {
+        // A change that changes nothing never reaches the flash; a write beyond the budget
+        // neither.
+        if budgeted && !store.take_write(embassy_time::Instant::now().as_millis()) {
             crate::warn!("settings: commit budget spent, write refused");
             crate::diagnostics::DIAGNOSTICS.security(crate::diagnostics::Security::WriteBudgetRefusal, [0; 4]);
             return Err(UpdateError::Store(StoreError::Budget));

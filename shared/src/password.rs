@@ -23,11 +23,24 @@ pub fn encode(c: &Credential, w: &mut RecordWriter<'_>) {
     w.put(TAG_CREDENTIAL, &c.encode());
 }
 
-/// The credential of a settings record; the factory one if absent or not acceptable.
-pub fn decode(r: &RecordReader<'_>) -> Credential {
+/// A credential no proof matches (its StoredKey is no SHA-256 anyone can invert): what a
+/// record of settings version 2 or later whose credential is missing or damaged loads as. The
+/// module then fails closed: no authenticated command works until the USER button's factory
+/// reset, where falling back to the factory password would hand the module to anyone.
+pub const LOCKED: Credential =
+    Credential { salt: [0; 16], iterations: 4096, stored_key: [0; KEY_LEN], server_key: [0; KEY_LEN] };
+
+/// The credential of a settings record of schema `version`: a record of version 1 (a salted
+/// hash, before credentials) loads with the factory one (docs/security.md, "Migration"); a
+/// later record without a usable credential loads [`LOCKED`].
+pub fn decode(version: u8, r: &RecordReader<'_>) -> Credential {
     match r.array::<CREDENTIAL_LEN>(TAG_CREDENTIAL).map(|b| Credential::decode(&b)) {
         Some(c) if c.is_acceptable() => c,
-        _ => Credential::FACTORY,
+        _ if version < 2 => Credential::FACTORY,
+        _ => {
+            crate::error!("settings: the password's credential is damaged: locked until a factory reset");
+            LOCKED
+        }
     }
 }
 

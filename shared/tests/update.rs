@@ -176,9 +176,6 @@ fn sessions_with(settings: S, dfu: &mut Dfu, state: &mut StateFlash, each: Vec<P
         .enumerate()
         .map(|(i, plan)| {
             let mut pc = Pc::new(plan);
-            // This process runs thousands of sessions: the module's commit budget (one commit
-            // per verified image) is the wear tests' business (modules/8350/tests/wear.rs).
-            remodaq_shared::module::reset_commit_budget_for_tests();
             // Each session a minute after the last: the guessing budget is full again.
             let now = i as u64 * 60_000;
             let outcome = block_on(service.session(&mut pc, [127, 0, 0, 1], now, &map, &store, &mut target));

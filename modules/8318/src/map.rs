@@ -8,7 +8,7 @@ use remodaq_shared::access;
 use remodaq_shared::diagnostics::DIAGNOSTICS;
 use remodaq_shared::identity::FIRMWARE_VERSION;
 use remodaq_shared::modbus::{Access, Exception, RegisterMap, Table, WriteValues};
-use remodaq_shared::module::{commit_change, SettingsAccess, Store};
+use remodaq_shared::module::{write_update, SettingsAccess, Store};
 use remodaq_shared::warn;
 
 use crate::acquisition::Snapshot;
@@ -97,7 +97,12 @@ impl<F: NorFlash> RegisterMap for Map8318<'_, F> {
     /// Every writable register is persisted: committed without the map's lock.
     async fn write<R: RawMutex>(map: &Mutex<R, Self>, start: u16, values: &WriteValues<'_>) -> Result<(), Exception> {
         let store = map.lock().await.store;
-        commit_change(map, store, |s| written(s, start, values)).await.map_err(|e| {
+        let change = |s: &mut Settings| {
+            written(s, start, values);
+            Ok::<(), core::convert::Infallible>(())
+        };
+        // Within the commit budget (flash wear): beyond it, exception 04 and nothing changes.
+        write_update(map, store, change).await.map_err(|e| {
             warn!("8318: settings commit failed: {:?}", e);
             Exception::ServerDeviceFailure
         })

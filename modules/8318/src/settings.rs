@@ -66,11 +66,11 @@ impl Schema for Settings {
         self.update.encode(w);
     }
 
-    fn decode(_version: u8, r: &RecordReader<'_>) -> Self {
+    fn decode(version: u8, r: &RecordReader<'_>) -> Self {
         let d = Self::defaults();
         Self {
             net: NetConfig::decode(r),
-            password: password::decode(r),
+            password: password::decode(version, r),
             input_type: r
                 .array::<1>(tag::INPUT_TYPE)
                 .map(|[t]| t)

@@ -13,7 +13,7 @@ use remodaq_shared::access;
 use remodaq_shared::diagnostics::{status, DIAGNOSTICS};
 use remodaq_shared::identity::FIRMWARE_VERSION;
 use remodaq_shared::modbus::{Access, Exception, RegisterMap, Table, WriteValues};
-use remodaq_shared::module::{update, SettingsAccess, Store, UpdateError};
+use remodaq_shared::module::{write_update, SettingsAccess, Store, UpdateError};
 use remodaq_shared::warn;
 
 use crate::di::DiMode;
@@ -246,7 +246,8 @@ impl<F: NorFlash, R: RawMutex> RegisterMap for Map8350<'_, F, R> {
             return Err(TRIPPED);
         }
         // Planned again on the latest settings, under the store's lock.
-        let plan = update(map, store, |s| {
+        // Within the commit budget (flash wear): beyond it, exception 04 and nothing changes.
+        let plan = write_update(map, store, |s| {
             let plan = Self::plan(io, s, start, values)?;
             *s = plan.settings;
             Ok(plan)

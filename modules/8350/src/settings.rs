@@ -115,10 +115,10 @@ impl Schema for Settings {
         self.update.encode(w);
     }
 
-    fn decode(_version: u8, r: &RecordReader<'_>) -> Self {
+    fn decode(version: u8, r: &RecordReader<'_>) -> Self {
         let mut s = Self::defaults();
         s.net = NetConfig::decode(r);
-        s.password = password::decode(r);
+        s.password = password::decode(version, r);
         if let Some(modes) = r.array::<{ di::CHANNELS }>(tag::DI_MODES) {
             for (m, v) in s.di_modes.iter_mut().zip(modes) {
                 *m = DiMode::from_register(u16::from(v)).unwrap_or(DiMode::Normal);

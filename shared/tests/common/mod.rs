@@ -130,7 +130,7 @@ pub struct S {
 }
 
 impl Schema for S {
-    const VERSION: u8 = 1;
+    const VERSION: u8 = 2;
     fn defaults() -> Self {
         Self {
             net: NetConfig::FACTORY,
@@ -145,10 +145,10 @@ impl Schema for S {
         remodaq_shared::access::encode(&self.allow, w);
         self.update.encode(w);
     }
-    fn decode(_: u8, r: &RecordReader<'_>) -> Self {
+    fn decode(version: u8, r: &RecordReader<'_>) -> Self {
         Self {
             net: NetConfig::decode(r),
-            password: remodaq_shared::password::decode(r),
+            password: remodaq_shared::password::decode(version, r),
             allow: remodaq_shared::access::decode(r),
             update: remodaq_shared::update::Counter::decode(r),
         }
