@@ -8,6 +8,18 @@
 #[cfg(all(target_os = "none", feature = "board-stm32", feature = "board-qemu"))]
 compile_error!("choose one board: `board-stm32` (default) or `--no-default-features --features board-qemu`");
 
+// An STM32 image (a module's) never trusts the repository's test update key (its secret half is
+// public) unless this image crate was asked for it: Cargo unifies features, so the test key
+// that another crate of the same build asked for (the QEMU board, the on-target tests) would
+// otherwise reach this image silently. Nothing depends on an image crate, so its own feature
+// is never switched on by another (docs/security.md).
+#[cfg(all(target_os = "none", not(feature = "board-qemu")))]
+const _: () = assert!(
+    cfg!(feature = "test-update-key") || !remodaq_shared::update::UPDATE_KEY_IS_TEST_KEY,
+    "this STM32 image would trust the repository's TEST update key: build it with REMODAQ_UPDATE_KEY, \
+     or ask for the test key explicitly (feature test-update-key, test builds only)"
+);
+
 #[cfg(not(target_os = "none"))]
 use remodaq_board_host::HostBoard as Board;
 #[cfg(all(target_os = "none", feature = "board-qemu"))]

@@ -41,10 +41,21 @@ fn main() {
     let bytes: Vec<u8> =
         (0..text.len() / 2).filter_map(|i| u8::from_str_radix(text.get(2 * i..2 * i + 2)?, 16).ok()).collect();
     assert!(text.len() == 64 && bytes.len() == 32, "the update key {}: not 64 hex digits", path.display());
+    let test_path = manifest.join("../keys/test-update.key.pub");
+    println!("cargo:rerun-if-changed={}", test_path.display());
+    let test_text = std::fs::read_to_string(&test_path).unwrap_or_default();
+    let test_text = test_text.trim();
+    let test: Vec<u8> = (0..test_text.len() / 2)
+        .filter_map(|i| u8::from_str_radix(test_text.get(2 * i..2 * i + 2)?, 16).ok())
+        .collect();
     let out = PathBuf::from(std::env::var_os("OUT_DIR").unwrap_or_default()).join("update_key.rs");
     let code = format!(
-        "/// The public key firmware images must be signed for (from `{}`).\npub const UPDATE_KEY: [u8; 32] = {bytes:?};\n",
-        path.display()
+        "/// The public key firmware images must be signed for (from `{}`).\npub const UPDATE_KEY: [u8; 32] = {bytes:?};\n\
+         /// The repository's test key (its secret half is public): a board's image refuses to build with it\n\
+         /// unless asked (boards/stm32).\npub const TEST_UPDATE_KEY: &[u8] = &{test:?};\n\
+         /// Whether [`UPDATE_KEY`] is the repository's test key.\npub const UPDATE_KEY_IS_TEST_KEY: bool = {};\n",
+        path.display(),
+        bytes == test
     );
     std::fs::write(&out, code).unwrap_or_else(|e| panic!("{}: {e}", out.display()));
 }

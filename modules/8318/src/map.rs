@@ -103,6 +103,7 @@ impl<F: NorFlash> RegisterMap for Map8318<'_, F> {
         };
         // Within the commit budget (flash wear): beyond it, exception 04 and nothing changes.
         write_update(map, store, change).await.map_err(|e| {
+            let remodaq_shared::module::UpdateError::Store(e) = e;
             warn!("8318: settings commit failed: {:?}", e);
             Exception::ServerDeviceFailure
         })

@@ -84,6 +84,13 @@ mod boot {
 
     const _: () = assert!(FLASH_BASE as u32 + 0x2_0000 == REGION3);
 
+    // Never the repository's test key (public secret half) unless asked (docs/security.md).
+    const _: () = assert!(
+        cfg!(feature = "test-update-key") || !remodaq_protocol::update::UPDATE_KEY_IS_TEST_KEY,
+        "this bootloader would trust the repository's TEST update key: build it with REMODAQ_UPDATE_KEY, \
+         or ask for the test key explicitly (feature test-update-key, test builds only)"
+    );
+
     /// Cancels a swap: the state marked booted (embassy-boot's own marking).
     fn cancel<S: NorFlash>(state: S) {
         #[repr(align(32))]

