@@ -1,0 +1,199 @@
+#!/usr/bin/env python3
+"""Issue #20, "Modbus port starvation" under QEMU: a real client's connection time while 1000
+junk SYN frames a second reach the module's Modbus port (wrong destination IP, damaged TCP
+checksum, wrong destination MAC; every one from a forged source), against the same measure
+without the flood. The module must stay within 50 ms of its no-attack figure.
+
+    junk_flood.py IMAGE [--rate N]      (root: it makes a network namespace and a TAP device)
+
+The firmware image boots in QEMU through its bootloader (as tools/qemu-e2e boots it) on a TAP
+device inside a network namespace of its own (removed at the end): the module is 10.0.2.15
+there (the QEMU board's fixed address), this side 10.0.2.2. The junk frames are written to the
+TAP device with a raw socket, so they reach the module's NIC as they are. Prints the medians
+and `junk-flood: N passed, N failed`.
+"""
+
+import os
+import random
+import socket
+import statistics
+import struct
+import subprocess
+import sys
+import threading
+import time
+
+IMAGE = sys.argv[1]
+RATE = int(sys.argv[sys.argv.index("--rate") + 1]) if "--rate" in sys.argv else 1000
+NS = f"rdqflood{os.getpid() % 10000}"
+TAP = "rdqtap0"
+MODULE, HOST = "10.0.2.15", "10.0.2.2"
+LIMIT_MS = 50.0
+
+
+def sh(*args, check=True):
+    return subprocess.run(list(args), check=check, capture_output=True, text=True)
+
+
+def in_ns(*args):
+    return ["ip", "netns", "exec", NS, *args]
+
+
+def checksum(data):
+    if len(data) % 2:
+        data += b"\0"
+    s = sum(struct.unpack(f"!{len(data) // 2}H", data))
+    while s >> 16:
+        s = (s & 0xFFFF) + (s >> 16)
+    return (~s) & 0xFFFF
+
+
+def syn_frame(dst_mac, src_mac, src_ip, dst_ip, damage_tcp):
+    """An Ethernet II frame carrying a TCP SYN to port 8000 (RFC 791, RFC 9293)."""
+    tcp = bytearray(struct.pack("!HHIIBBHHH", random.randint(1024, 65535), 8000, random.getrandbits(32), 0,
+                                5 << 4, 0x02, 64240, 0, 0))
+    pseudo = src_ip + dst_ip + struct.pack("!BBH", 0, 6, len(tcp))
+    tcp[16:18] = struct.pack("!H", checksum(pseudo + bytes(tcp)) ^ (0x5A5A if damage_tcp else 0))
+    ip = bytearray(struct.pack("!BBHHHBBH4s4s", 0x45, 0, 20 + len(tcp), random.getrandbits(16), 0x4000, 64, 6, 0,
+                               src_ip, dst_ip))
+    ip[10:12] = struct.pack("!H", checksum(bytes(ip)))
+    return dst_mac + src_mac + b"\x08\x00" + bytes(ip) + bytes(tcp)
+
+
+def connection_times(n):
+    """n connections from this side, each: connect, read 40211 (Modbus 03), close; their times
+    in ms, and how many were refused or failed."""
+    script = f"""
+import socket, struct, time
+out = []
+bad = 0
+for i in range({n}):
+    t = time.perf_counter()
+    try:
+        s = socket.create_connection(("{MODULE}", 8000), timeout=3)
+        s.sendall(struct.pack(">HHHBBHH", i, 0, 6, 1, 3, 0xD2, 1))
+        answer = s.recv(64)
+        s.close()
+        if len(answer) < 11:
+            bad += 1
+            continue
+        out.append((time.perf_counter() - t) * 1000)
+    except OSError:
+        bad += 1
+    time.sleep(0.05)
+print(" ".join(f"{{x:.3f}}" for x in out), "|", bad)
+"""
+    r = subprocess.run(in_ns("python3", "-c", script), capture_output=True, text=True, timeout=300)
+    times, bad = r.stdout.strip().split("|")
+    return [float(x) for x in times.split()], int(bad)
+
+
+def main():
+    passed = failed = 0
+    qemu = None
+    try:
+        sh("ip", "netns", "add", NS)
+        sh(*in_ns("ip", "link", "set", "lo", "up"))
+        sh(*in_ns("ip", "tuntap", "add", "dev", TAP, "mode", "tap"))
+        sh(*in_ns("ip", "addr", "add", f"{HOST}/24", "dev", TAP))
+        sh(*in_ns("ip", "link", "set", TAP, "up"))
+        bootloader = os.path.join(os.path.dirname(IMAGE), "remodaq-qemu-bootloader")
+        log = open(f"{IMAGE}.flood.qemu.log", "w")
+        qemu = subprocess.Popen(in_ns(
+            "qemu-system-arm", "-M", "mps2-an386", "-nographic", "-monitor", "none", "-serial", "null",
+            "-semihosting-config", "enable=on,target=native",
+            "-nic", f"tap,model=lan9118,ifname={TAP},script=no,downscript=no",
+            "-kernel", bootloader, "-device", f"loader,file={IMAGE}.bin,addr=0x300000"), stdout=log, stderr=log)
+        deadline = time.time() + 90
+        while time.time() < deadline:
+            times, _ = connection_times(1)
+            if times:
+                break
+            time.sleep(1)
+        else:
+            raise RuntimeError("the module did not answer on the TAP network within 90 s")
+        neigh = sh(*in_ns("ip", "neigh", "show", MODULE, "dev", TAP)).stdout.split()
+        module_mac = bytes(int(x, 16) for x in neigh[neigh.index("lladdr") + 1].split(":"))
+        base, base_bad = connection_times(40)
+        base_ms = statistics.median(base)
+        print(f"junk-flood: no attack: median {base_ms:.2f} ms over {len(base)} connections ({base_bad} failed)")
+
+        stop = threading.Event()
+        sent = [0]
+
+        def flood():
+            # The raw socket lives in the namespace: a helper process writes the frames.
+            kinds = []
+            for i in range(300):
+                src_ip = bytes([10, 0, 2, random.randint(100, 250)]) if i % 2 else bytes(random.getrandbits(8) for _ in range(4))
+                src_mac = bytes([0x02] + [random.getrandbits(8) for _ in range(5)])
+                kind = i % 3
+                if kind == 0:  # another destination IP
+                    kinds.append(syn_frame(module_mac, src_mac, src_ip, socket.inet_aton("10.0.2.99"), False))
+                elif kind == 1:  # a damaged TCP checksum
+                    kinds.append(syn_frame(module_mac, src_mac, src_ip, socket.inet_aton(MODULE), True))
+                else:  # another destination MAC (a switch flooding unknown unicast)
+                    kinds.append(syn_frame(b"\x02\xde\xad\xbe\xef\x01", src_mac, src_ip, socket.inet_aton(MODULE), False))
+            frames = b"".join(struct.pack("!H", len(f)) + f for f in kinds)
+            writer = subprocess.Popen(in_ns("python3", "-c", f"""
+import socket, struct, sys, time
+s = socket.socket(socket.AF_PACKET, socket.SOCK_RAW)
+s.bind(("{TAP}", 0))
+data = sys.stdin.buffer.read()
+frames = []
+while data:
+    n = struct.unpack("!H", data[:2])[0]
+    frames.append(data[2:2 + n])
+    data = data[2 + n:]
+rate = {RATE}
+sent = 0
+start = time.perf_counter()
+i = 0
+while True:
+    due = int((time.perf_counter() - start) * rate)
+    while sent < due:
+        s.send(frames[i % len(frames)])
+        i += 1
+        sent += 1
+    if sent % 1000 < 10:
+        print(sent, flush=True)
+    time.sleep(0.002)
+"""), stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=False)
+            writer.stdin.write(frames)
+            writer.stdin.close()
+            while not stop.is_set():
+                line = writer.stdout.readline()
+                if not line:
+                    break
+                sent[0] = int(line)
+            writer.kill()
+            writer.wait()
+
+        flooder = threading.Thread(target=flood, daemon=True)
+        flooder.start()
+        time.sleep(2)
+        t0 = time.time()
+        under, under_bad = connection_times(40)
+        elapsed = time.time() - t0
+        stop.set()
+        under_ms = statistics.median(under) if under else float("inf")
+        print(f"junk-flood: the flood ran {elapsed + 2:.1f} s")
+        print(f"junk-flood: {RATE} junk SYN frames/s (about {sent[0]} sent): median {under_ms:.2f} ms over "
+              f"{len(under)} connections ({under_bad} failed)")
+        ok = under_bad == 0 and under_ms <= base_ms + LIMIT_MS
+        print(f"junk-flood {'ok' if ok else 'FAILED'}: within {LIMIT_MS:.0f} ms of the no-attack figure: "
+              f"{under_ms - base_ms:+.2f} ms, no connection refused: {under_bad == 0}")
+        passed, failed = (1, 0) if ok else (0, 1)
+    except Exception as e:
+        print(f"junk-flood FAILED: {e}")
+        failed = 1
+    finally:
+        if qemu:
+            qemu.kill()
+            qemu.wait()
+        sh("ip", "netns", "del", NS, check=False)
+    print(f"junk-flood: {passed} passed, {failed} failed")
+    sys.exit(1 if failed else 0)
+
+
+main()
