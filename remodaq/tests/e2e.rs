@@ -77,6 +77,22 @@ fn search_finds_both_modules() {
     assert!(table.contains("RemoDAQ-8350") && table.contains(b["mac"].as_str().unwrap()), "{table}");
 }
 
+/// `remodaq net set` with every field: the factory values, then `changes` over them.
+fn net_set(mac: &str, to: &str, password: &str, changes: &[(&str, &str)]) -> (i32, String, String) {
+    let mut fields =
+        vec![("--ip", "192.168.0.1"), ("--mask", "255.255.255.0"), ("--gateway", "0.0.0.0"), ("--port", "8000")];
+    for (flag, value) in changes {
+        if let Some(field) = fields.iter_mut().find(|(f, _)| f == flag) {
+            field.1 = value;
+        }
+    }
+    let mut args = vec!["net", "set", "--mac", mac, "--to", to, "--password", password];
+    for (flag, value) in &fields {
+        args.extend([*flag, *value]);
+    }
+    remodaq(&args)
+}
+
 #[test]
 fn network_settings_password_and_restart() {
     let flash = temp("net.flash");
@@ -85,24 +101,7 @@ fn network_settings_password_and_restart() {
     let seed = SimModule::start(&firmware("8318"), &flash);
     let mac = search(&seed)["mac"].as_str().unwrap().to_string();
     let to = seed.discovery.to_string();
-    let (code, _, err) = remodaq(&[
-        "net",
-        "set",
-        "--mac",
-        &mac,
-        "--to",
-        &to,
-        "--password",
-        "wrong",
-        "--ip",
-        "192.168.0.1",
-        "--mask",
-        "255.255.255.0",
-        "--gateway",
-        "0.0.0.0",
-        "--port",
-        &p1.to_string(),
-    ]);
+    let (code, _, err) = net_set(&mac, &to, "wrong", &[("--port", &p1.to_string())]);
     assert_eq!(code, 5, "wrong password");
     assert!(err.contains("wrong password"), "{err}");
     assert_eq!(search(&seed)["stored"]["port"].as_u64(), Some(8000), "nothing changed");
@@ -111,24 +110,7 @@ fn network_settings_password_and_restart() {
     assert_eq!(security["auth_failures"].as_u64(), Some(1), "{security}");
     assert_eq!(security["last_failed_source"].as_str(), Some("127.0.0.1"), "{security}");
     assert_eq!(security["factory_password"].as_bool(), Some(true), "{security}");
-    let (code, out, _) = remodaq(&[
-        "net",
-        "set",
-        "--mac",
-        &mac,
-        "--to",
-        &to,
-        "--password",
-        "remodaq",
-        "--ip",
-        "192.168.0.1",
-        "--mask",
-        "255.255.255.0",
-        "--gateway",
-        "0.0.0.0",
-        "--port",
-        &p1.to_string(),
-    ]);
+    let (code, out, _) = net_set(&mac, &to, "remodaq", &[("--port", &p1.to_string())]);
     assert_eq!(code, 0);
     assert!(out.contains("stored"), "{out}");
     assert!(out.contains("factory password"), "the tool says the factory password is in force: {out}");
@@ -142,24 +124,10 @@ fn network_settings_password_and_restart() {
     // A new port, address, mask and gateway, and a restart: the restart applies them. (The
     // simulated module listens where `--listen` says; it shows and keeps the stored address.)
     let p2 = free_port();
-    let (code, _, _) = remodaq(&[
-        "net",
-        "set",
-        "--mac",
-        &mac,
-        "--to",
-        &to,
-        "--password",
-        "remodaq",
-        "--port",
-        &p2.to_string(),
-        "--ip",
-        "10.0.0.50",
-        "--mask",
-        "255.255.0.0",
-        "--gateway",
-        "10.0.0.1",
-    ]);
+    let p2s = p2.to_string();
+    let changes =
+        [("--port", p2s.as_str()), ("--ip", "10.0.0.50"), ("--mask", "255.255.0.0"), ("--gateway", "10.0.0.1")];
+    let (code, _, _) = net_set(&mac, &to, "remodaq", &changes);
     assert_eq!(code, 0);
     let (code, out, _) = remodaq(&["restart", "--mac", &mac, "--to", &to, "--password", "remodaq"]);
     assert_eq!(code, 0, "{out}");

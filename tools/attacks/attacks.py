@@ -74,6 +74,12 @@ class Sim:
             time.sleep(0.1)
         raise RuntimeError(f"the {model} simulator did not answer")
 
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *_):
+        self.stop()
+
     def stop(self):
         self.proc.kill()
         self.proc.wait()
@@ -268,27 +274,21 @@ def replay_restart():
 @attack("factory-password-allow-list")
 def factory_password_allow_list():
     """Anyone on the LAN uses the universal factory password to lock the module's writes."""
-    sim = Sim(8350)
-    try:
+    with Sim(8350) as sim:
         status = command(sim, 0x07, allow_body([([10, 6, 6, 6], 32)]), "remodaq")
         return status == 0, f"SET_ACCESS with the factory password: status {status}"
-    finally:
-        sim.stop()
 
 
 @attack("guessing-from-rotating-sources")
 def rotating_sources():
     """40 wrong guesses, each from another source address: how many does the module check?"""
-    sim = Sim(8318)
-    try:
+    with Sim(8318) as sim:
         # Sources inside the module's subnet (127.0.0.0/24 for the simulator): on loopback the
         # attacker sees the answers, as it does on a LAN for a source outside the module's
         # subnet (answered by broadcast).
         statuses = [command(sim, 0x06, b"", f"guess{i}", src=f"127.0.0.{i + 10}") for i in range(40)]
         checked = statuses.count(1)
         return checked == 40, f"wrong guesses checked: {checked} of 40 (limited: {statuses.count(2)})"
-    finally:
-        sim.stop()
 
 
 def blind_guess(sim, src):
@@ -306,24 +306,20 @@ def blind_guess(sim, src):
 def lock_out_admin():
     """Wrong guesses forged from the administrator's own address, two a second for 12 s; then the
     administrator's own command with the right password."""
-    sim = Sim(8318)
-    try:
+    with Sim(8318) as sim:
         end = time.time() + 12
         while time.time() < end:
             blind_guess(sim, "127.0.0.1")
             time.sleep(0.5)
         status = command(sim, 0x06, b"", "remodaq", src="127.0.0.1")
         return status != 0, f"the administrator's right password: status {status} (0 ok, 2 locked out)"
-    finally:
-        sim.stop()
 
 
 @attack("evict-the-scada-master")
 def evict_master():
     """The master (on the allow-list) polls once a second; 8 chatty connections from elsewhere
     and one more each 0.3 s."""
-    sim = Sim(8350)
-    try:
+    with Sim(8350) as sim:
         if sim.version == 2:
             set_own_password(sim, "plant password")
         status = command(sim, 0x07, allow_body([([127, 0, 0, 2], 32)]),
@@ -355,16 +351,13 @@ def evict_master():
             served = False
         stop[0] = True
         return not served, f"the master's next poll: {'answered' if served else 'its connection was closed'}"
-    finally:
-        sim.stop()
 
 
 @attack("watchdog-fed-by-an-outsider")
 def watchdog_outsider():
     """The master arms a 0.5 s host watchdog and goes silent; a client outside the allow-list
     keeps reading: do the outputs still reach their safe state?"""
-    sim = Sim(8350)
-    try:
+    with Sim(8350) as sim:
         if sim.version == 2:
             set_own_password(sim, "plant password")
         status = command(sim, 0x07, allow_body([([127, 0, 0, 2], 32)]),
@@ -381,15 +374,12 @@ def watchdog_outsider():
                 break
             time.sleep(0.1)
         return not tripped, f"watchdog {'tripped' if tripped else 'still fed'} after 2 s of the outsider's reads"
-    finally:
-        sim.stop()
 
 
 @attack("flash-wear")
 def flash_wear():
     """300 alternating writes of a persisted register: how many reach the flash?"""
-    sim = Sim(8350)
-    try:
+    with Sim(8350) as sim:
         m = Modbus(sim.modbus)
         committed = 0
         for _ in range(300):
@@ -398,8 +388,6 @@ def flash_wear():
             if m.write(0x100, now % 2 + 1) is True:
                 committed += 1
         return committed == 300, f"{committed} of 300 alternating writes committed"
-    finally:
-        sim.stop()
 
 
 def fake_module(version, name, stored_ip):
