@@ -77,6 +77,10 @@ struct Pc {
     io: Script,
     plan: Plan,
     proved: Option<([u8; 32], [u8; HEADER_LEN], Greeting)>,
+    /// Everything the PC sent, as a recorder on the LAN sees it.
+    sent: Vec<u8>,
+    /// A byte of the header a man in the middle changes after the PC proved it.
+    alter: Option<usize>,
 }
 
 const CNONCE: [u8; 16] = [0xC0; 16];
@@ -85,7 +89,7 @@ impl Pc {
     fn new(plan: Plan) -> Self {
         let mut io = Script::new(&[]);
         io.incoming.push_back(CNONCE.to_vec());
-        Self { io, plan, proved: None }
+        Self { io, plan, proved: None, sent: CNONCE.to_vec(), alter: None }
     }
 
     /// The module's answers: one status each, its signature checked where it must have one.
@@ -132,7 +136,11 @@ impl embedded_io_async::Write for Pc {
             let n = file.len().min(HEADER_LEN);
             header[..n].copy_from_slice(&file[..n]);
             let proof = client_proof(&client_key, &auth_message(&g.mac, &CNONCE, &g.snonce, &header));
-            let bytes = [&proof[..], file].concat();
+            let mut bytes = [&proof[..], file].concat();
+            if let Some(at) = self.alter {
+                bytes[32 + at] ^= 1;
+            }
+            self.sent.extend_from_slice(&bytes);
             self.io.incoming.extend(bytes.chunks(300).map(<[u8]>::to_vec));
             self.proved = Some((credential.server_key, header, g));
         }
@@ -318,6 +326,64 @@ fn a_signed_image_is_streamed_verified_and_marked() {
     m.confirm();
     assert_eq!(m.boot(None), Ok(State::Boot), "confirmed: it stays");
     assert_eq!(m.running(&old, &new), "new");
+}
+
+/// A recorded session sent again (a new session: the module's new nonce makes the recorded
+/// proof worthless), and a session whose header a man in the middle changed (the proof covers
+/// it): each refused with status 1 before anything is written.
+#[test]
+fn a_replayed_or_altered_session_changes_nothing() {
+    let (old, new) = (image(1, 3000), image(2, 3001));
+    let file = signed(&new, 0xA101, &key());
+    let mut m = module_with(&old);
+    let settings = S { password: credential(), ..S::defaults() };
+    // The recording: a good session.
+    let mut dfu: Dfu = RamFlash::from_image(m.dfu.image());
+    let mut state: StateFlash = RamFlash::from_image(m.state.image());
+    let mut recorded = Pc::new(session_bytes(PASSWORD, &file, None));
+    let store = block_on(SettingsStore::open(
+        SettingsFlash::new(),
+        const { SettingsStore::<SettingsFlash, S>::config(0..4096) },
+    ));
+    let store = Mutex::<CriticalSectionRawMutex, _>::new(store);
+    let map = Mutex::<NoopRawMutex, _>::new(Live(settings));
+    {
+        let mut aligned = [0u8; 4];
+        let updater = FirmwareUpdater::new(FirmwareUpdaterConfig { dfu: &mut dfu, state: &mut state }, &mut aligned);
+        let mut target =
+            BootUpdater { updater, public_key: key().verifying_key().to_bytes(), manifest_at: MANIFEST_AT };
+        let mut service = UpdateService::new(MODEL, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
+        let outcome = block_on(service.session(&mut recorded, [127, 0, 0, 1], 0, &map, &store, &mut target));
+        assert_eq!((recorded.statuses(), outcome), (vec![0, 0], Outcome::Updated { version: 0xA101 }));
+        // The replay: the recorded bytes, to the module as it was before.
+        let mut aligned = [0u8; 4];
+        let updater =
+            FirmwareUpdater::new(FirmwareUpdaterConfig { dfu: &mut m.dfu, state: &mut m.state }, &mut aligned);
+        let mut target =
+            BootUpdater { updater, public_key: key().verifying_key().to_bytes(), manifest_at: MANIFEST_AT };
+        let mut replay = Script::new(&[]);
+        replay.incoming = recorded.sent.chunks(300).map(<[u8]>::to_vec).collect();
+        let outcome = block_on(service.session(&mut replay, [127, 0, 0, 66], 60_000, &map, &store, &mut target));
+        assert_eq!(outcome, Outcome::NotUpdated, "the replay");
+        assert_eq!(
+            replay.outgoing.get(GREETING_LEN..),
+            Some(&[Status::WrongPassword as u8][..]),
+            "the replay: status 1"
+        );
+    }
+    assert_eq!((m.boot(None), m.running(&old, &new)), (Ok(State::Boot), "old"), "the replay changed nothing");
+    // Altered: the counter byte of the header changed after the PC proved it.
+    let mut altered = Pc::new(session_bytes(PASSWORD, &file, None));
+    altered.alter = Some(13);
+    let mut m = module_with(&old);
+    let mut aligned = [0u8; 4];
+    let updater = FirmwareUpdater::new(FirmwareUpdaterConfig { dfu: &mut m.dfu, state: &mut m.state }, &mut aligned);
+    let mut target = BootUpdater { updater, public_key: key().verifying_key().to_bytes(), manifest_at: MANIFEST_AT };
+    let mut service = UpdateService::new(MODEL, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
+    let outcome = block_on(service.session(&mut altered, [127, 0, 0, 1], 120_000, &map, &store, &mut target));
+    assert_eq!((altered.statuses(), outcome), (vec![Status::WrongPassword as u8], Outcome::NotUpdated), "altered");
+    drop(target);
+    assert_eq!((m.boot(None), m.running(&old, &new)), (Ok(State::Boot), "old"), "the altered session changed nothing");
 }
 
 #[test]
