@@ -158,6 +158,24 @@ fn an_admitted_client_is_never_closed_for_one_the_allow_list_does_not_admit() {
     assert_eq!(slots.open(9, [192, 168, 0, 99], true), Some(0), "an admitted newcomer takes the idlest");
 }
 
+/// A newcomer that asked is not closed for silent connections of a flood that finished their
+/// handshakes after it (docs/modbus.md).
+#[test]
+fn a_connection_that_never_spoke_goes_before_one_that_asked() {
+    let slots = Slots::<NoopRawMutex, 10>::new(8, PER_SOURCE);
+    for slot in 0..7 {
+        assert_eq!(slots.open(slot, ip(slot), false), None, "the flood");
+    }
+    assert_eq!(slots.open(7, ip(7), false), None, "the newcomer");
+    slots.touch(7); // its request
+    // The flood's last connections finish their handshakes after the newcomer asked.
+    assert_eq!(slots.open(8, ip(8), false), Some(0));
+    assert_eq!(slots.open(9, ip(9), false), Some(1));
+    for (slot, victim) in [(0, 2), (1, 3), (2, 4), (3, 5), (4, 6), (5, 8), (6, 9)] {
+        assert_eq!(slots.open(slot, ip(slot), false), Some(victim), "never the newcomer");
+    }
+}
+
 #[test]
 fn slots_evict_the_longest_idle() {
     let slots = Slots::<NoopRawMutex, 3>::new(2, PER_SOURCE);

@@ -4,7 +4,8 @@
 //! Connection policy (spec §1.1): at most [`MAX_CONNECTIONS`] clients are served at once. A
 //! board runs [`SOCKETS`] = `MAX_CONNECTIONS + 2` connection tasks, so a newcomer is always
 //! accepted, even one right behind another; when that makes one too many, [`Slots`] closes the
-//! connection idle the longest, with two rules against a client that would starve the others
+//! connection idle the longest (a connection that never sent anything before one that did),
+//! with two rules against a client that would starve the others
 //! (IEC 62443-4-2 CR 7.1, docs/modbus.md):
 //! - one source address holds at most [`PER_SOURCE`] connections: its own idlest one makes room
 //!   for its next;
@@ -76,6 +77,8 @@ pub struct Slots<R: RawMutex, const N: usize> {
 struct Activity<const N: usize> {
     last: [Option<u64>; N],
     client: [Client; N],
+    /// The client sent something since it connected: a connection that never did goes first.
+    spoke: [bool; N],
     events: u64,
 }
 
@@ -102,6 +105,7 @@ impl<R: RawMutex, const N: usize> Slots<R, N> {
             last_activity: BlockingMutex::new(RefCell::new(Activity {
                 last: [None; N],
                 client: [Client { ip: [0; 4], protected: false }; N],
+                spoke: [false; N],
                 events: 0,
             })),
             evict: [const { Signal::new() }; N],
@@ -119,13 +123,15 @@ impl<R: RawMutex, const N: usize> Slots<R, N> {
             let mut activity = cell.borrow_mut();
             activity.event(slot);
             activity.client[slot] = Client { ip, protected };
-            let Activity { last, client, .. } = &mut *activity;
+            activity.spoke[slot] = false;
+            let Activity { last, client, spoke, .. } = &mut *activity;
             let open = |i: usize| last[i].is_some();
             let same_source = (0..N).filter(|&i| open(i) && client[i].ip == ip).count();
             let active = (0..N).filter(|&i| open(i)).count();
-            // The idlest other connection among those `may_go` allows.
+            // The idlest other connection among those `may_go` allows: one that never sent
+            // anything first (a silent connection of a flood before a client that asked).
             let idlest = |may_go: &dyn Fn(usize) -> bool| {
-                (0..N).filter(|&i| i != slot && open(i) && may_go(i)).min_by_key(|&i| last[i])
+                (0..N).filter(|&i| i != slot && open(i) && may_go(i)).min_by_key(|&i| (spoke[i], last[i]))
             };
             let victim = if same_source > self.per_source {
                 idlest(&|i| client[i].ip == ip)
@@ -147,6 +153,7 @@ impl<R: RawMutex, const N: usize> Slots<R, N> {
             let mut activity = cell.borrow_mut();
             if activity.last[slot].is_some() {
                 activity.event(slot);
+                activity.spoke[slot] = true;
             }
         });
     }
