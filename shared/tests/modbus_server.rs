@@ -158,33 +158,36 @@ fn an_admitted_client_is_never_closed_for_one_the_allow_list_does_not_admit() {
     assert_eq!(slots.open(9, [192, 168, 0, 99], true), Some(0), "an admitted newcomer takes the idlest");
 }
 
-/// A newcomer that asked is not closed for silent connections of a flood that finished their
-/// handshakes after it (docs/modbus.md).
+/// A newcomer whose request is still on the way is not closed for the connections of a flood
+/// that finish their handshakes after its own, within its first 500 ms (docs/modbus.md).
 #[test]
-fn a_connection_that_never_spoke_goes_before_one_that_asked() {
+fn a_newcomer_not_heard_from_yet_is_not_closed_in_its_first_half_second() {
     let slots = Slots::<NoopRawMutex, 10>::new(8, PER_SOURCE);
     for slot in 0..7 {
-        assert_eq!(slots.open(slot, ip(slot), false), None, "the flood");
+        assert_eq!(slots.open_at(slot, ip(slot), false, 0), None, "the flood");
+        slots.touch(slot); // each sends its request at once
     }
-    assert_eq!(slots.open(7, ip(7), false), None, "the newcomer");
-    slots.touch(7); // its request
-    // The flood's last connections finish their handshakes after the newcomer asked.
-    assert_eq!(slots.open(8, ip(8), false), Some(0));
-    assert_eq!(slots.open(9, ip(9), false), Some(1));
-    for (slot, victim) in [(0, 2), (1, 3), (2, 4), (3, 5), (4, 6), (5, 8), (6, 9)] {
-        assert_eq!(slots.open(slot, ip(slot), false), Some(victim), "never the newcomer");
+    assert_eq!(slots.open_at(7, ip(7), false, 10), None, "the newcomer, its request not in yet");
+    assert_eq!(slots.open_at(8, ip(8), false, 12), Some(0));
+    slots.touch(8);
+    assert_eq!(slots.open_at(9, ip(9), false, 13), Some(1));
+    slots.touch(9);
+    for (slot, at, victim) in [(0, 20, 2), (1, 30, 3), (2, 40, 4), (3, 50, 5), (4, 60, 6)] {
+        assert_eq!(slots.open_at(slot, ip(slot), false, at), Some(victim), "never the newcomer");
+        slots.touch(slot);
     }
+    // Past its grace, a connection never heard from is the idlest again.
+    assert_eq!(slots.open_at(5, ip(5), false, 600), Some(7));
 }
 
 #[test]
 fn slots_evict_the_longest_idle() {
+    // Past the half-second grace of a connection not heard from yet.
     let slots = Slots::<NoopRawMutex, 3>::new(2, PER_SOURCE);
-    assert_eq!(slots.open(0, ip(0), false), None);
-    std::thread::sleep(std::time::Duration::from_millis(2));
-    assert_eq!(slots.open(1, ip(1), false), None);
-    std::thread::sleep(std::time::Duration::from_millis(2));
+    assert_eq!(slots.open_at(0, ip(0), false, 0), None);
+    assert_eq!(slots.open_at(1, ip(1), false, 1000), None);
     slots.touch(0); // slot 1 is now the longest idle
-    assert_eq!(slots.open(2, ip(2), false), Some(1));
+    assert_eq!(slots.open_at(2, ip(2), false, 2000), Some(1));
     assert_eq!(slots.active(), 2);
     slots.close(1); // the evicted task closing does not disturb the count
     assert_eq!(slots.active(), 2);
@@ -197,16 +200,18 @@ fn slots_opened_in_one_tick_evict_in_the_order_they_opened() {
     let slots = Slots::<NoopRawMutex, 10>::new(8, PER_SOURCE);
     let order = [9, 4, 0, 7, 2, 5, 8, 1];
     for slot in order {
-        assert_eq!(slots.open(slot, ip(slot), false), None);
+        assert_eq!(slots.open_at(slot, ip(slot), false, 0), None);
     }
-    // No time passes: slots 3 and 6 open, each closing the one opened first of the rest.
-    assert_eq!(slots.open(3, ip(3), false), Some(9));
-    assert_eq!(slots.open(6, ip(6), false), Some(4));
-    // Slot 0 receives a request: 7 is now the one idle longest; the newest, 6, stays.
+    // No time passes: slots 3 and 6 open, each closing the one opened first of the rest (all
+    // in their grace, none heard from: the plain order).
+    assert_eq!(slots.open_at(3, ip(3), false, 0), Some(9));
+    assert_eq!(slots.open_at(6, ip(6), false, 0), Some(4));
+    // A second later slot 0 receives a request: 7 is now the one idle longest; the newest, 6,
+    // stays.
     slots.touch(0);
-    assert_eq!(slots.open(9, ip(9), false), Some(7));
-    assert_eq!(slots.open(4, ip(4), false), Some(2));
-    assert_eq!(slots.open(7, ip(7), false), Some(5));
+    assert_eq!(slots.open_at(9, ip(9), false, 1000), Some(7));
+    assert_eq!(slots.open_at(4, ip(4), false, 1000), Some(2));
+    assert_eq!(slots.open_at(7, ip(7), false, 1000), Some(5));
     assert_eq!(slots.active(), 8);
 }
 

@@ -184,14 +184,22 @@ fn sessions_with(settings: S, dfu: &mut Dfu, state: &mut StateFlash, each: Vec<P
         .enumerate()
         .map(|(i, plan)| {
             let mut pc = Pc::new(plan);
-            // Each session a minute after the last: the guessing budget is full again.
-            let now = i as u64 * 60_000;
+            let _ = i;
+            let now = session_time();
             let outcome = block_on(service.session(&mut pc, [127, 0, 0, 1], now, &map, &store, &mut target));
             (pc.statuses(), outcome)
         })
         .collect();
     let after = block_on(map.lock()).0;
     (results, after)
+}
+
+/// The time of a session: each two minutes after the last one of this process (the tests run in
+/// parallel threads and share the module-wide guessing budget, a static: a wrong proof in one
+/// test must not leave the budget spent for another, whose sessions come later).
+fn session_time() -> u64 {
+    static CLOCK: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    CLOCK.fetch_add(120_000, std::sync::atomic::Ordering::SeqCst)
 }
 
 /// Where the module writes the manifest for the bootloader: the start of the update
@@ -353,7 +361,8 @@ fn a_replayed_or_altered_session_changes_nothing() {
         let mut target =
             BootUpdater { updater, public_key: key().verifying_key().to_bytes(), manifest_at: MANIFEST_AT };
         let mut service = UpdateService::new(MODEL, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
-        let outcome = block_on(service.session(&mut recorded, [127, 0, 0, 1], 0, &map, &store, &mut target));
+        let outcome =
+            block_on(service.session(&mut recorded, [127, 0, 0, 1], session_time(), &map, &store, &mut target));
         assert_eq!((recorded.statuses(), outcome), (vec![0, 0], Outcome::Updated { version: 0xA101 }));
         // The replay: the recorded bytes, to the module as it was before.
         let mut aligned = [0u8; 4];
@@ -363,7 +372,8 @@ fn a_replayed_or_altered_session_changes_nothing() {
             BootUpdater { updater, public_key: key().verifying_key().to_bytes(), manifest_at: MANIFEST_AT };
         let mut replay = Script::new(&[]);
         replay.incoming = recorded.sent.chunks(300).map(<[u8]>::to_vec).collect();
-        let outcome = block_on(service.session(&mut replay, [127, 0, 0, 66], 60_000, &map, &store, &mut target));
+        let outcome =
+            block_on(service.session(&mut replay, [127, 0, 0, 66], session_time(), &map, &store, &mut target));
         assert_eq!(outcome, Outcome::NotUpdated, "the replay");
         assert_eq!(
             replay.outgoing.get(GREETING_LEN..),
@@ -380,7 +390,7 @@ fn a_replayed_or_altered_session_changes_nothing() {
     let updater = FirmwareUpdater::new(FirmwareUpdaterConfig { dfu: &mut m.dfu, state: &mut m.state }, &mut aligned);
     let mut target = BootUpdater { updater, public_key: key().verifying_key().to_bytes(), manifest_at: MANIFEST_AT };
     let mut service = UpdateService::new(MODEL, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
-    let outcome = block_on(service.session(&mut altered, [127, 0, 0, 1], 120_000, &map, &store, &mut target));
+    let outcome = block_on(service.session(&mut altered, [127, 0, 0, 1], session_time(), &map, &store, &mut target));
     assert_eq!((altered.statuses(), outcome), (vec![Status::WrongPassword as u8], Outcome::NotUpdated), "altered");
     drop(target);
     assert_eq!((m.boot(None), m.running(&old, &new)), (Ok(State::Boot), "old"), "the altered session changed nothing");
@@ -570,6 +580,7 @@ fn power_cut_at_every_write_and_erase_of_the_marking() {
     let file = signed(&new, 0xA102, &key());
     let mut booted = std::collections::BTreeMap::new();
     for cut in 0.. {
+        assert!(cut < 100_000, "the update never completed");
         let mut m = module_with(&old);
         m.state.set_budget(Some(cut));
         let (answers, outcome) = session(&mut m.dfu, &mut m.state, session_bytes(PASSWORD, &file, None));
@@ -592,6 +603,7 @@ fn power_cut_at_every_write_and_erase_of_the_marking() {
     // Cut while the firmware streams into the update partition: refused, the old one boots.
     let mut cuts = 0;
     for cut in 0.. {
+        assert!(cut < 100_000, "the update never completed");
         let mut m = module_with(&old);
         m.dfu.set_budget(Some(cut));
         let (answers, outcome) = session(&mut m.dfu, &mut m.state, session_bytes(PASSWORD, &file, None));

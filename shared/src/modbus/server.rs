@@ -4,8 +4,9 @@
 //! Connection policy (spec §1.1): at most [`MAX_CONNECTIONS`] clients are served at once. A
 //! board runs [`SOCKETS`] = `MAX_CONNECTIONS + 2` connection tasks, so a newcomer is always
 //! accepted, even one right behind another; when that makes one too many, [`Slots`] closes the
-//! connection idle the longest (a connection that never sent anything before one that did),
-//! with two rules against a client that would starve the others
+//! connection idle the longest (not one younger than [`GRACE_MS`] whose client has not been
+//! heard from yet, while another can go), with two rules against a client that would starve the
+//! others
 //! (IEC 62443-4-2 CR 7.1, docs/modbus.md):
 //! - one source address holds at most [`PER_SOURCE`] connections: its own idlest one makes room
 //!   for its next;
@@ -34,6 +35,11 @@ use super::RegisterMap;
 pub const MAX_CONNECTIONS: usize = 8;
 /// Connections one source address may hold at once.
 pub const PER_SOURCE: usize = 4;
+/// A connection is this young (ms) and its client not heard from yet: it is closed to make
+/// room only when no other can be (its request may still be on the way: under QEMU's user
+/// network, a flood's connections finish their handshakes after a newcomer's, whose request is
+/// then closed unanswered).
+pub const GRACE_MS: u64 = 500;
 /// Connection tasks a board runs: two more than [`MAX_CONNECTIONS`], so that while one accepts a
 /// newcomer (and the connection idle the longest is being closed to make room) another still
 /// listens: a TCP stack without a listen backlog (smoltcp) refuses a SYN no socket listens for.
@@ -77,8 +83,10 @@ pub struct Slots<R: RawMutex, const N: usize> {
 struct Activity<const N: usize> {
     last: [Option<u64>; N],
     client: [Client; N],
-    /// The client sent something since it connected: a connection that never did goes first.
+    /// The client sent something since it connected.
     spoke: [bool; N],
+    /// When it connected (ms since start).
+    opened_ms: [u64; N],
     events: u64,
 }
 
@@ -106,6 +114,7 @@ impl<R: RawMutex, const N: usize> Slots<R, N> {
                 last: [None; N],
                 client: [Client { ip: [0; 4], protected: false }; N],
                 spoke: [false; N],
+                opened_ms: [0; N],
                 events: 0,
             })),
             evict: [const { Signal::new() }; N],
@@ -118,20 +127,29 @@ impl<R: RawMutex, const N: usize> Slots<R, N> {
     /// and admits it); returns the slot told to close to make room (`slot` itself when the
     /// newcomer must go).
     pub fn open(&self, slot: usize, ip: [u8; 4], protected: bool) -> Option<usize> {
+        self.open_at(slot, ip, protected, embassy_time::Instant::now().as_millis())
+    }
+
+    /// [`Self::open`] at `now_ms` (ms since start).
+    pub fn open_at(&self, slot: usize, ip: [u8; 4], protected: bool, now_ms: u64) -> Option<usize> {
         self.evict[slot].reset();
         self.last_activity.lock(|cell| {
             let mut activity = cell.borrow_mut();
             activity.event(slot);
             activity.client[slot] = Client { ip, protected };
             activity.spoke[slot] = false;
-            let Activity { last, client, spoke, .. } = &mut *activity;
+            activity.opened_ms[slot] = now_ms;
+            let Activity { last, client, spoke, opened_ms, .. } = &mut *activity;
             let open = |i: usize| last[i].is_some();
             let same_source = (0..N).filter(|&i| open(i) && client[i].ip == ip).count();
             let active = (0..N).filter(|&i| open(i)).count();
-            // The idlest other connection among those `may_go` allows: one that never sent
-            // anything first (a silent connection of a flood before a client that asked).
+            // A connection younger than GRACE_MS that has not been heard from yet (its request
+            // may still be on the way) goes only when no other can.
+            let fresh = |i: usize| !spoke[i] && now_ms.saturating_sub(opened_ms[i]) < GRACE_MS;
+            // The idlest other connection among those `may_go` allows.
             let idlest = |may_go: &dyn Fn(usize) -> bool| {
-                (0..N).filter(|&i| i != slot && open(i) && may_go(i)).min_by_key(|&i| (spoke[i], last[i]))
+                let others = || (0..N).filter(|&i| i != slot && open(i) && may_go(i));
+                others().filter(|&i| !fresh(i)).min_by_key(|&i| last[i]).or_else(|| others().min_by_key(|&i| last[i]))
             };
             let victim = if same_source > self.per_source {
                 idlest(&|i| client[i].ip == ip)
