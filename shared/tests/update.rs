@@ -392,7 +392,6 @@ fn a_replayed_or_altered_session_changes_nothing() {
     let mut service = UpdateService::new(MODEL, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
     let outcome = block_on(service.session(&mut altered, [127, 0, 0, 1], session_time(), &map, &store, &mut target));
     assert_eq!((altered.statuses(), outcome), (vec![Status::WrongPassword as u8], Outcome::NotUpdated), "altered");
-    drop(target);
     assert_eq!((m.boot(None), m.running(&old, &new)), (Ok(State::Boot), "old"), "the altered session changed nothing");
 }
 
