@@ -315,16 +315,21 @@ def lock_out_admin():
         return status != 0, f"the administrator's right password: status {status} (0 ok, 2 locked out)"
 
 
+def allow_only_the_master(sim):
+    """The administrator lets only the master (127.0.0.2) write: on this tree after setting a
+    password of its own (the allow-list needs one), before issue #20 with the factory one."""
+    if sim.version == 2:
+        set_own_password(sim, "plant password")
+    status = command(sim, 0x07, allow_body([([127, 0, 0, 2], 32)]), "plant password" if sim.version == 2 else "remodaq")
+    assert status == 0, f"the allow-list: status {status}"
+
+
 @attack("evict-the-scada-master")
 def evict_master():
     """The master (on the allow-list) polls once a second; 8 chatty connections from elsewhere
     and one more each 0.3 s."""
     with Sim(8350) as sim:
-        if sim.version == 2:
-            set_own_password(sim, "plant password")
-        status = command(sim, 0x07, allow_body([([127, 0, 0, 2], 32)]),
-                         "plant password" if sim.version == 2 else "remodaq")
-        assert status == 0, f"the allow-list: status {status}"
+        allow_only_the_master(sim)
         master = Modbus(sim.modbus, "127.0.0.2")
         master.read(0xD2)
         stop = [False]
@@ -358,11 +363,7 @@ def watchdog_outsider():
     """The master arms a 0.5 s host watchdog and goes silent; a client outside the allow-list
     keeps reading: do the outputs still reach their safe state?"""
     with Sim(8350) as sim:
-        if sim.version == 2:
-            set_own_password(sim, "plant password")
-        status = command(sim, 0x07, allow_body([([127, 0, 0, 2], 32)]),
-                         "plant password" if sim.version == 2 else "remodaq")
-        assert status == 0, f"the allow-list: status {status}"
+        allow_only_the_master(sim)
         master = Modbus(sim.modbus, "127.0.0.2")
         master.write(0x132, 0)
         master.write(0x130, 5)
