@@ -215,7 +215,12 @@ fn read_watch_and_config_round_trip_8350() {
     );
     let addr: SocketAddr = module.addr;
     let addr = addr.to_string();
+    // DI0 counts its 50 Hz square wave from the mode write until the stop: the writes took
+    // effect between their sending and their answers, so the count lies within 50 per second
+    // of those bounds (±1 for the phase of the wave).
+    let started = std::time::Instant::now();
     assert_eq!(remodaq(&["config", &addr, "di-mode", "0", "counter"]).0, 0);
+    let counting = started.elapsed();
     assert_eq!(remodaq(&["config", &addr, "di-mode", "1", "latch-rising"]).0, 0);
     assert_eq!(remodaq(&["config", &addr, "do-mode", "2", "pulse"]).0, 0);
     assert_eq!(
@@ -225,10 +230,20 @@ fn read_watch_and_config_round_trip_8350() {
     assert_eq!(remodaq(&["config", &addr, "do", "2", "on"]).0, 0);
     assert_eq!(remodaq(&["config", &addr, "do", "4", "on"]).0, 0);
     std::thread::sleep(Duration::from_millis(300));
+    let stopping = started.elapsed();
+    assert_eq!(remodaq(&["config", &addr, "counter", "0", "stop"]).0, 0);
+    let stopped = started.elapsed();
     let r = json(&["read", &addr]);
     let (inputs, outputs) = (r["inputs"].as_array().unwrap(), r["outputs"].as_array().unwrap());
     assert_eq!(inputs[0]["mode"].as_str(), Some("counter"));
-    assert!(inputs[0]["value"].as_u64().unwrap() > 0, "DI0 counts its 50 Hz square wave");
+    let count = inputs[0]["value"].as_u64().unwrap() as f64;
+    let (fewest, most) = (50.0 * (stopping - counting).as_secs_f64() - 1.0, 50.0 * stopped.as_secs_f64() + 1.0);
+    assert!(
+        (fewest.floor()..=most.ceil()).contains(&count),
+        "DI0 counted {count} edges of 50 Hz, expected {fewest:.1}..{most:.1}"
+    );
+    let again = json(&["read", &addr])["inputs"][0]["value"].as_u64().unwrap() as f64;
+    assert_eq!(again, count, "a stopped counter holds its value");
     assert_eq!((inputs[1]["mode"].as_str(), inputs[3]["state"].as_bool()), (Some("latch-rising"), Some(true)));
     assert_eq!(outputs[2]["mode"].as_str(), Some("pulse"));
     assert_eq!(

@@ -42,6 +42,9 @@ impl Module {
 
 const MAC: [u8; 6] = [0x02, 0x11, 0x22, 0x33, 0x44, 0x55];
 const OTHER: [u8; 6] = [0x02, 0x11, 0x22, 0x33, 0x44, 0x56];
+/// Spec §1.4: a new module's network settings, as literals (not the code's constant).
+const SPEC_FACTORY: NetConfig =
+    NetConfig { ip: [192, 168, 0, 1], mask: [255, 255, 255, 0], gateway: [0, 0, 0, 0], port: 8000 };
 const NEW_NET: NetConfig = NetConfig { ip: [10, 1, 2, 3], mask: [255, 255, 0, 0], gateway: [10, 1, 0, 1], port: 502 };
 
 /// The module-wide guessing budget is one static: the tests of this file take turns, each
@@ -53,7 +56,7 @@ fn setup() -> (Service, Module) {
     remodaq_shared::password::AUTH.reset_budget_for_tests();
     let store = block_on(SettingsStore::open(Flash::new(), const { SettingsStore::<Flash, S>::config(0..4096) }));
     let identity =
-        Identity { model: 0x8318, name: "RemoDAQ-8318", version: 0xA100, mac: MAC, running: NetConfig::FACTORY };
+        Identity { model: 0x8318, name: "RemoDAQ-8318", version: 0xA100, mac: MAC, running: SPEC_FACTORY };
     let settings = *store.get();
     (Service::new(identity), Module { map: Mutex::new(Live(settings)), store: Mutex::new(store), _turn: turn })
 }
@@ -131,7 +134,7 @@ fn search_answers_identity_settings_and_flags() {
     assert_eq!((info.id, info.model, info.version, info.mac), (0x1234, 0x8318, 0xA100, MAC));
     assert_eq!(
         (info.running, info.stored, info.uptime_s, info.name),
-        (NetConfig::FACTORY, NetConfig::FACTORY, 65, &b"RemoDAQ-8318"[..])
+        (SPEC_FACTORY, SPEC_FACTORY, 65, &b"RemoDAQ-8318"[..])
     );
     assert_eq!(info.flags, info_flags::FACTORY_PASSWORD, "a new module reports the factory password");
     if std::env::var_os("REMODAQ_UPDATE_KEY").is_none() {
@@ -144,7 +147,7 @@ fn set_network_with_right_and_wrong_password() {
     let (mut service, mut module) = setup();
     let wrong = run(&mut service, &mut module, ADMIN, 0, "guess", Ask::SetNetwork(NEW_NET));
     assert_eq!(status_of(wrong), Status::WrongPassword);
-    assert_eq!(module.settings().net, NetConfig::FACTORY, "nothing changed");
+    assert_eq!(module.settings().net, SPEC_FACTORY, "nothing changed");
     // The manuals' first contact: the factory password stores network settings.
     let (reply, request) = run(&mut service, &mut module, ADMIN, 1000, "remodaq", Ask::SetNetwork(NEW_NET)).unwrap();
     assert_eq!((reply.status, reply.mac), (Status::Ok, MAC));
@@ -169,14 +172,14 @@ fn replayed_and_altered_commands_change_nothing() {
     assert_eq!(reply.status, Status::Ok);
     // Back to the factory settings, by the administrator.
     let (reply, _) =
-        run(&mut service, &mut module, ADMIN, 100, "remodaq", Ask::SetNetwork(NetConfig::FACTORY)).unwrap();
+        run(&mut service, &mut module, ADMIN, 100, "remodaq", Ask::SetNetwork(SPEC_FACTORY)).unwrap();
     assert_eq!(reply.status, Status::Ok);
     // The captured SET_NETWORK replayed (from anywhere, now or later): its nonce is spent.
     for (from, at) in [(ADMIN, 200), ([192, 168, 0, 66], 5_000)] {
         let (reply, effect) = ask_from(&mut service, &mut module, &set_network, from, at).unwrap();
         assert_eq!((status(&reply), effect), (Status::StaleNonce, Effect::None));
         assert_eq!(decode_reply(&reply).unwrap().signature, None);
-        assert_eq!(module.settings().net, NetConfig::FACTORY, "the replay changed nothing");
+        assert_eq!(module.settings().net, SPEC_FACTORY, "the replay changed nothing");
     }
     // Altered in flight (another address in the same request, a fresh nonce): the proof fails.
     let mut buf = [0u8; 256];
@@ -196,7 +199,7 @@ fn replayed_and_altered_commands_change_nothing() {
     altered[ip_at + 3] ^= 0x01;
     let (reply, _) = ask(&mut service, &mut module, &altered, 400).unwrap();
     assert_eq!(status(&reply), Status::WrongPassword);
-    assert_eq!(module.settings().net, NetConfig::FACTORY, "the altered request changed nothing");
+    assert_eq!(module.settings().net, SPEC_FACTORY, "the altered request changed nothing");
     // And the original, sent after the altered one, finds its nonce spent too.
     let (reply, _) = ask(&mut service, &mut module, &buf[..n], 500).unwrap();
     assert_eq!(status(&reply), Status::StaleNonce);
@@ -212,7 +215,7 @@ fn replayed_and_altered_commands_change_nothing() {
     client::prove(&mut buf[..n], &client_key);
     let (reply, _) = ask(&mut service, &mut module, &buf[..n], 31_000).unwrap();
     assert_eq!(status(&reply), Status::StaleNonce);
-    assert_eq!(module.settings().net, NetConfig::FACTORY);
+    assert_eq!(module.settings().net, SPEC_FACTORY);
 }
 
 #[test]
@@ -306,7 +309,7 @@ fn invalid_settings_and_failed_commits() {
     module.fail_commits();
     let failed = run(&mut service, &mut module, ADMIN, 100, "remodaq", Ask::SetNetwork(NEW_NET));
     assert_eq!(status_of(failed), Status::StoreFailed);
-    assert_eq!(module.settings().net, NetConfig::FACTORY, "the old settings stay in force");
+    assert_eq!(module.settings().net, SPEC_FACTORY, "the old settings stay in force");
 }
 
 #[test]

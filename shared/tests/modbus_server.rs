@@ -5,7 +5,7 @@ use common::{hex, Script, TestMap};
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::mutex::Mutex;
 use futures_executor::block_on;
-use remodaq_shared::modbus::server::{serve, Ended, Slots, PER_SOURCE};
+use remodaq_shared::modbus::server::{serve, Admit, Ended, Slots, GRACE_MS, PER_SOURCE};
 
 fn run(segments: &[&[u8]]) -> (Vec<u8>, Ended) {
     let map = Mutex::<NoopRawMutex, _>::new(TestMap::default());
@@ -124,13 +124,13 @@ fn ip(slot: usize) -> [u8; 4] {
 fn one_source_holds_at_most_four_connections() {
     let slots = Slots::<NoopRawMutex, 10>::new(8, PER_SOURCE);
     let hog = [10, 9, 9, 9];
-    assert_eq!(slots.open(0, ip(0), false), None, "another client, idle the longest");
+    assert_eq!(slots.open_at(0, ip(0), false, 0), Admit::Serve(None), "another client, idle the longest");
     for slot in 1..=4 {
-        assert_eq!(slots.open(slot, hog, false), None);
+        assert_eq!(slots.open_at(slot, hog, false, 0), Admit::Serve(None));
     }
     // The fifth from the same address closes that address's own idlest, not the other client.
-    assert_eq!(slots.open(5, hog, false), Some(1));
-    assert_eq!(slots.open(6, hog, false), Some(2));
+    assert_eq!(slots.open_at(5, hog, false, 1000), Admit::Serve(Some(1)));
+    assert_eq!(slots.open_at(6, hog, false, 1000), Admit::Serve(Some(2)));
     assert_eq!(slots.active(), 5);
 }
 
@@ -138,80 +138,144 @@ fn one_source_holds_at_most_four_connections() {
 fn an_admitted_client_is_never_closed_for_one_the_allow_list_does_not_admit() {
     let slots = Slots::<NoopRawMutex, 10>::new(8, PER_SOURCE);
     let master = [192, 168, 0, 10];
-    assert_eq!(slots.open(0, master, true), None, "the SCADA master, on the allow-list, idle the longest");
+    assert_eq!(slots.open_at(0, master, true, 0), Admit::Serve(None), "the SCADA master, on the allow-list, idle the longest");
     for slot in 1..8 {
-        assert_eq!(slots.open(slot, ip(slot), false), None);
+        assert_eq!(slots.open_at(slot, ip(slot), false, 0), Admit::Serve(None));
     }
     // 64 other clients, one after another: each closes the idlest unadmitted one, never the master.
     let mut slot = 8;
     for n in 0..64 {
-        let victim = slots.open(slot, [10, 1, 0, n], false).expect("a connection closes");
+        let Admit::Serve(Some(victim)) = slots.open_at(slot, [10, 1, 0, n], false, 1000 * (u64::from(n) + 1)) else {
+            panic!("a connection closes")
+        };
         assert_ne!(victim, 0, "the master stays");
         slot = victim;
     }
     // When only admitted clients are left, an unadmitted newcomer is the one closed.
     let slots = Slots::<NoopRawMutex, 10>::new(8, PER_SOURCE);
     for slot in 0..8 {
-        assert_eq!(slots.open(slot, [192, 168, 0, slot as u8], true), None);
+        assert_eq!(slots.open_at(slot, [192, 168, 0, slot as u8], true, 0), Admit::Serve(None));
     }
-    assert_eq!(slots.open(8, [10, 2, 0, 1], false), Some(8), "the newcomer goes");
-    assert_eq!(slots.open(9, [192, 168, 0, 99], true), Some(0), "an admitted newcomer takes the idlest");
+    assert_eq!(slots.open_at(8, [10, 2, 0, 1], false, 1000), Admit::Refuse, "the newcomer goes");
+    assert_eq!(slots.open_at(9, [192, 168, 0, 99], true, 1000), Admit::Serve(Some(0)), "an admitted newcomer takes the idlest");
 }
 
-/// A newcomer whose request is still on the way is not closed for the connections of a flood
-/// that finish their handshakes after its own, within its first 500 ms (docs/modbus.md).
+/// Spec §1.1 closes the connection idle the longest to make room. A connection in an exchange
+/// is not idle for its first 500 ms (docs/modbus.md): one whose request is still on the way
+/// (under QEMU a flood's connections finish their handshakes after a newcomer's), and one whose
+/// request is received and not answered yet. When all are in an exchange, the newcomer waits
+/// until one is answered (in the order newcomers came), for half a second at most.
 #[test]
-fn a_newcomer_not_heard_from_yet_is_not_closed_in_its_first_half_second() {
+fn a_connection_in_an_exchange_is_not_closed_in_its_first_half_second() {
     let slots = Slots::<NoopRawMutex, 10>::new(8, PER_SOURCE);
     for slot in 0..7 {
-        assert_eq!(slots.open_at(slot, ip(slot), false, 0), None, "the flood");
-        slots.touch(slot); // each sends its request at once
+        assert_eq!(slots.open_at(slot, ip(slot), false, 0), Admit::Serve(None), "the flood");
+        slots.touch_at(slot, 1); // each sends its request at once, answered at once
+        slots.answered(slot);
     }
-    assert_eq!(slots.open_at(7, ip(7), false, 10), None, "the newcomer, its request not in yet");
-    assert_eq!(slots.open_at(8, ip(8), false, 12), Some(0));
-    slots.touch(8);
-    assert_eq!(slots.open_at(9, ip(9), false, 13), Some(1));
-    slots.touch(9);
+    assert_eq!(slots.open_at(7, ip(7), false, 10), Admit::Serve(None), "the newcomer, its request not in yet");
+    assert_eq!(slots.open_at(8, ip(8), false, 12), Admit::Serve(Some(0)));
+    slots.touch_at(8, 12); // a request in, not answered yet
+    assert_eq!(slots.open_at(9, ip(9), false, 13), Admit::Serve(Some(1)));
+    slots.touch_at(9, 13);
     for (slot, at, victim) in [(0, 20, 2), (1, 30, 3), (2, 40, 4), (3, 50, 5), (4, 60, 6)] {
-        assert_eq!(slots.open_at(slot, ip(slot), false, at), Some(victim), "never the newcomer");
-        slots.touch(slot);
+        assert_eq!(slots.open_at(slot, ip(slot), false, at), Admit::Serve(Some(victim)), "never 7, 8 or 9");
+        slots.touch_at(slot, at);
     }
-    // Past its grace, a connection never heard from is the idlest again.
-    assert_eq!(slots.open_at(5, ip(5), false, 600), Some(7));
+    // Every other connection is in an exchange: the one connecting now waits, and so does the
+    // one after it.
+    assert_eq!(slots.open_at(5, ip(5), false, 100), Admit::Wait, "nothing in progress is cut");
+    assert_eq!(slots.admit_at(5, 101), Admit::Wait);
+    assert_eq!(slots.open_at(6, ip(6), false, 102), Admit::Wait);
+    assert_eq!(slots.active(), 8);
+    // Once answered, a connection is idle; the newcomer that came first takes the idlest.
+    slots.answered(9);
+    slots.answered(8);
+    assert_eq!(slots.admit_at(6, 110), Admit::Wait, "5 came first");
+    assert_eq!(slots.admit_at(5, 110), Admit::Serve(Some(8)));
+    assert_eq!(slots.admit_at(6, 111), Admit::Serve(Some(9)));
+    // Past its grace, a connection never heard from (7) is idle, the idlest now; then those
+    // whose requests went unanswered for 500 ms (a client that stopped reading), oldest first.
+    assert_eq!(slots.open_at(8, ip(8), false, 600), Admit::Serve(Some(7)));
+    assert_eq!(slots.open_at(9, ip(9), false, 600), Admit::Serve(Some(0)));
+    assert_eq!(slots.active(), 8);
+    // A newcomer waits half a second at most: then the idlest goes, in an exchange or not.
+    for slot in [1, 2, 3, 4, 5, 6, 8, 9] {
+        slots.touch_at(slot, 700);
+    }
+    assert_eq!(slots.open_at(0, ip(0), false, 700), Admit::Wait);
+    assert_eq!(slots.admit_at(0, 1199), Admit::Wait);
+    assert_eq!(slots.admit_at(0, 1200), Admit::Serve(Some(1)));
+}
+
+/// An admitted client (write allow-list) connecting while every unadmitted one is in an
+/// exchange still gets in: it takes the place of the unadmitted one idle the longest.
+#[test]
+fn an_admitted_newcomer_takes_the_place_of_a_busy_unadmitted_one() {
+    let slots = Slots::<NoopRawMutex, 10>::new(8, PER_SOURCE);
+    for slot in 0..8 {
+        assert_eq!(slots.open_at(slot, ip(slot), false, 0), Admit::Serve(None));
+        slots.touch_at(slot, 0);
+    }
+    assert_eq!(slots.open_at(8, ip(8), false, 1), Admit::Wait, "an unadmitted newcomer waits its turn");
+    assert_eq!(slots.open_at(9, [192, 168, 0, 10], true, 2), Admit::Wait, "the master too: nothing idle");
+    slots.answered(3);
+    assert_eq!(slots.admit_at(9, 3), Admit::Serve(Some(3)), "the master does not queue behind the other");
+    assert_eq!(slots.admit_at(8, 400), Admit::Wait);
+    assert_eq!(slots.admit_at(8, 501), Admit::Serve(Some(0)), "the other, after half a second");
+}
+
+/// One source at its limit: its own idlest connection makes room, unless all of them are in
+/// an exchange, when its newcomer goes.
+#[test]
+fn a_source_at_its_limit_closes_its_own_idle_connection_or_its_newcomer() {
+    let slots = Slots::<NoopRawMutex, 10>::new(8, PER_SOURCE);
+    let one = [10, 0, 0, 1];
+    for slot in 0..PER_SOURCE {
+        assert_eq!(slots.open_at(slot, one, false, 0), Admit::Serve(None));
+        slots.touch_at(slot, 0);
+    }
+    assert_eq!(slots.open_at(4, one, false, 1), Admit::Wait, "its four are all in an exchange");
+    slots.answered(2);
+    assert_eq!(slots.admit_at(4, 2), Admit::Serve(Some(2)));
+    slots.close(2);
+    assert_eq!(slots.open_at(5, [10, 0, 0, 2], false, 3), Admit::Serve(None), "another source has room");
 }
 
 #[test]
 fn slots_evict_the_longest_idle() {
     // Past the half-second grace of a connection not heard from yet.
     let slots = Slots::<NoopRawMutex, 3>::new(2, PER_SOURCE);
-    assert_eq!(slots.open_at(0, ip(0), false, 0), None);
-    assert_eq!(slots.open_at(1, ip(1), false, 1000), None);
-    slots.touch(0); // slot 1 is now the longest idle
-    assert_eq!(slots.open_at(2, ip(2), false, 2000), Some(1));
+    assert_eq!(slots.open_at(0, ip(0), false, 0), Admit::Serve(None));
+    assert_eq!(slots.open_at(1, ip(1), false, 1000), Admit::Serve(None));
+    slots.touch_at(0, 1500); // slot 1 is now the longest idle
+    slots.answered(0);
+    assert_eq!(slots.open_at(2, ip(2), false, 2000), Admit::Serve(Some(1)));
     assert_eq!(slots.active(), 2);
     slots.close(1); // the evicted task closing does not disturb the count
     assert_eq!(slots.active(), 2);
 }
 
-/// A flood opens connections faster than any clock ticks: the order of opening still decides,
-/// so the newest (the newcomer) is never the one closed, whatever its slot number.
+/// A flood opens connections faster than any clock ticks: the order of opening still decides
+/// which of them is idle the longest, whatever its slot number.
 #[test]
 fn slots_opened_in_one_tick_evict_in_the_order_they_opened() {
     let slots = Slots::<NoopRawMutex, 10>::new(8, PER_SOURCE);
     let order = [9, 4, 0, 7, 2, 5, 8, 1];
     for slot in order {
-        assert_eq!(slots.open_at(slot, ip(slot), false, 0), None);
+        assert_eq!(slots.open_at(slot, ip(slot), false, 0), Admit::Serve(None));
     }
-    // No time passes: slots 3 and 6 open, each closing the one opened first of the rest (all
-    // in their grace, none heard from: the plain order).
-    assert_eq!(slots.open_at(3, ip(3), false, 0), Some(9));
-    assert_eq!(slots.open_at(6, ip(6), false, 0), Some(4));
-    // A second later slot 0 receives a request: 7 is now the one idle longest; the newest, 6,
-    // stays.
-    slots.touch(0);
-    assert_eq!(slots.open_at(9, ip(9), false, 1000), Some(7));
-    assert_eq!(slots.open_at(4, ip(4), false, 1000), Some(2));
-    assert_eq!(slots.open_at(7, ip(7), false, 1000), Some(5));
+    // A second later (none heard from, all past their grace) slots 3 and 6 open in one tick,
+    // each closing the one opened first of the rest.
+    assert_eq!(slots.open_at(3, ip(3), false, 1000), Admit::Serve(Some(9)));
+    assert_eq!(slots.open_at(6, ip(6), false, 1000), Admit::Serve(Some(4)));
+    // Slot 0 receives a request and is answered: 7 is now the one idle longest; 3 and 6, just
+    // opened, are in their grace.
+    slots.touch_at(0, 1000);
+    slots.answered(0);
+    assert_eq!(slots.open_at(9, ip(9), false, 1000), Admit::Serve(Some(7)));
+    assert_eq!(slots.open_at(4, ip(4), false, 1000), Admit::Serve(Some(2)));
+    assert_eq!(slots.open_at(7, ip(7), false, 1000), Admit::Serve(Some(5)));
     assert_eq!(slots.active(), 8);
 }
 
@@ -245,8 +309,9 @@ impl embedded_io_async::Write for Stalled {
 
 #[test]
 fn a_peer_that_stops_reading_is_still_evicted() {
-    // Its answer cannot be sent (a zero window); when a newcomer needs the slot, the
-    // connection ends anyway instead of holding its task.
+    // Its answer cannot be sent (a zero window); when a newcomer needs the slot (after the
+    // half second a request in progress is kept), the connection ends anyway instead of
+    // holding its task.
     use std::future::Future;
     use std::task::{Context, Poll, Waker};
     let map = Mutex::<NoopRawMutex, _>::new(TestMap::default());
@@ -255,6 +320,9 @@ fn a_peer_that_stops_reading_is_still_evicted() {
     let mut server = std::pin::pin!(serve(&mut io, [127, 0, 0, 1], &map, &slots, 0));
     let mut cx = Context::from_waker(Waker::noop());
     assert!(server.as_mut().poll(&mut cx).is_pending(), "stuck sending the answer");
-    assert_eq!(slots.open(1, ip(1), false), Some(0), "the newcomer evicts it");
+    let now = embassy_time::Instant::now().as_millis();
+    assert_eq!(slots.open_at(1, ip(1), false, now + 10), Admit::Wait, "its request is recent: the newcomer waits");
+    assert!(server.as_mut().poll(&mut cx).is_pending(), "still sending");
+    assert_eq!(slots.admit_at(1, now + GRACE_MS + 10), Admit::Serve(Some(0)), "the newcomer evicts it");
     assert_eq!(server.as_mut().poll(&mut cx), Poll::Ready(Ended::Evicted));
 }

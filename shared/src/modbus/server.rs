@@ -4,9 +4,10 @@
 //! Connection policy (spec §1.1): at most [`MAX_CONNECTIONS`] clients are served at once. A
 //! board runs [`SOCKETS`] = `MAX_CONNECTIONS + 2` connection tasks, so a newcomer is always
 //! accepted, even one right behind another; when that makes one too many, [`Slots`] closes the
-//! connection idle the longest (not one younger than [`GRACE_MS`] whose client has not been
-//! heard from yet, while another can go), with two rules against a client that would starve the
-//! others
+//! connection idle the longest. A connection in an exchange (not heard from yet, or a request
+//! not answered yet) for less than [`GRACE_MS`] is not idle; when all are in one, the newcomer
+//! waits for one to end, at most [`GRACE_MS`]. Two rules stand against a client that would
+//! starve the others
 //! (IEC 62443-4-2 CR 7.1, docs/modbus.md):
 //! - one source address holds at most [`PER_SOURCE`] connections: its own idlest one makes room
 //!   for its next;
@@ -35,10 +36,10 @@ use super::RegisterMap;
 pub const MAX_CONNECTIONS: usize = 8;
 /// Connections one source address may hold at once.
 pub const PER_SOURCE: usize = 4;
-/// A connection is this young (ms) and its client not heard from yet: it is closed to make
-/// room only when no other can be (its request may still be on the way: under QEMU's user
-/// network, a flood's connections finish their handshakes after a newcomer's, whose request is
-/// then closed unanswered).
+/// A connection is in an exchange for at most this long (ms) without being idle: from its
+/// opening until its client is heard from (its request may still be on the way: under QEMU's
+/// user network, a flood's connections finish their handshakes after a newcomer's), and from a
+/// request received until it is answered. A client stalling longer is idle again.
 pub const GRACE_MS: u64 = 500;
 /// Connection tasks a board runs: two more than [`MAX_CONNECTIONS`], so that while one accepts a
 /// newcomer (and the connection idle the longest is being closed to make room) another still
@@ -83,10 +84,15 @@ pub struct Slots<R: RawMutex, const N: usize> {
 struct Activity<const N: usize> {
     last: [Option<u64>; N],
     client: [Client; N],
-    /// The client sent something since it connected.
-    spoke: [bool; N],
-    /// When it connected (ms since start).
-    opened_ms: [u64; N],
+    /// Serving its client (a slot with `last` set and not admitted waits for room).
+    admitted: [bool; N],
+    /// The event of its connection (the order in which waiting newcomers are admitted).
+    arrived: [u64; N],
+    /// The client is in an exchange: connected and not heard from yet, or a request received and
+    /// not answered yet.
+    waiting: [bool; N],
+    /// When that exchange began: the connection, or the last data received (ms since start).
+    since_ms: [u64; N],
     events: u64,
 }
 
@@ -97,6 +103,17 @@ struct Client {
     protected: bool,
 }
 
+/// What [`Slots::open`] and [`Slots::admit`] decide for a new connection.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Admit {
+    /// Serve it; the slot given, if any, was told to close to make room.
+    Serve(Option<usize>),
+    /// Close it: the write allow-list's clients hold every place.
+    Refuse,
+    /// Every connection that could make room is in an exchange: ask again a moment later.
+    Wait,
+}
+
 impl<const N: usize> Activity<N> {
     /// One more event, on `slot`.
     fn event(&mut self, slot: usize) {
@@ -104,6 +121,9 @@ impl<const N: usize> Activity<N> {
         self.last[slot] = Some(self.events);
     }
 }
+
+/// How often a waiting newcomer asks again (ms).
+const ADMIT_POLL_MS: u64 = 1;
 
 impl<R: RawMutex, const N: usize> Slots<R, N> {
     /// `N` connection tasks of which at most `max_active` may serve a client at once, at most
@@ -113,8 +133,10 @@ impl<R: RawMutex, const N: usize> Slots<R, N> {
             last_activity: BlockingMutex::new(RefCell::new(Activity {
                 last: [None; N],
                 client: [Client { ip: [0; 4], protected: false }; N],
-                spoke: [false; N],
-                opened_ms: [0; N],
+                admitted: [false; N],
+                arrived: [0; N],
+                waiting: [false; N],
+                since_ms: [0; N],
                 events: 0,
             })),
             evict: [const { Signal::new() }; N],
@@ -123,67 +145,140 @@ impl<R: RawMutex, const N: usize> Slots<R, N> {
         }
     }
 
-    /// Marks `slot` as serving a new client at `ip` (`protected`: a write allow-list is set
-    /// and admits it); returns the slot told to close to make room (`slot` itself when the
-    /// newcomer must go).
-    pub fn open(&self, slot: usize, ip: [u8; 4], protected: bool) -> Option<usize> {
-        self.open_at(slot, ip, protected, embassy_time::Instant::now().as_millis())
+    /// A new client at `ip` (`protected`: a write allow-list is set and admits it) on `slot`:
+    /// waits until it is admitted ([`Self::open_at`], [`Self::admit_at`]); `Err` when it must
+    /// be closed.
+    pub async fn enter(&self, slot: usize, ip: [u8; 4], protected: bool) -> Result<Option<usize>, ()> {
+        let mut admit = self.open_at(slot, ip, protected, embassy_time::Instant::now().as_millis());
+        loop {
+            match admit {
+                Admit::Serve(victim) => return Ok(victim),
+                Admit::Refuse => return Err(()),
+                Admit::Wait => {
+                    embassy_time::Timer::after_millis(ADMIT_POLL_MS).await;
+                    admit = self.admit_at(slot, embassy_time::Instant::now().as_millis());
+                }
+            }
+        }
     }
 
-    /// [`Self::open`] at `now_ms` (ms since start).
-    pub fn open_at(&self, slot: usize, ip: [u8; 4], protected: bool, now_ms: u64) -> Option<usize> {
+    /// Records a new client at `ip` on `slot` at `now_ms` (ms since start) and decides
+    /// ([`Self::admit_at`]).
+    pub fn open_at(&self, slot: usize, ip: [u8; 4], protected: bool, now_ms: u64) -> Admit {
         self.evict[slot].reset();
         self.last_activity.lock(|cell| {
             let mut activity = cell.borrow_mut();
             activity.event(slot);
+            activity.arrived[slot] = activity.events;
             activity.client[slot] = Client { ip, protected };
-            activity.spoke[slot] = false;
-            activity.opened_ms[slot] = now_ms;
-            let Activity { last, client, spoke, opened_ms, .. } = &mut *activity;
-            let open = |i: usize| last[i].is_some();
-            let same_source = (0..N).filter(|&i| open(i) && client[i].ip == ip).count();
-            let active = (0..N).filter(|&i| open(i)).count();
-            // A connection younger than GRACE_MS that has not been heard from yet (its request
-            // may still be on the way) goes only when no other can.
-            let fresh = |i: usize| !spoke[i] && now_ms.saturating_sub(opened_ms[i]) < GRACE_MS;
-            // The idlest other connection among those `may_go` allows.
-            let idlest = |may_go: &dyn Fn(usize) -> bool| {
-                let others = || (0..N).filter(|&i| i != slot && open(i) && may_go(i));
-                others().filter(|&i| !fresh(i)).min_by_key(|&i| last[i]).or_else(|| others().min_by_key(|&i| last[i]))
+            activity.admitted[slot] = false;
+            activity.waiting[slot] = true;
+            activity.since_ms[slot] = now_ms;
+        });
+        self.admit_at(slot, now_ms)
+    }
+
+    /// Decides at `now_ms` whether the newcomer on `slot` is served, and which connection closes
+    /// to make room.
+    ///
+    /// Only an idle connection is closed to make room (spec §1.1: the one idle the longest). A
+    /// connection in an exchange is not idle: one not heard from yet (its request may still be
+    /// on the way), or one whose request is received and not answered yet, for [`GRACE_MS`]
+    /// from the start of that exchange. When every candidate is in an exchange, the newcomer
+    /// waits (its request stays in its socket) until one is answered, for at most
+    /// [`GRACE_MS`]; then the idlest goes anyway. Nothing in progress is cut, and a newcomer is
+    /// still served within half a second (docs/modbus.md). Waiting newcomers are admitted in
+    /// the order they connected.
+    pub fn admit_at(&self, slot: usize, now_ms: u64) -> Admit {
+        self.last_activity.lock(|cell| {
+            let mut activity = cell.borrow_mut();
+            let Activity { last, client, admitted, arrived, waiting, since_ms, .. } = &mut *activity;
+            let Client { ip, protected } = client[slot];
+            let serving = |i: usize| i != slot && admitted[i] && last[i].is_some();
+            let same_source = 1 + (0..N).filter(|&i| serving(i) && client[i].ip == ip).count();
+            let active = 1 + (0..N).filter(|&i| serving(i)).count();
+            // Waited its half second: in-exchange connections may go too.
+            let late = now_ms.saturating_sub(since_ms[slot]) >= GRACE_MS;
+            let idle = |i: usize| !waiting[i] || now_ms.saturating_sub(since_ms[i]) >= GRACE_MS;
+            // The idlest other connection among those `may_go` allows, idle ones only unless
+            // `busy_too`.
+            let idlest = |may_go: &dyn Fn(usize) -> bool, busy_too: bool| {
+                (0..N).filter(|&i| serving(i) && may_go(i) && (busy_too || idle(i))).min_by_key(|&i| last[i])
             };
+            let unprotected = |i: usize| !client[i].protected;
             let victim = if same_source > self.per_source {
-                idlest(&|i| client[i].ip == ip)
+                idlest(&|i| client[i].ip == ip, late)
             } else if active > self.max_active {
                 // Unprotected clients go first; a protected one only for another protected one.
-                idlest(&|i| !client[i].protected).or_else(|| if protected { idlest(&|_| true) } else { Some(slot) })
+                if !protected && idlest(&unprotected, true).is_none() {
+                    last[slot] = None;
+                    return Admit::Refuse;
+                }
+                idlest(&unprotected, late).or_else(|| if protected { idlest(&|_| true, late) } else { None })
             } else {
                 None
-            }?;
-            last[victim] = None;
-            self.evict[victim].signal(());
-            Some(victim)
+            };
+            let room_needed = same_source > self.per_source || active > self.max_active;
+            // An earlier newcomer still waiting goes first (an admitted client does not queue
+            // behind an unadmitted one).
+            let earlier_waits = (0..N).any(|i| {
+                i != slot
+                    && !admitted[i]
+                    && last[i].is_some()
+                    && arrived[i] < arrived[slot]
+                    && (client[i].protected || !protected)
+            });
+            if (room_needed && victim.is_none()) || (earlier_waits && !late) {
+                return Admit::Wait;
+            }
+            admitted[slot] = true;
+            if let Some(victim) = victim {
+                last[victim] = None;
+                admitted[victim] = false;
+                self.evict[victim].signal(());
+            }
+            Admit::Serve(victim)
         })
     }
 
-    /// Records traffic on `slot`.
+    /// Records data received on `slot` (a request, or part of one): it is in an exchange until
+    /// [`Self::answered`].
     pub fn touch(&self, slot: usize) {
+        self.touch_at(slot, embassy_time::Instant::now().as_millis());
+    }
+
+    /// [`Self::touch`] at `now_ms` (ms since start).
+    pub fn touch_at(&self, slot: usize, now_ms: u64) {
         self.last_activity.lock(|cell| {
             let mut activity = cell.borrow_mut();
             if activity.last[slot].is_some() {
                 activity.event(slot);
-                activity.spoke[slot] = true;
+                activity.waiting[slot] = true;
+                activity.since_ms[slot] = now_ms;
             }
         });
     }
 
+    /// Records that every complete request received on `slot` is answered: it is idle.
+    pub fn answered(&self, slot: usize) {
+        self.last_activity.lock(|cell| cell.borrow_mut().waiting[slot] = false);
+    }
+
     /// Marks `slot` free.
     pub fn close(&self, slot: usize) {
-        self.last_activity.lock(|cell| cell.borrow_mut().last[slot] = None);
+        self.last_activity.lock(|cell| {
+            let mut activity = cell.borrow_mut();
+            activity.last[slot] = None;
+            activity.admitted[slot] = false;
+        });
     }
 
     /// Number of slots serving a client.
     pub fn active(&self) -> usize {
-        self.last_activity.lock(|cell| cell.borrow().last.iter().filter(|s| s.is_some()).count())
+        self.last_activity.lock(|cell| {
+            let activity = cell.borrow();
+            (0..N).filter(|&i| activity.admitted[i] && activity.last[i].is_some()).count()
+        })
     }
 }
 
@@ -198,16 +293,16 @@ pub async fn serve<R: RawMutex, M: RegisterMap, T: Read + Write, const N: usize>
 ) -> Ended {
     crate::diagnostics::DIAGNOSTICS.connection(true);
     let protected = map.lock().await.protects(from);
-    let ended = match slots.open(slot, from, protected) {
-        Some(victim) if victim == slot => {
+    let ended = match slots.enter(slot, from, protected).await {
+        Err(()) => {
             crate::info!("modbus: connection limit reached, only admitted clients left: newcomer closed");
             Ended::Evicted
         }
-        Some(victim) => {
+        Ok(Some(victim)) => {
             crate::info!("modbus: connection limit reached, closing idle connection {}", victim);
             serve_frames(io, from, map, slots, slot).await
         }
-        None => serve_frames(io, from, map, slots, slot).await,
+        Ok(None) => serve_frames(io, from, map, slots, slot).await,
     };
     slots.close(slot);
     crate::diagnostics::DIAGNOSTICS.connection(false);
@@ -263,6 +358,12 @@ async fn serve_frames<R: RawMutex, M: RegisterMap, T: Read + Write, const N: usi
         }
         if desync {
             return Ended::Desync;
+        }
+        if filled > 0 {
+            // Something was received (not at the start, when its client is not heard from
+            // yet): every complete request in it is answered, and a partial one does not keep
+            // the connection from being idle.
+            slots.answered(slot);
         }
         rx.copy_within(consumed..filled, 0);
         filled -= consumed;
