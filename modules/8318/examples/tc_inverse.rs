@@ -12,6 +12,11 @@
 //!    give emfs to 3 decimals (0.0005 mV), so the inverse cannot agree better than that over
 //!    the local Seebeck coefficient: that bound is printed beside it.
 //!
+//! Counted checks (`tc-inverse: P passed, F failed`, exit status 1 on a failure): per type, the
+//! inverse within 0.01 °C of the exact inverse; per NIST type, the forward function within the
+//! tables' rounding (0.0005 mV) and the inverse of each table emf within the table's own
+//! resolution at that point (0.0005 mV over the local Seebeck coefficient).
+//!
 //! `cargo run --release -p remodaq-8318 --example tc_inverse`
 
 use std::hint::black_box;
@@ -22,7 +27,28 @@ use remodaq_8318::thermocouple::{Inverse, Reference, TcType};
 #[path = "../tests/support/nist.rs"]
 mod nist;
 
-fn consistency() {
+/// Counted checks.
+#[derive(Default)]
+struct Checks {
+    passed: u32,
+    failed: u32,
+}
+
+impl Checks {
+    fn check(&mut self, what: String, ok: bool) {
+        if ok {
+            self.passed += 1;
+        } else {
+            self.failed += 1;
+            println!("FAILED: {what}");
+        }
+    }
+}
+
+/// The inverse's goal against the exact inverse (°C).
+const INVERSE_GOAL_C: f64 = 0.01;
+
+fn consistency(checks: &mut Checks) {
     println!("1. Consistency of the inverse with the module's forward function (0.01 °C grid)");
     println!(
         "{:<4} {:>9} {:>9} {:>9} {:>13} {:>9} {:>9} {:>10}",
@@ -50,6 +76,7 @@ fn consistency() {
         }
         let ns = start.elapsed().as_nanos() as f64 / emfs.len() as f64;
         worst = worst.max(max_dev);
+        checks.check(format!("{tc:?}: inverse within {INVERSE_GOAL_C} °C: {max_dev:.2e}"), max_dev <= INVERSE_GOAL_C);
         println!(
             "{:<4} {:>9.3} {:>9.3} {:>9} {:>13.2e} {:>9.2} {:>9} {:>10.0}",
             tc.letter(),
@@ -65,7 +92,7 @@ fn consistency() {
     println!("largest deviation from the exact inverse, all types: {worst:.2e} °C");
 }
 
-fn against_nist() {
+fn against_nist(checks: &mut Checks) {
     println!();
     println!("2. Accuracy against the NIST ITS-90 1 °C tables (emfs to 3 decimals)");
     println!(
@@ -98,12 +125,21 @@ fn against_nist() {
             }
         }
         worst_forward = worst_forward.max(forward);
+        checks.check(format!("{letter}: forward within the tables' 0.0005 mV: {forward:.5}"), forward <= 0.0005 + 1e-9);
+        checks.check(format!("{letter}: inverse within the tables' resolution: {inverse:.4} > {limit:.4}"), inverse <= limit);
         println!("{:<4} {:>8} {:>16.5} {:>16.4} {:>18.4}", letter, n, forward, inverse, limit);
     }
     println!("largest forward difference from the tables: {worst_forward:.5} mV (the tables round to 0.0005 mV)");
 }
 
-fn main() {
-    consistency();
-    against_nist();
+fn main() -> std::process::ExitCode {
+    let mut checks = Checks::default();
+    consistency(&mut checks);
+    against_nist(&mut checks);
+    println!("tc-inverse: {} passed, {} failed", checks.passed, checks.failed);
+    if checks.failed == 0 {
+        std::process::ExitCode::SUCCESS
+    } else {
+        std::process::ExitCode::FAILURE
+    }
 }
