@@ -1,5 +1,5 @@
 //! End to end: the host build of the 8350 on a loopback port, a 1 kHz square wave on DI0 from
-//! the scenario file, driven by tokio-modbus.
+//! the scenario file, DI1 wired to DO0 (`from_do`), driven by tokio-modbus.
 
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -53,7 +53,7 @@ async fn counter(ctx: &mut Context, n: u16) -> u32 {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn square_wave_counter_frequency_latch_pulses_and_restart() {
     let scenario = temp("scenario.toml");
-    std::fs::write(&scenario, "[di0]\nsquare_hz = 1000.0\n[di2]\nlevel = false\n").unwrap();
+    std::fs::write(&scenario, "[di0]\nsquare_hz = 1000.0\n[di1]\nfrom_do = 0\n[di2]\nlevel = false\n").unwrap();
     let flash = temp("module.flash");
     let _ = std::fs::remove_file(&flash);
     let args = ["--listen", "127.0.0.1:0", "--scenario", scenario.to_str().unwrap()];
@@ -106,7 +106,7 @@ async fn square_wave_counter_frequency_latch_pulses_and_restart() {
     // Low-to-high latch on DI2: set by an edge (the scenario changes), cleared by the read.
     write_reg(&mut ctx, 0x102, 2).await;
     assert_eq!(bits(&mut ctx, 0x2B, 1).await, vec![false]);
-    std::fs::write(&scenario, "[di0]\nsquare_hz = 1000.0\n[di2]\nlevel = true\n").unwrap();
+    std::fs::write(&scenario, "[di0]\nsquare_hz = 1000.0\n[di1]\nfrom_do = 0\n[di2]\nlevel = true\n").unwrap();
     let deadline = Instant::now() + Duration::from_secs(5);
     while !bits(&mut ctx, 0x02, 1).await[0] {
         assert!(Instant::now() < deadline, "DI2 never went high");
@@ -116,7 +116,11 @@ async fn square_wave_counter_frequency_latch_pulses_and_restart() {
     assert_eq!(bits(&mut ctx, 0x2B, 1).await, vec![false], "cleared by the read");
     assert_eq!(regs(&mut ctx, 0x12C, 1).await[0] & 0b100, 0b100, "all-DI register");
 
-    // A pulse train on DO0: 1 ms high, 1 ms low, 250 pulses = 0.5 s, then off.
+    // A pulse train on DO0: 1 ms high, 1 ms low, 250 pulses = 0.5 s, then off. DI1, wired to
+    // DO0, counts its pulses.
+    write_reg(&mut ctx, 0x101, 1).await;
+    write_bit(&mut ctx, 0x25, true).await; // clear DI1's counter
+    assert_eq!(counter(&mut ctx, 1).await, 0, "DO0 is off: DI1 counted nothing");
     write_reg(&mut ctx, 0x110, 1).await;
     write_regs(&mut ctx, 0x18, &[10, 0]).await; // low width
     write_regs(&mut ctx, 0x24, &[10, 0]).await; // high width
@@ -137,12 +141,21 @@ async fn square_wave_counter_frequency_latch_pulses_and_restart() {
         "train took {took:?}"
     );
     assert_eq!(regs(&mut ctx, 0x12E, 1).await, vec![0], "output off after the last pulse");
+    // The DO bit drops when the engine has computed the last pulse, up to 12.8 ms before it is
+    // played: wait for the count to arrive, then give extra pulses, were there any, time to
+    // show.
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while counter(&mut ctx, 1).await < 250 && Instant::now() < deadline {
+        sleep(Duration::from_millis(10)).await;
+    }
+    sleep(Duration::from_millis(100)).await;
+    assert_eq!(counter(&mut ctx, 1).await, 250, "DI1 counted the pulses of DO0's train (spec §3.4: 250)");
 
     // Modes and pulse settings survive a restart; counters and outputs do not persist.
     module.kill();
     let module = SimModule::start_with(BIN, &flash, &args);
     let mut ctx = connect(&module).await;
-    assert_eq!(regs(&mut ctx, 0x100, 3).await, vec![4, 0, 2]);
+    assert_eq!(regs(&mut ctx, 0x100, 3).await, vec![4, 1, 2]);
     assert_eq!(regs(&mut ctx, 0x110, 1).await, vec![1]);
     assert_eq!(regs(&mut ctx, 0x18, 2).await, vec![10, 0]);
     assert_eq!(regs(&mut ctx, 0x24, 2).await, vec![10, 0]);

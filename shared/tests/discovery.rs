@@ -55,8 +55,7 @@ fn setup() -> (Service, Module) {
     let turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
     remodaq_shared::password::AUTH.reset_budget_for_tests();
     let store = block_on(SettingsStore::open(Flash::new(), const { SettingsStore::<Flash, S>::config(0..4096) }));
-    let identity =
-        Identity { model: 0x8318, name: "RemoDAQ-8318", version: 0xA100, mac: MAC, running: SPEC_FACTORY };
+    let identity = Identity { model: 0x8318, name: "RemoDAQ-8318", version: 0xA100, mac: MAC, running: SPEC_FACTORY };
     let settings = *store.get();
     (Service::new(identity), Module { map: Mutex::new(Live(settings)), store: Mutex::new(store), _turn: turn })
 }
@@ -171,8 +170,7 @@ fn replayed_and_altered_commands_change_nothing() {
     let (reply, set_network) = run(&mut service, &mut module, ADMIN, 0, "remodaq", Ask::SetNetwork(NEW_NET)).unwrap();
     assert_eq!(reply.status, Status::Ok);
     // Back to the factory settings, by the administrator.
-    let (reply, _) =
-        run(&mut service, &mut module, ADMIN, 100, "remodaq", Ask::SetNetwork(SPEC_FACTORY)).unwrap();
+    let (reply, _) = run(&mut service, &mut module, ADMIN, 100, "remodaq", Ask::SetNetwork(SPEC_FACTORY)).unwrap();
     assert_eq!(reply.status, Status::Ok);
     // The captured SET_NETWORK replayed (from anywhere, now or later): its nonce is spent.
     for (from, at) in [(ADMIN, 200), ([192, 168, 0, 66], 5_000)] {

@@ -138,7 +138,11 @@ fn one_source_holds_at_most_four_connections() {
 fn an_admitted_client_is_never_closed_for_one_the_allow_list_does_not_admit() {
     let slots = Slots::<NoopRawMutex, 10>::new(8, PER_SOURCE);
     let master = [192, 168, 0, 10];
-    assert_eq!(slots.open_at(0, master, true, 0), Admit::Serve(None), "the SCADA master, on the allow-list, idle the longest");
+    assert_eq!(
+        slots.open_at(0, master, true, 0),
+        Admit::Serve(None),
+        "the SCADA master, on the allow-list, idle the longest"
+    );
     for slot in 1..8 {
         assert_eq!(slots.open_at(slot, ip(slot), false, 0), Admit::Serve(None));
     }
@@ -157,7 +161,11 @@ fn an_admitted_client_is_never_closed_for_one_the_allow_list_does_not_admit() {
         assert_eq!(slots.open_at(slot, [192, 168, 0, slot as u8], true, 0), Admit::Serve(None));
     }
     assert_eq!(slots.open_at(8, [10, 2, 0, 1], false, 1000), Admit::Refuse, "the newcomer goes");
-    assert_eq!(slots.open_at(9, [192, 168, 0, 99], true, 1000), Admit::Serve(Some(0)), "an admitted newcomer takes the idlest");
+    assert_eq!(
+        slots.open_at(9, [192, 168, 0, 99], true, 1000),
+        Admit::Serve(Some(0)),
+        "an admitted newcomer takes the idlest"
+    );
 }
 
 /// Spec §1.1 closes the connection idle the longest to make room. A connection in an exchange

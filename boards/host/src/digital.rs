@@ -1,19 +1,49 @@
 //! The 8350's terminals on the host board: the scenario file's input signals sampled in
 //! simulated time at the module's sample rate, and the outputs played at its tick rate (level
-//! changes logged at debug level), through the module's own engines.
+//! changes logged at debug level), through the module's own engines. An input wired to an
+//! output (`from_do`) samples the levels that output plays, as a jumper on the terminals would.
+
+use std::collections::VecDeque;
+use std::sync::{Arc, Mutex};
 
 use remodaq_8350::di::SAMPLE_RATE_HZ;
 use remodaq_8350::io::{SimulatedCapture, SimulatedPattern};
+use remodaq_8350::pulse::TICK_HZ;
 use remodaq_8350::M8350;
 use remodaq_shared::board::IoFor;
 
-use crate::scenario::{parse_digital, Digital, Watched};
+use crate::scenario::{parse_digital, Digital, Signal, Watched};
 use crate::{fail, HostBoard, Scenario};
 
 /// The simulated input capture: sample `index` of the scenario's signals.
 pub type Capture = SimulatedCapture<Box<dyn FnMut(u64) -> Option<u16>>>;
 /// The simulated output pattern: logs every change of the output levels.
-pub type Pattern = SimulatedPattern<Box<dyn FnMut(&[u8])>>;
+pub type Pattern = SimulatedPattern<Box<dyn FnMut(u64, &[u8])>>;
+
+/// The output levels played, as changes: (tick, levels from that tick on). The pattern is
+/// queued ahead of its playing, and the capture reads samples up to the present, so a sample
+/// always finds the level of its moment here.
+#[derive(Default)]
+struct Played(VecDeque<(u64, u8)>);
+
+impl Played {
+    /// A change to `levels` at `tick`.
+    fn change(&mut self, tick: u64, levels: u8) {
+        // A refill after an underrun starts later than the last change: ticks only go forward.
+        if self.0.back().is_none_or(|&(at, _)| at <= tick) {
+            self.0.push_back((tick, levels));
+        }
+    }
+
+    /// The levels at `tick`, forgetting the changes before the one in force (the capture reads
+    /// forward).
+    fn at(&mut self, tick: u64) -> u8 {
+        while self.0.get(1).is_some_and(|&(at, _)| at <= tick) {
+            self.0.pop_front();
+        }
+        self.0.front().filter(|&&(at, _)| at <= tick).map_or(0, |&(_, levels)| levels)
+    }
+}
 
 impl IoFor<M8350> for HostBoard {
     type Io = (Capture, Pattern);
@@ -26,6 +56,8 @@ impl IoFor<M8350> for HostBoard {
         let mut current = Digital::default();
         let rate = f64::from(SAMPLE_RATE_HZ);
         let mut next_refresh = 0;
+        let played = Arc::new(Mutex::new(Played::default()));
+        let outputs = played.clone();
         let sample_at = move |index: u64| {
             // The file is checked every 10 ms of samples.
             if index >= next_refresh {
@@ -34,14 +66,30 @@ impl IoFor<M8350> for HostBoard {
                     current = watched.refresh().clone();
                 }
             }
-            (!current.lose_samples).then(|| current.sample_at(index as f64 / rate))
+            if current.lose_samples {
+                return None;
+            }
+            let mut sample = current.sample_at(index as f64 / rate);
+            if current.inputs.iter().any(|s| matches!(s, Signal::FromDo(_))) {
+                let tick = index * u64::from(TICK_HZ) / u64::from(SAMPLE_RATE_HZ);
+                let levels = outputs.lock().map_or(0, |mut played| played.at(tick));
+                for (n, input) in current.inputs.iter().enumerate() {
+                    if let Signal::FromDo(m) = *input {
+                        sample |= u16::from(levels >> m & 1) << n;
+                    }
+                }
+            }
+            Some(sample)
         };
-        let mut last = 0u8;
-        let played = move |ticks: &[u8]| {
-            for &levels in ticks {
-                if levels != last {
+        let mut last = None;
+        let played = move |first: u64, ticks: &[u8]| {
+            for (i, &levels) in ticks.iter().enumerate() {
+                if last != Some(levels) {
                     log::debug!("DO levels {levels:06b}");
-                    last = levels;
+                    last = Some(levels);
+                    if let Ok(mut played) = played.lock() {
+                        played.change(first + i as u64, levels);
+                    }
                 }
             }
         };

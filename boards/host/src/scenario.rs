@@ -231,6 +231,9 @@ pub enum Signal {
     Level(bool),
     /// A 50 % duty square wave of this frequency (Hz), starting low.
     Square(f64),
+    /// Wired to output DOn of the module itself (`from_do = n`): the board samples the level
+    /// that output plays.
+    FromDo(u8),
 }
 
 impl Signal {
@@ -239,6 +242,8 @@ impl Signal {
         match *self {
             Signal::Level(level) => level,
             Signal::Square(hz) => (t * hz).fract() >= 0.5,
+            // The board overlays the output's level (boards/host/src/digital.rs).
+            Signal::FromDo(_) => false,
         }
     }
 }
@@ -273,10 +278,12 @@ impl Digital {
 struct RawInput {
     square_hz: Option<f64>,
     level: Option<bool>,
+    from_do: Option<u8>,
     lose_samples: Option<bool>,
 }
 
-/// Parses an 8350 scenario: `[diN]` tables with exactly one of `square_hz` or `level`, and
+/// Parses an 8350 scenario: `[diN]` tables with exactly one of `square_hz`, `level` or
+/// `from_do` (0-5: the input wired to that output), and
 /// `[capture] lose_samples = true|false`.
 pub fn parse_digital(text: &str) -> Result<Digital, String> {
     let raw: std::collections::BTreeMap<String, Spanned<RawInput>> =
@@ -286,8 +293,8 @@ pub fn parse_digital(text: &str) -> Result<Digital, String> {
         let line = line_of(text, input.span().start);
         let input = input.into_inner();
         if key == "capture" {
-            match (input.lose_samples, input.square_hz, input.level) {
-                (Some(lose), None, None) => digital.lose_samples = lose,
+            match (input.lose_samples, input.square_hz, input.level, input.from_do) {
+                (Some(lose), None, None, None) => digital.lose_samples = lose,
                 _ => return Err(format!("line {line}: [capture] takes lose_samples = true|false only")),
             }
             continue;
@@ -300,11 +307,13 @@ pub fn parse_digital(text: &str) -> Result<Digital, String> {
             .and_then(|n| n.parse().ok())
             .filter(|n| *n < 12)
             .ok_or_else(|| format!("line {line}: unknown table [{key}]; inputs are [di0] to [di11]"))?;
-        digital.inputs[n] = match (input.square_hz, input.level) {
-            (Some(hz), None) if hz.is_finite() && hz > 0.0 && hz <= 25_000.0 => Signal::Square(hz),
-            (Some(_), None) => return Err(format!("line {line}: [di{n}] square_hz must be in 0 < f <= 25000")),
-            (None, Some(level)) => Signal::Level(level),
-            _ => return Err(format!("line {line}: [di{n}] needs exactly one of square_hz, level")),
+        digital.inputs[n] = match (input.square_hz, input.level, input.from_do) {
+            (Some(hz), None, None) if hz.is_finite() && hz > 0.0 && hz <= 25_000.0 => Signal::Square(hz),
+            (Some(_), None, None) => return Err(format!("line {line}: [di{n}] square_hz must be in 0 < f <= 25000")),
+            (None, Some(level), None) => Signal::Level(level),
+            (None, None, Some(m)) if m < 6 => Signal::FromDo(m),
+            (None, None, Some(_)) => return Err(format!("line {line}: [di{n}] from_do must be an output, 0 to 5")),
+            _ => return Err(format!("line {line}: [di{n}] needs exactly one of square_hz, level, from_do")),
         };
     }
     Ok(digital)
@@ -326,6 +335,10 @@ mod digital_tests {
         assert!(e.starts_with("line 4:"), "{e}");
         let e = parse_digital("[di3]\nlevel = true\nsquare_hz = 5.0\n").unwrap_err();
         assert!(e.starts_with("line 1:") && e.contains("exactly one"), "{e}");
+        let d = parse_digital("[di1]\nfrom_do = 0\n").unwrap();
+        assert_eq!(d.inputs[1], Signal::FromDo(0));
+        let e = parse_digital("[di1]\nfrom_do = 6\n").unwrap_err();
+        assert!(e.starts_with("line 1:") && e.contains("from_do"), "{e}");
         let e = parse_digital("[di3]\nsquare_hz = -5.0\n").unwrap_err();
         assert!(e.contains("square_hz"), "{e}");
         let e = parse_digital("[di3]\nlevle = true\n").unwrap_err();

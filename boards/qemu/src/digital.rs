@@ -26,12 +26,12 @@ fn sample_at(index: u64) -> Option<u16> {
     Some(u16::from(di0) | 0b1000)
 }
 
-fn played(_: &[u8]) {}
+fn played(_: u64, _: &[u8]) {}
 
 impl IoFor<M8350> for QemuBoard {
-    type Io = (SimulatedCapture<fn(u64) -> Option<u16>>, SimulatedPattern<fn(&[u8])>);
+    type Io = (SimulatedCapture<fn(u64) -> Option<u16>>, SimulatedPattern<fn(u64, &[u8])>);
 
     fn io((): ()) -> Self::Io {
-        (SimulatedCapture::new(sample_at as fn(u64) -> Option<u16>), SimulatedPattern::new(played as fn(&[u8])))
+        (SimulatedCapture::new(sample_at as fn(u64) -> Option<u16>), SimulatedPattern::new(played as fn(u64, &[u8])))
     }
 }

@@ -126,7 +126,10 @@ fn against_nist(checks: &mut Checks) {
         }
         worst_forward = worst_forward.max(forward);
         checks.check(format!("{letter}: forward within the tables' 0.0005 mV: {forward:.5}"), forward <= 0.0005 + 1e-9);
-        checks.check(format!("{letter}: inverse within the tables' resolution: {inverse:.4} > {limit:.4}"), inverse <= limit);
+        checks.check(
+            format!("{letter}: inverse within the tables' resolution: {inverse:.4} > {limit:.4}"),
+            inverse <= limit,
+        );
         println!("{:<4} {:>8} {:>16.5} {:>16.4} {:>18.4}", letter, n, forward, inverse, limit);
     }
     println!("largest forward difference from the tables: {worst_forward:.5} mV (the tables round to 0.0005 mV)");

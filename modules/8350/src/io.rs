@@ -239,21 +239,22 @@ impl<F: FnMut(u64) -> Option<u16>> InputCapture for SimulatedCapture<F> {
 }
 
 /// An output ring played in simulated time (the host and QEMU boards): ticks are consumed at
-/// [`pulse::TICK_HZ`] from the start; `played(levels)` sees each queued chunk.
+/// [`pulse::TICK_HZ`] from the start; `played(first, levels)` sees each queued chunk and the
+/// index of its first tick (ticks since the start: tick `k` plays at `k / TICK_HZ` s).
 pub struct SimulatedPattern<F> {
     start: Instant,
     queued: u64,
     played: F,
 }
 
-impl<F: FnMut(&[u8])> SimulatedPattern<F> {
+impl<F: FnMut(u64, &[u8])> SimulatedPattern<F> {
     /// A ring starting now, empty.
     pub fn new(played: F) -> Self {
         Self { start: Instant::now(), queued: 0, played }
     }
 }
 
-impl<F: FnMut(&[u8])> OutputPattern for SimulatedPattern<F> {
+impl<F: FnMut(u64, &[u8])> OutputPattern for SimulatedPattern<F> {
     async fn write(&mut self, ticks: &[u8]) -> Result<(), PatternUnderrun> {
         let tick_us = 1_000_000 / u64::from(pulse::TICK_HZ);
         let capacity = 2 * OUTPUT_CHUNK as u64;
@@ -263,8 +264,9 @@ impl<F: FnMut(&[u8])> OutputPattern for SimulatedPattern<F> {
         let playing = self.start.elapsed().as_micros() / tick_us;
         let result = if playing > self.queued && self.queued > 0 { Err(PatternUnderrun) } else { Ok(()) };
         // After a late refill the ring plays on from where it is, as the DMA ring does.
-        self.queued = self.queued.max(playing) + ticks.len() as u64;
-        (self.played)(ticks);
+        let first = self.queued.max(playing);
+        self.queued = first + ticks.len() as u64;
+        (self.played)(first, ticks);
         result
     }
 }

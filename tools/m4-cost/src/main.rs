@@ -17,9 +17,9 @@ fn main() {
 mod target {
     use core::hint::black_box;
 
+    use core::sync::atomic::{AtomicU32, Ordering};
     use cortex_m::peripheral::syst::SystClkSource;
     use cortex_m_rt::entry;
-    use core::sync::atomic::{AtomicU32, Ordering};
     use cortex_m_semihosting::{debug, hprintln};
     use remodaq_8318::thermocouple::{Reference, TcType};
 
