@@ -269,6 +269,11 @@ impl<F: NorFlash, S: Schema> SettingsStore<F, S> {
         self.commit(value).await
     }
 
+    /// The flash under the store (tests inject faults through it).
+    pub fn flash_mut(&mut self) -> &mut F {
+        self.map.flash()
+    }
+
     /// Gives the flash back (e.g. to reopen the store after a simulated restart).
     pub fn into_flash(self) -> F {
         self.map.destroy().0

@@ -199,6 +199,23 @@ fn code_15_with_exactly_1968_bits() {
     assert_eq!(r, format!("01 F6 {}", data.trim_end()));
 }
 
+/// Spec §1.2: codes 01 and 02 read up to 2000 bits. 2000 mapped bits in one request: 250
+/// bytes, LSB first (2001 is exception 03). The modules' own bit maps are smaller (the 8350
+/// maps 80 bits with gaps), so this runs on the test map's 2048-bit block.
+#[test]
+fn a_read_of_2000_bits() {
+    let mut map = TestMap::default();
+    for i in 0..2000 {
+        map.block[i] = (i * 7 + i / 13) % 3 == 0;
+    }
+    let expected: Vec<u8> =
+        (0..250).map(|byte| (0..8).fold(0u8, |acc, bit| acc | u8::from(map.block[byte * 8 + bit]) << bit)).collect();
+    let data: String = expected.iter().map(|b| format!("{b:02X}")).collect::<Vec<_>>().join(" ");
+    assert_eq!(ask(&mut map, "01 10 00 07 D0"), format!("01 FA {data}"));
+    assert_eq!(ask(&mut map, "02 10 00 07 D0"), format!("02 FA {data}"));
+    assert_eq!(ask(&mut map, "01 10 00 07 D1"), "81 03");
+}
+
 #[test]
 fn the_last_address_of_the_space() {
     // 0xFFFF + 1 register ends exactly at the top of the 16-bit space: allowed as a range, and

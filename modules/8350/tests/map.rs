@@ -265,3 +265,92 @@ fn overflow_at_2_pow_32_and_falling_latch_through_modbus() {
     assert_eq!(m.ask("01 01 00 2B 00 01"), "01 01 01 01", "falling edge");
     assert_eq!(m.ask("01 02 00 2B 00 01"), "01 02 01 00", "cleared by the read");
 }
+
+/// Spec §1.2 and §1.3 on the real 8350 map: a write whose commit fails answers 04 and the old
+/// values stay in force, in the map and in the store.
+#[test]
+fn a_failed_commit_answers_04_and_keeps_the_old_values() {
+    let mut m = Module::new();
+    assert_eq!(m.ask("01 06 01 00 00 01"), "01 06 01 00 00 01", "DI0: counter");
+    let widths = m.ask("01 03 00 18 00 04");
+    block_on(m.store.lock()).flash_mut().set_budget(Some(0));
+    assert_eq!(m.ask("01 06 01 00 00 04"), "01 86 04");
+    assert_eq!(m.ask("01 10 00 18 00 04 08 00 07 00 00 00 09 00 00"), "01 90 04", "two pulse widths");
+    assert_eq!(m.ask("01 06 01 10 00 01"), "01 86 04", "a DO mode");
+    assert_eq!(m.ask("01 03 01 00 00 01"), "01 03 02 00 01", "DI0 is still a counter");
+    assert_eq!(m.ask("01 03 00 18 00 04"), widths, "the widths stay");
+    assert_eq!(m.ask("01 03 01 10 00 01"), "01 03 02 00 00", "DO0 stays normal");
+    assert_eq!(
+        block_on(m.store.lock()).get().di_modes[0],
+        remodaq_8350::di::DiMode::Counter,
+        "the store holds the old value too"
+    );
+    block_on(m.store.lock()).flash_mut().set_budget(None);
+    assert_eq!(m.ask("01 06 01 00 00 04"), "01 06 01 00 00 04", "the flash works again");
+}
+
+/// Spec §1.2: a multi-register or multi-bit write is validated whole; one bad value answers
+/// 03 and none of it applies (Extensions §3: power-on levels use bits 0-5 only).
+#[test]
+fn a_multi_register_write_is_validated_whole() {
+    let mut m = Module::new();
+    // Twelve DI modes, the eleventh 9 (modes are 0-4).
+    assert_eq!(
+        m.ask("01 10 01 00 00 0C 18 00 01 00 02 00 03 00 04 00 01 00 02 00 03 00 04 00 01 00 02 00 09 00 01"),
+        "01 90 03"
+    );
+    assert_eq!(m.ask("01 03 01 00 00 0C"), format!("01 03 18 {}", ["00"; 24].join(" ")), "all still normal");
+    // DO0's low width 7, DO1's 0 (widths are at least 1).
+    let widths = m.ask("01 03 00 18 00 04");
+    assert_eq!(m.ask("01 10 00 18 00 04 08 00 07 00 00 00 00 00 00"), "01 90 03");
+    assert_eq!(m.ask("01 03 00 18 00 04"), widths);
+    // DO modes 0, 1, 2: the third is out of range.
+    assert_eq!(m.ask("01 10 01 10 00 03 06 00 00 00 01 00 02"), "01 90 03");
+    assert_eq!(m.ask("01 03 01 10 00 03"), "01 03 06 00 00 00 00 00 00");
+    // Power-on levels with bits 6-15 set.
+    let power_on = m.ask("01 03 01 34 00 01");
+    assert_eq!(m.ask("01 06 01 34 00 40"), "01 86 03", "bit 6");
+    assert_eq!(m.ask("01 06 01 34 FF C0"), "01 86 03", "bits 6-15");
+    assert_eq!(m.ask("01 03 01 34 00 01"), power_on);
+    assert_eq!(m.ask("01 06 01 34 00 3F"), "01 06 01 34 00 3F", "bits 0-5 are fine");
+}
+
+/// Extensions §3: while the host watchdog is tripped, a write of extra pulses (it would move
+/// an output) answers 04 and adds nothing.
+#[test]
+fn extra_pulses_while_tripped_answer_04() {
+    let mut m = Module::new();
+    started_train(&mut m, 1000);
+    assert_eq!(m.ask("01 06 01 30 00 05"), "01 06 01 30 00 05", "a 0.5 s watchdog, armed");
+    let later = embassy_time::Instant::now() + embassy_time::Duration::from_secs(5);
+    io::with(m.io, |s| s.poll_watchdog(later));
+    assert_eq!(m.ask("01 03 01 33 00 01"), "01 03 02 00 01", "tripped");
+    assert_eq!(m.ask("01 10 00 3C 00 02 04 00 0A 00 00"), "01 90 04");
+    assert_eq!(m.ask("01 06 00 3C 00 0A"), "01 86 04");
+    assert_eq!(m.ask("01 01 00 10 00 01"), "01 01 01 00", "the train stopped at the trip");
+}
+
+/// Spec §3.5: counters, run bits, flags and output states are not persisted: after a restart
+/// on the same flash they are back at their power-up values.
+#[test]
+fn counters_run_bits_and_flags_are_not_persisted() {
+    let mut m = Module::new();
+    assert_eq!(m.ask("01 06 01 00 00 01"), "01 06 01 00 00 01", "DI0 counter (persisted)");
+    assert_eq!(m.ask("01 06 01 02 00 02"), "01 06 01 02 00 02", "DI2 low-to-high latch (persisted)");
+    m.inputs(&[0, 1, 0, 1, 0, 1, 0b100]);
+    assert_eq!(m.ask("01 03 00 00 00 02"), "01 03 04 00 03 00 00", "3 edges counted");
+    assert_eq!(m.ask("01 05 00 24 00 00"), "01 05 00 24 00 00", "DI1's counter stopped");
+    assert_eq!(m.ask("01 05 00 11 FF 00"), "01 05 00 11 FF 00", "DO1 on");
+    let before = m.ask("01 01 00 20 00 30");
+    let store = std::mem::replace(&mut m, Module::new()).store;
+    let blank =
+        block_on(SettingsStore::open(Flash::new(), const { SettingsStore::<Flash, Settings>::config(0..4096) }));
+    let flash = std::mem::replace(&mut *block_on(store.lock()), blank).into_flash();
+    let mut m = Module::with_flash(flash);
+    assert_eq!(m.ask("01 03 01 00 00 03"), "01 03 06 00 01 00 00 00 02", "modes persisted");
+    assert_eq!(m.ask("01 03 00 00 00 02"), "01 03 04 00 00 00 00", "the counter starts at 0");
+    assert_eq!(m.ask("01 01 00 10 00 06"), "01 01 01 00", "outputs off");
+    let after = m.ask("01 01 00 20 00 30");
+    assert_ne!(after, before, "run bits and flags are not what they were");
+    assert_eq!(after, Module::new().ask("01 01 00 20 00 30"), "they are a new module's");
+}

@@ -126,4 +126,3 @@ impl SpiDevice for FakeChip {
         Ok(())
     }
 }
-
