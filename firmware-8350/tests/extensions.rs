@@ -220,7 +220,8 @@ async fn mac(module: &SimModule) -> [u8; 6] {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn allow_list_and_per_source_lock_out() {
-    let module = SimModule::start(BIN, &temp("access.flash"));
+    let flash = temp("access.flash");
+    let module = SimModule::start(BIN, &flash);
     let mac = mac(&module).await;
     let list = AllowList::of(&[Network::new([127, 0, 0, 2], 32).unwrap()]).unwrap();
     let d = module.discovery;
@@ -243,6 +244,17 @@ async fn allow_list_and_per_source_lock_out() {
     assert_eq!(regs(&mut outside, REG_DI_MODE, 1).await, [1]);
     let flags = decode_info(&discover(module.discovery, [127, 0, 0, 1], &Request::Search).await).unwrap().flags;
     assert_eq!(flags & info_flags::WRITES_RESTRICTED, info_flags::WRITES_RESTRICTED, "a search says so");
+
+    // Extensions §4: the list is persisted: after a restart it is still in force.
+    drop((outside, inside));
+    module.kill();
+    let module = SimModule::start(BIN, &flash);
+    let d = module.discovery;
+    assert_eq!(decode_info(&discover(d, [127, 0, 0, 1], &Request::Search).await).unwrap().mac, mac, "the same module");
+    let mut outside = connect_from([127, 0, 0, 1], module.addr).await;
+    assert_eq!(write_reg(&mut outside, REG_DI_MODE, 0).await, refused, "still refused after the restart");
+    let mut inside = connect_from([127, 0, 0, 2], module.addr).await;
+    write_reg(&mut inside, REG_DI_MODE + 1, 1).await.expect("127.0.0.2 may still write");
 
     // The guessing budget: 127.0.0.3 spends its share (5) and waits; 127.0.0.1 is still checked.
     for _ in 0..5 {
