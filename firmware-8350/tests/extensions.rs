@@ -310,7 +310,9 @@ async fn reads_are_answered_while_the_flash_commits() {
         eprintln!("{what}: commit took {took:?}; {reads} reads meanwhile, the slowest {worst:?}");
         assert!(took >= Duration::from_millis(300), "the commit was slow: {took:?}");
         assert!(reads >= 5, "reads went on during the commit: {reads}");
-        assert!(worst < Duration::from_millis(100), "each read answered at once: {worst:?}");
+        // A read that waited for the store would wait for at least one flash operation, 200 ms
+        // here: the bound comes from the injected delay, not from this machine's speed.
+        assert!(worst < Duration::from_millis(200), "no read waited for a flash operation: {worst:?}");
     }
     assert_eq!(regs(&mut reader, REG_DI_MODE + 3, 1).await, [4], "the write took effect");
 }
