@@ -168,11 +168,11 @@ fn an_admitted_client_is_never_closed_for_one_the_allow_list_does_not_admit() {
     );
 }
 
-/// Spec §1.1 closes the connection idle the longest to make room. A connection in an exchange
-/// is not idle for its first 500 ms (docs/modbus.md): one whose request is still on the way
-/// (under QEMU a flood's connections finish their handshakes after a newcomer's), and one whose
-/// request is received and not answered yet. When all are in an exchange, the newcomer waits
-/// until one is answered (in the order newcomers came), for half a second at most.
+/// Spec §1.1 closes the connection idle the longest to make room (docs/modbus.md): idle ones
+/// first; then one not heard from yet (within 500 ms of connecting), the one connected first;
+/// never one whose request is received and not answered yet (within 500 ms): when only those
+/// are left, the newcomer waits until one is answered (newcomers in the order they came), for
+/// half a second at most.
 #[test]
 fn a_connection_in_an_exchange_is_not_closed_in_its_first_half_second() {
     let slots = Slots::<NoopRawMutex, 10>::new(8, PER_SOURCE);
@@ -181,39 +181,54 @@ fn a_connection_in_an_exchange_is_not_closed_in_its_first_half_second() {
         slots.touch_at(slot, 1); // each sends its request at once, answered at once
         slots.answered(slot);
     }
-    assert_eq!(slots.open_at(7, ip(7), false, 10), Admit::Serve(None), "the newcomer, its request not in yet");
-    assert_eq!(slots.open_at(8, ip(8), false, 12), Admit::Serve(Some(0)));
+    assert_eq!(slots.open_at(7, ip(7), false, 10), Admit::Serve(None), "a newcomer, its request not in yet");
+    assert_eq!(slots.open_at(8, ip(8), false, 12), Admit::Serve(Some(0)), "the idlest answered one");
     slots.touch_at(8, 12); // a request in, not answered yet
     assert_eq!(slots.open_at(9, ip(9), false, 13), Admit::Serve(Some(1)));
     slots.touch_at(9, 13);
     for (slot, at, victim) in [(0, 20, 2), (1, 30, 3), (2, 40, 4), (3, 50, 5), (4, 60, 6)] {
-        assert_eq!(slots.open_at(slot, ip(slot), false, at), Admit::Serve(Some(victim)), "never 7, 8 or 9");
+        assert_eq!(slots.open_at(slot, ip(slot), false, at), Admit::Serve(Some(victim)), "idle ones first, never 7");
         slots.touch_at(slot, at);
     }
-    // Every other connection is in an exchange: the one connecting now waits, and so does the
-    // one after it.
-    assert_eq!(slots.open_at(5, ip(5), false, 100), Admit::Wait, "nothing in progress is cut");
-    assert_eq!(slots.admit_at(5, 101), Admit::Wait);
-    assert_eq!(slots.open_at(6, ip(6), false, 102), Admit::Wait);
+    // Only 7 is not in the middle of a request: not heard from, it goes before any of those.
+    assert_eq!(slots.open_at(5, ip(5), false, 100), Admit::Serve(Some(7)));
+    slots.touch_at(5, 100);
+    // Every other connection has a request in progress: the next ones wait, in order.
+    assert_eq!(slots.open_at(6, ip(6), false, 101), Admit::Wait, "nothing in progress is cut");
+    assert_eq!(slots.open_at(7, ip(7), false, 102), Admit::Wait);
     assert_eq!(slots.active(), 8);
-    // Once answered, a connection is idle; the newcomer that came first takes the idlest.
     slots.answered(9);
     slots.answered(8);
-    assert_eq!(slots.admit_at(6, 110), Admit::Wait, "5 came first");
-    assert_eq!(slots.admit_at(5, 110), Admit::Serve(Some(8)));
-    assert_eq!(slots.admit_at(6, 111), Admit::Serve(Some(9)));
-    // Past its grace, a connection never heard from (7) is idle, the idlest now; then those
-    // whose requests went unanswered for 500 ms (a client that stopped reading), oldest first.
-    assert_eq!(slots.open_at(8, ip(8), false, 600), Admit::Serve(Some(7)));
-    assert_eq!(slots.open_at(9, ip(9), false, 600), Admit::Serve(Some(0)));
+    assert_eq!(slots.admit_at(7, 110), Admit::Wait, "6 came first");
+    assert_eq!(slots.admit_at(6, 110), Admit::Serve(Some(8)), "answered: 8 is idle, the longest");
+    assert_eq!(slots.admit_at(7, 111), Admit::Serve(Some(9)));
+    // Past 500 ms a request left unanswered (a client that stopped reading) no longer protects:
+    // 0 and 1 (since 20 and 30 ms) go before 6 and 7 (not heard from, within their 500 ms).
+    assert_eq!(slots.open_at(8, ip(8), false, 600), Admit::Serve(Some(0)));
+    assert_eq!(slots.open_at(9, ip(9), false, 600), Admit::Serve(Some(1)));
     assert_eq!(slots.active(), 8);
     // A newcomer waits half a second at most: then the idlest goes, in an exchange or not.
-    for slot in [1, 2, 3, 4, 5, 6, 8, 9] {
+    for slot in [2, 3, 4, 5, 6, 7, 8, 9] {
         slots.touch_at(slot, 700);
     }
     assert_eq!(slots.open_at(0, ip(0), false, 700), Admit::Wait);
     assert_eq!(slots.admit_at(0, 1199), Admit::Wait);
-    assert_eq!(slots.admit_at(0, 1200), Admit::Serve(Some(1)));
+    assert_eq!(slots.admit_at(0, 1200), Admit::Serve(Some(2)));
+}
+
+/// A connection not heard from yet is not closed in its first 50 ms (its request is on the
+/// way); a newcomer waits for that, then the one connected first goes.
+#[test]
+fn a_connection_not_heard_from_is_kept_for_its_first_50_ms() {
+    let slots = Slots::<NoopRawMutex, 10>::new(8, PER_SOURCE);
+    for slot in 0..8 {
+        assert_eq!(slots.open_at(slot, ip(slot), false, slot as u64), Admit::Serve(None));
+    }
+    assert_eq!(slots.open_at(8, ip(8), false, 20), Admit::Wait);
+    assert_eq!(slots.admit_at(8, 49), Admit::Wait, "slot 0 connected 49 ms ago");
+    assert_eq!(slots.admit_at(8, 50), Admit::Serve(Some(0)));
+    slots.touch_at(1, 50); // slot 1's request arrives: it is kept, slot 2 goes next
+    assert_eq!(slots.open_at(0, ip(0), false, 52), Admit::Serve(Some(2)));
 }
 
 /// An admitted client (write allow-list) connecting while every unadmitted one is in an

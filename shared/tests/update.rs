@@ -185,6 +185,9 @@ fn sessions_with(settings: S, dfu: &mut Dfu, state: &mut StateFlash, each: Vec<P
         .map(|(i, plan)| {
             let mut pc = Pc::new(plan);
             let _ = i;
+            // One session at a time in this process, each at a later time than the last: a
+            // session run late with an earlier time would find the budget spent by a later one.
+            let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
             let now = session_time();
             let outcome = block_on(service.session(&mut pc, [127, 0, 0, 1], now, &map, &store, &mut target));
             (pc.statuses(), outcome)
@@ -197,6 +200,8 @@ fn sessions_with(settings: S, dfu: &mut Dfu, state: &mut StateFlash, each: Vec<P
 /// The time of a session: each two minutes after the last one of this process (the tests run in
 /// parallel threads and share the module-wide guessing budget, a static: a wrong proof in one
 /// test must not leave the budget spent for another, whose sessions come later).
+static TURN: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 fn session_time() -> u64 {
     static CLOCK: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
     CLOCK.fetch_add(120_000, std::sync::atomic::Ordering::SeqCst)

@@ -4,10 +4,9 @@
 //! Connection policy (spec §1.1): at most [`MAX_CONNECTIONS`] clients are served at once. A
 //! board runs [`SOCKETS`] = `MAX_CONNECTIONS + 2` connection tasks, so a newcomer is always
 //! accepted, even one right behind another; when that makes one too many, [`Slots`] closes the
-//! connection idle the longest. A connection in an exchange (not heard from yet, or a request
-//! not answered yet) for less than [`GRACE_MS`] is not idle; when all are in one, the newcomer
-//! waits for one to end, at most [`GRACE_MS`]. Two rules stand against a client that would
-//! starve the others
+//! connection idle the longest ([`Slots::admit_at`]): one not heard from yet goes after the idle
+//! ones and not in its first [`FRESH_MS`], one whose request is not answered yet not for
+//! [`GRACE_MS`] (the newcomer waits instead). Two rules stand against a client that would starve the others
 //! (IEC 62443-4-2 CR 7.1, docs/modbus.md):
 //! - one source address holds at most [`PER_SOURCE`] connections: its own idlest one makes room
 //!   for its next;
@@ -41,6 +40,11 @@ pub const PER_SOURCE: usize = 4;
 /// user network, a flood's connections finish their handshakes after a newcomer's), and from a
 /// request received until it is answered. A client stalling longer is idle again.
 pub const GRACE_MS: u64 = 500;
+/// A connection not heard from yet is not closed for this long (ms) after it connected: its
+/// request is on the way (a client sends it right behind its handshake; under QEMU's user
+/// network, in a flood, a few ms later). Short, so that silent connections, a flood of them,
+/// make room for a newcomer soon.
+pub const FRESH_MS: u64 = 50;
 /// Connection tasks a board runs: two more than [`MAX_CONNECTIONS`], so that while one accepts a
 /// newcomer (and the connection idle the longest is being closed to make room) another still
 /// listens: a TCP stack without a listen backlog (smoltcp) refuses a SYN no socket listens for.
@@ -88,12 +92,22 @@ struct Activity<const N: usize> {
     admitted: [bool; N],
     /// The event of its connection (the order in which waiting newcomers are admitted).
     arrived: [u64; N],
-    /// The client is in an exchange: connected and not heard from yet, or a request received and
-    /// not answered yet.
-    waiting: [bool; N],
-    /// When that exchange began: the connection, or the last data received (ms since start).
+    /// Where the client is in its exchange.
+    phase: [Phase; N],
+    /// When that phase began: the connection, or the last data received (ms since start).
     since_ms: [u64; N],
     events: u64,
+}
+
+/// Where a connection is in its exchange with its client.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Phase {
+    /// Connected, not heard from yet: its request may still be on the way.
+    Fresh,
+    /// A request received and not answered yet.
+    Busy,
+    /// Every request received is answered.
+    Idle,
 }
 
 /// Who a slot serves: the source address, and whether the write allow-list (when set) admits it.
@@ -135,7 +149,7 @@ impl<R: RawMutex, const N: usize> Slots<R, N> {
                 client: [Client { ip: [0; 4], protected: false }; N],
                 admitted: [false; N],
                 arrived: [0; N],
-                waiting: [false; N],
+                phase: [Phase::Idle; N],
                 since_ms: [0; N],
                 events: 0,
             })),
@@ -172,49 +186,56 @@ impl<R: RawMutex, const N: usize> Slots<R, N> {
             activity.arrived[slot] = activity.events;
             activity.client[slot] = Client { ip, protected };
             activity.admitted[slot] = false;
-            activity.waiting[slot] = true;
+            activity.phase[slot] = Phase::Fresh;
             activity.since_ms[slot] = now_ms;
         });
         self.admit_at(slot, now_ms)
     }
 
     /// Decides at `now_ms` whether the newcomer on `slot` is served, and which connection closes
-    /// to make room.
+    /// to make room (spec §1.1: the one idle the longest), in this order (docs/modbus.md):
+    /// 1. an idle connection (every request answered), the one idle the longest;
+    /// 2. one not heard from yet, from [`FRESH_MS`] to [`GRACE_MS`] after it connected, the one
+    ///    connected first;
+    /// 3. never one not heard from yet in its first [`FRESH_MS`] (its request is on the way),
+    ///    nor one whose request is received and not answered yet, for [`GRACE_MS`] after it
+    ///    came: when only such are left the newcomer waits (its request stays in its socket)
+    ///    until one is answered or its time is up, at most [`GRACE_MS`], and then the idlest
+    ///    goes.
     ///
-    /// Only an idle connection is closed to make room (spec §1.1: the one idle the longest). A
-    /// connection in an exchange is not idle: one not heard from yet (its request may still be
-    /// on the way), or one whose request is received and not answered yet, for [`GRACE_MS`]
-    /// from the start of that exchange. When every candidate is in an exchange, the newcomer
-    /// waits (its request stays in its socket) until one is answered, for at most
-    /// [`GRACE_MS`]; then the idlest goes anyway. Nothing in progress is cut, and a newcomer is
-    /// still served within half a second (docs/modbus.md). Waiting newcomers are admitted in
-    /// the order they connected.
+    /// Past [`GRACE_MS`] a connection counts as idle whatever its phase (a client that stopped
+    /// reading, or never sent a request). Waiting newcomers are admitted in the order they
+    /// connected.
     pub fn admit_at(&self, slot: usize, now_ms: u64) -> Admit {
         self.last_activity.lock(|cell| {
             let mut activity = cell.borrow_mut();
-            let Activity { last, client, admitted, arrived, waiting, since_ms, .. } = &mut *activity;
+            let Activity { last, client, admitted, arrived, phase, since_ms, .. } = &mut *activity;
             let Client { ip, protected } = client[slot];
             let serving = |i: usize| i != slot && admitted[i] && last[i].is_some();
             let same_source = 1 + (0..N).filter(|&i| serving(i) && client[i].ip == ip).count();
             let active = 1 + (0..N).filter(|&i| serving(i)).count();
-            // Waited its half second: in-exchange connections may go too.
+            // Waited its half second: requests in progress may be cut too.
             let late = now_ms.saturating_sub(since_ms[slot]) >= GRACE_MS;
-            let idle = |i: usize| !waiting[i] || now_ms.saturating_sub(since_ms[i]) >= GRACE_MS;
-            // The idlest other connection among those `may_go` allows, idle ones only unless
-            // `busy_too`.
-            let idlest = |may_go: &dyn Fn(usize) -> bool, busy_too: bool| {
-                (0..N).filter(|&i| serving(i) && may_go(i) && (busy_too || idle(i))).min_by_key(|&i| last[i])
+            let rank = |i: usize| match (phase[i], now_ms.saturating_sub(since_ms[i])) {
+                (_, age) if age >= GRACE_MS => 0,
+                (Phase::Idle, _) => 0,
+                (Phase::Fresh, age) if age >= FRESH_MS => 1,
+                (Phase::Fresh | Phase::Busy, _) => 2,
+            };
+            // The first to go among the other connections `may_go` allows.
+            let first = |may_go: &dyn Fn(usize) -> bool| {
+                (0..N).filter(|&i| serving(i) && may_go(i) && (late || rank(i) < 2)).min_by_key(|&i| (rank(i), last[i]))
             };
             let unprotected = |i: usize| !client[i].protected;
             let victim = if same_source > self.per_source {
-                idlest(&|i| client[i].ip == ip, late)
+                first(&|i| client[i].ip == ip)
             } else if active > self.max_active {
                 // Unprotected clients go first; a protected one only for another protected one.
-                if !protected && idlest(&unprotected, true).is_none() {
+                if !protected && !(0..N).any(|i| serving(i) && unprotected(i)) {
                     last[slot] = None;
                     return Admit::Refuse;
                 }
-                idlest(&unprotected, late).or_else(|| if protected { idlest(&|_| true, late) } else { None })
+                first(&unprotected).or_else(|| if protected { first(&|_| true) } else { None })
             } else {
                 None
             };
@@ -253,7 +274,7 @@ impl<R: RawMutex, const N: usize> Slots<R, N> {
             let mut activity = cell.borrow_mut();
             if activity.last[slot].is_some() {
                 activity.event(slot);
-                activity.waiting[slot] = true;
+                activity.phase[slot] = Phase::Busy;
                 activity.since_ms[slot] = now_ms;
             }
         });
@@ -261,7 +282,7 @@ impl<R: RawMutex, const N: usize> Slots<R, N> {
 
     /// Records that every complete request received on `slot` is answered: it is idle.
     pub fn answered(&self, slot: usize) {
-        self.last_activity.lock(|cell| cell.borrow_mut().waiting[slot] = false);
+        self.last_activity.lock(|cell| cell.borrow_mut().phase[slot] = Phase::Idle);
     }
 
     /// Marks `slot` free.
