@@ -10,16 +10,66 @@ use remodaq_shared::board::{Effects, Shared};
 use remodaq_shared::discovery::{serve, Datagrams, Effect, Identity};
 use remodaq_shared::module::{SettingsAccess, Store};
 
-/// The service's socket.
-pub struct HostDatagrams(Async<UdpSocket>);
+/// The service's socket, and the interface the last request came in on (Linux).
+pub struct HostDatagrams {
+    socket: Async<UdpSocket>,
+    #[cfg_attr(not(target_os = "linux"), allow(dead_code))]
+    interface: std::cell::Cell<Option<u32>>,
+}
 
 impl HostDatagrams {
-    /// Binds the socket (broadcast allowed) and logs where.
+    /// Binds the socket (broadcast allowed; on Linux, told which interface each datagram came
+    /// in on) and logs where.
     pub fn bind(addr: SocketAddr) -> std::io::Result<Self> {
         let socket = Async::<UdpSocket>::bind(addr)?;
         socket.get_ref().set_broadcast(true)?;
+        #[cfg(target_os = "linux")]
+        nix::sys::socket::setsockopt(socket.get_ref(), nix::sys::socket::sockopt::Ipv4PacketInfo, &true)?;
         log::info!("discovery: listening on {}", socket.get_ref().local_addr()?);
-        Ok(Self(socket))
+        Ok(Self { socket, interface: std::cell::Cell::new(None) })
+    }
+}
+
+/// A reply leaves by the interface its request came in on, with no route needed, as the module
+/// answers out of its only interface: a module whose settings do not fit the PC's network
+/// (factory 192.168.0.1/24, no gateway) answers a PC on another subnet by broadcast on that
+/// interface (docs/discovery.md). On Linux through IP_PKTINFO (ip(7)); elsewhere by the
+/// host's routes.
+#[cfg(target_os = "linux")]
+mod by_interface {
+    use std::io::{IoSlice, IoSliceMut};
+    use std::os::fd::AsRawFd;
+
+    use nix::sys::socket::{recvmsg, sendmsg, ControlMessage, ControlMessageOwned, MsgFlags, SockaddrIn};
+
+    /// One datagram: its length, sender, and the index of the interface it came in on.
+    pub fn recv(socket: &std::net::UdpSocket, buf: &mut [u8]) -> std::io::Result<(usize, SockaddrIn, Option<u32>)> {
+        let mut iov = [IoSliceMut::new(buf)];
+        let mut space = nix::cmsg_space!(nix::libc::in_pktinfo);
+        let msg = recvmsg::<SockaddrIn>(socket.as_raw_fd(), &mut iov, Some(&mut space), MsgFlags::empty())?;
+        let interface = msg.cmsgs()?.find_map(|c| match c {
+            ControlMessageOwned::Ipv4PacketInfo(info) => u32::try_from(info.ipi_ifindex).ok(),
+            _ => None,
+        });
+        let from = msg.address.ok_or(std::io::ErrorKind::InvalidData)?;
+        Ok((msg.bytes, from, interface))
+    }
+
+    /// Sends `buf` to `to` out of `interface`.
+    pub fn send(socket: &std::net::UdpSocket, buf: &[u8], to: SockaddrIn, interface: u32) -> std::io::Result<()> {
+        let info = nix::libc::in_pktinfo {
+            ipi_ifindex: interface as _,
+            ipi_spec_dst: nix::libc::in_addr { s_addr: 0 },
+            ipi_addr: nix::libc::in_addr { s_addr: 0 },
+        };
+        sendmsg(
+            socket.as_raw_fd(),
+            &[IoSlice::new(buf)],
+            &[ControlMessage::Ipv4PacketInfo(&info)],
+            MsgFlags::empty(),
+            Some(&to),
+        )?;
+        Ok(())
     }
 }
 
@@ -27,14 +77,31 @@ impl Datagrams for &HostDatagrams {
     type Error = std::io::ErrorKind;
 
     async fn recv(&mut self, buf: &mut [u8]) -> Result<(usize, [u8; 4], u16), Self::Error> {
-        match self.0.recv_from(buf).await.map_err(|e| e.kind())? {
+        #[cfg(target_os = "linux")]
+        {
+            let (n, from, interface) =
+                self.socket.read_with(|s| by_interface::recv(s, buf)).await.map_err(|e| e.kind())?;
+            self.interface.set(interface);
+            Ok((n, from.ip().octets(), from.port()))
+        }
+        #[cfg(not(target_os = "linux"))]
+        match self.socket.recv_from(buf).await.map_err(|e| e.kind())? {
             (n, SocketAddr::V4(from)) => Ok((n, from.ip().octets(), from.port())),
             (_, SocketAddr::V6(_)) => Err(std::io::ErrorKind::Unsupported),
         }
     }
 
     async fn send(&mut self, buf: &[u8], ip: [u8; 4], port: u16) -> Result<(), Self::Error> {
-        self.0.send_to(buf, SocketAddrV4::new(ip.into(), port)).await.map(|_| ()).map_err(|e| e.kind())
+        let to = SocketAddrV4::new(ip.into(), port);
+        #[cfg(target_os = "linux")]
+        if let Some(interface) = self.interface.get() {
+            return self
+                .socket
+                .write_with(|s| by_interface::send(s, buf, to.into(), interface))
+                .await
+                .map_err(|e| e.kind());
+        }
+        self.socket.send_to(buf, to).await.map(|_| ()).map_err(|e| e.kind())
     }
 }
 
