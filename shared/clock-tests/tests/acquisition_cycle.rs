@@ -92,7 +92,8 @@ fn ten_cycles_a_second_whole_cycles_and_bit_5_until_the_first() {
     assert_eq!(*ends.borrow(), (1..=10).map(|k| 100 * k + 40).collect::<Vec<u64>>(), "one cycle a 100 ms");
     assert_eq!(measured.get(), 80, "8 channels a cycle");
     // Before the first cycle 0000h; then k mV on ±100 mV: round((k + 100) / 200 * 65535).
-    let expected: std::collections::BTreeSet<u16> =
-        std::iter::once(0).chain((1..=10).map(|k: u32| ((f64::from(k) + 100.0) / 200.0 * 65535.0).round() as u16)).collect();
+    let expected: std::collections::BTreeSet<u16> = std::iter::once(0)
+        .chain((1..=10).map(|k: u32| ((f64::from(k) + 100.0) / 200.0 * 65535.0).round() as u16))
+        .collect();
     assert_eq!(seen, expected);
 }
