@@ -25,7 +25,7 @@ def run(binary, flash, writes, port):
 old, out = sys.argv[1] + "/", sys.argv[2] + "/"
 # 8350: DI modes 1,2,3,4,0,1,... ; DO modes 1,0,1,0,0,1; DO0 low 7 high 9 count 11; DO5 low 3 high 4 count 0;
 # watchdog 2.5 s (25), mode 1, safe 0b000101, power-on 0b101000
-run(old+"firmware-8350", out + "8350-v1.flash", [
+run(old+"firmware-8350", out + "8350-v1.img", [
     (0x100, [1,2,3,4,0,1,2,3,4,0,1,2]),
     (0x110, [1,0,1,0,0,1]),
     (0x18, [7,0]), (0x24, [9,0]), (0x30, [11,0]),
@@ -33,5 +33,5 @@ run(old+"firmware-8350", out + "8350-v1.flash", [
     (0x130, [25]), (0x132, [1]), (0x131, [0b000101]), (0x134, [0b101000]),
 ], 18502)
 # 8318: type K (0x0F), CJC offset -2.50 °C (FF06h), enable mask 0x5A
-run(old+"firmware-8318", out + "8318-v1.flash", [(0xC8, [0x0F]), (0xD7, [0xFF06]), (0xDC, [0x5A])], 18503)
+run(old+"firmware-8318", out + "8318-v1.img", [(0xC8, [0x0F]), (0xD7, [0xFF06]), (0xDC, [0x5A])], 18503)
 print("ok")

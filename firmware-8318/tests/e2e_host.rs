@@ -298,9 +298,9 @@ async fn diagnostics_registers_with_faults_injected_and_cleared() {
 async fn a_newcomer_is_answered_during_a_flood_of_64_connections() {
     // 64 connections open at once and stay silent; then a newcomer asks for 40211. The eviction
     // rule makes room (the longest idle goes) and the newcomer is answered, not reset. A
-    // connection not heard from is kept for its first FRESH_MS (its request may be on the
-    // way), so the 64 silent ones ahead of the newcomer make room 8 at a time, one round each
-    // FRESH_MS: the newcomer waits at most (64 / 8 + 2) rounds (docs/modbus.md).
+    // connection not heard from is kept for its first GRACE_MS (its request may be on the
+    // way), so the 64 silent ones ahead of the newcomer make room about 8 at a time, one round
+    // each GRACE_MS: the newcomer waits at most (64 / 8 + 2) rounds (docs/modbus.md).
     let module = SimModule::start(BIN, &flash_file("flood.flash"));
     let addr = module.addr;
     let flood: Vec<_> = (0..64).map(|i| tokio::spawn(stream_from([127, 0, 3, i], addr))).collect();
@@ -316,7 +316,7 @@ async fn a_newcomer_is_answered_during_a_flood_of_64_connections() {
     let took = started.elapsed();
     eprintln!("newcomer answered {took:?} after {} flood connections were opened", open.len());
     let rounds = 64 / remodaq_shared::modbus::server::MAX_CONNECTIONS as u64 + 2;
-    let limit = Duration::from_millis(rounds * remodaq_shared::modbus::server::FRESH_MS);
+    let limit = Duration::from_millis(rounds * remodaq_shared::modbus::server::GRACE_MS);
     assert!(took < limit, "the newcomer waited {took:?}, limit {limit:?}");
 }
 

@@ -1,4 +1,4 @@
-//! Spec §1.3: a store written by an older firmware still loads. `fixtures/settings-v1.flash` is
+//! Spec §1.3: a store written by an older firmware still loads. `fixtures/settings-v1.img` is
 //! the settings flash of the host build of 6e1ce2c (settings version 1), after these Modbus
 //! writes (`tools/settings-v1-fixtures.py` made it): input type 0Fh (K), CJC offset FF06h
 //! (-2.50 °C), enable mask 005Ah. Today's firmware loads every one of them.
@@ -15,7 +15,7 @@ async fn a_version_1_store_loads() {
     let dir = std::env::temp_dir().join(format!("remodaq-v1-8318-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let flash = dir.join("module.flash");
-    std::fs::copy(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/settings-v1.flash"), &flash).unwrap();
+    std::fs::copy(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/settings-v1.img"), &flash).unwrap();
     let module = SimModule::start(BIN, &flash);
     let mut ctx = timeout(LIMIT, tcp::connect(module.addr)).await.unwrap().unwrap();
     let mut regs =

@@ -1,4 +1,4 @@
-//! Spec §1.3: a store written by an older firmware still loads. `fixtures/settings-v1.flash` is
+//! Spec §1.3: a store written by an older firmware still loads. `fixtures/settings-v1.img` is
 //! the settings flash of the host build of 6e1ce2c (settings version 1, the password as a
 //! salted hash), after these Modbus writes (`tools/settings-v1-fixtures.py` made it):
 //! DI modes 1 2 3 4 0 1 2 3 4 0 1 2; DO modes 1 0 1 0 0 1; DO0 low 7, high 9, count 11; DO5
@@ -19,7 +19,7 @@ async fn a_version_1_store_loads() {
     let dir = std::env::temp_dir().join(format!("remodaq-v1-8350-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let flash = dir.join("module.flash");
-    std::fs::copy(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/settings-v1.flash"), &flash).unwrap();
+    std::fs::copy(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/settings-v1.img"), &flash).unwrap();
     let module = SimModule::start(BIN, &flash);
     let mut ctx = timeout(LIMIT, tcp::connect(module.addr)).await.unwrap().unwrap();
     let mut regs =

@@ -187,8 +187,7 @@ fn sessions_with(settings: S, dfu: &mut Dfu, state: &mut StateFlash, each: Vec<P
             let _ = i;
             // One session at a time in this process, each at a later time than the last: a
             // session run late with an earlier time would find the budget spent by a later one.
-            let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
-            let now = session_time();
+            let (_turn, now) = session_time();
             let outcome = block_on(service.session(&mut pc, [127, 0, 0, 1], now, &map, &store, &mut target));
             (pc.statuses(), outcome)
         })
@@ -197,14 +196,16 @@ fn sessions_with(settings: S, dfu: &mut Dfu, state: &mut StateFlash, each: Vec<P
     (results, after)
 }
 
-/// The time of a session: each two minutes after the last one of this process (the tests run in
-/// parallel threads and share the module-wide guessing budget, a static: a wrong proof in one
-/// test must not leave the budget spent for another, whose sessions come later).
-static TURN: std::sync::Mutex<()> = std::sync::Mutex::new(());
-
-fn session_time() -> u64 {
+/// The time of a session, and this process's turn to run one: each two minutes after the last
+/// one (the tests run in parallel threads and share the module-wide guessing budget, a static:
+/// a wrong proof in one test must not leave the budget spent for another). The turn is held
+/// through the session, so that sessions run in the order of their times: one run late with an
+/// earlier time would find the budget of a later one.
+fn session_time() -> (std::sync::MutexGuard<'static, ()>, u64) {
+    static TURN: std::sync::Mutex<()> = std::sync::Mutex::new(());
     static CLOCK: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
-    CLOCK.fetch_add(120_000, std::sync::atomic::Ordering::SeqCst)
+    let turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
+    (turn, CLOCK.fetch_add(120_000, std::sync::atomic::Ordering::SeqCst))
 }
 
 /// Where the module writes the manifest for the bootloader: the start of the update
@@ -366,8 +367,9 @@ fn a_replayed_or_altered_session_changes_nothing() {
         let mut target =
             BootUpdater { updater, public_key: key().verifying_key().to_bytes(), manifest_at: MANIFEST_AT };
         let mut service = UpdateService::new(MODEL, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
-        let outcome =
-            block_on(service.session(&mut recorded, [127, 0, 0, 1], session_time(), &map, &store, &mut target));
+        let (turn, now) = session_time();
+        let outcome = block_on(service.session(&mut recorded, [127, 0, 0, 1], now, &map, &store, &mut target));
+        drop(turn);
         assert_eq!((recorded.statuses(), outcome), (vec![0, 0], Outcome::Updated { version: 0xA101 }));
         // The replay: the recorded bytes, to the module as it was before.
         let mut aligned = [0u8; 4];
@@ -377,8 +379,9 @@ fn a_replayed_or_altered_session_changes_nothing() {
             BootUpdater { updater, public_key: key().verifying_key().to_bytes(), manifest_at: MANIFEST_AT };
         let mut replay = Script::new(&[]);
         replay.incoming = recorded.sent.chunks(300).map(<[u8]>::to_vec).collect();
-        let outcome =
-            block_on(service.session(&mut replay, [127, 0, 0, 66], session_time(), &map, &store, &mut target));
+        let (turn, now) = session_time();
+        let outcome = block_on(service.session(&mut replay, [127, 0, 0, 66], now, &map, &store, &mut target));
+        drop(turn);
         assert_eq!(outcome, Outcome::NotUpdated, "the replay");
         assert_eq!(
             replay.outgoing.get(GREETING_LEN..),
@@ -395,7 +398,9 @@ fn a_replayed_or_altered_session_changes_nothing() {
     let updater = FirmwareUpdater::new(FirmwareUpdaterConfig { dfu: &mut m.dfu, state: &mut m.state }, &mut aligned);
     let mut target = BootUpdater { updater, public_key: key().verifying_key().to_bytes(), manifest_at: MANIFEST_AT };
     let mut service = UpdateService::new(MODEL, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
-    let outcome = block_on(service.session(&mut altered, [127, 0, 0, 1], session_time(), &map, &store, &mut target));
+    let (turn, now) = session_time();
+    let outcome = block_on(service.session(&mut altered, [127, 0, 0, 1], now, &map, &store, &mut target));
+    drop(turn);
     assert_eq!((altered.statuses(), outcome), (vec![Status::WrongPassword as u8], Outcome::NotUpdated), "altered");
     assert_eq!((m.boot(None), m.running(&old, &new)), (Ok(State::Boot), "old"), "the altered session changed nothing");
 }

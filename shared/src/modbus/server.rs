@@ -4,9 +4,10 @@
 //! Connection policy (spec §1.1): at most [`MAX_CONNECTIONS`] clients are served at once. A
 //! board runs [`SOCKETS`] = `MAX_CONNECTIONS + 2` connection tasks, so a newcomer is always
 //! accepted, even one right behind another; when that makes one too many, [`Slots`] closes the
-//! connection idle the longest ([`Slots::admit_at`]): one not heard from yet goes after the idle
-//! ones and not in its first [`FRESH_MS`], one whose request is not answered yet not for
-//! [`GRACE_MS`] (the newcomer waits instead). Two rules stand against a client that would starve the others
+//! connection idle the longest ([`Slots::admit_at`]). A connection in an exchange (not heard
+//! from yet, or a request not answered yet) is not idle for [`GRACE_MS`]: a newcomer waits for
+//! one to be idle, [`GRACE_MS`] at most, then the idlest goes anyway. Two rules stand against a
+//! client that would starve the others
 //! (IEC 62443-4-2 CR 7.1, docs/modbus.md):
 //! - one source address holds at most [`PER_SOURCE`] connections: its own idlest one makes room
 //!   for its next;
@@ -36,15 +37,12 @@ pub const MAX_CONNECTIONS: usize = 8;
 /// Connections one source address may hold at once.
 pub const PER_SOURCE: usize = 4;
 /// A connection is in an exchange for at most this long (ms) without being idle: from its
-/// opening until its client is heard from (its request may still be on the way: under QEMU's
-/// user network, a flood's connections finish their handshakes after a newcomer's), and from a
-/// request received until it is answered. A client stalling longer is idle again.
-pub const GRACE_MS: u64 = 500;
-/// A connection not heard from yet is not closed for this long (ms) after it connected: its
-/// request is on the way (a client sends it right behind its handshake; under QEMU's user
-/// network, in a flood, a few ms later). Short, so that silent connections, a flood of them,
-/// make room for a newcomer soon.
-pub const FRESH_MS: u64 = 50;
+/// opening until its client is heard from (a client sends its request right behind its
+/// handshake; under QEMU's user network, in a flood, a few ms later), and from a request
+/// received until it is answered. Also the longest a newcomer waits for room. Short, so that a
+/// flood of silent connections makes room soon, and a newcomer holds a connection task (there
+/// are two spare) briefly: a client stalling longer is idle.
+pub const GRACE_MS: u64 = 50;
 /// Connection tasks a board runs: two more than [`MAX_CONNECTIONS`], so that while one accepts a
 /// newcomer (and the connection idle the longest is being closed to make room) another still
 /// listens: a TCP stack without a listen backlog (smoltcp) refuses a SYN no socket listens for.
@@ -94,7 +92,7 @@ struct Activity<const N: usize> {
     arrived: [u64; N],
     /// Where the client is in its exchange.
     phase: [Phase; N],
-    /// When that phase began: the connection, or the last data received (ms since start).
+    /// When the exchange began: the connection, or the last data received (ms since start).
     since_ms: [u64; N],
     events: u64,
 }
@@ -117,7 +115,7 @@ struct Client {
     protected: bool,
 }
 
-/// What [`Slots::open`] and [`Slots::admit`] decide for a new connection.
+/// What [`Slots::open_at`] and [`Slots::admit_at`] decide for a new connection.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Admit {
     /// Serve it; the slot given, if any, was told to close to make room.
@@ -193,19 +191,15 @@ impl<R: RawMutex, const N: usize> Slots<R, N> {
     }
 
     /// Decides at `now_ms` whether the newcomer on `slot` is served, and which connection closes
-    /// to make room (spec §1.1: the one idle the longest), in this order (docs/modbus.md):
-    /// 1. an idle connection (every request answered), the one idle the longest;
-    /// 2. one not heard from yet, from [`FRESH_MS`] to [`GRACE_MS`] after it connected, the one
-    ///    connected first;
-    /// 3. never one not heard from yet in its first [`FRESH_MS`] (its request is on the way),
-    ///    nor one whose request is received and not answered yet, for [`GRACE_MS`] after it
-    ///    came: when only such are left the newcomer waits (its request stays in its socket)
-    ///    until one is answered or its time is up, at most [`GRACE_MS`], and then the idlest
-    ///    goes.
-    ///
-    /// Past [`GRACE_MS`] a connection counts as idle whatever its phase (a client that stopped
-    /// reading, or never sent a request). Waiting newcomers are admitted in the order they
-    /// connected.
+    /// to make room (spec §1.1: the one idle the longest; docs/modbus.md):
+    /// - a connection in an exchange is not idle for [`GRACE_MS`] from its start: one not heard
+    ///   from yet (its request is on the way) or one whose request is received and not answered
+    ///   yet; among the others the one idle the longest goes;
+    /// - when all are in an exchange, the newcomer waits (its request stays in its socket) until
+    ///   one is idle, at most [`GRACE_MS`] from its connection, and then the idlest goes anyway;
+    /// - waiting newcomers are admitted in the order they connected, except that an admitted
+    ///   client of the write allow-list waits for nobody: it takes the place of the unadmitted
+    ///   connection idle the longest at once, in an exchange or not.
     pub fn admit_at(&self, slot: usize, now_ms: u64) -> Admit {
         self.last_activity.lock(|cell| {
             let mut activity = cell.borrow_mut();
@@ -214,28 +208,28 @@ impl<R: RawMutex, const N: usize> Slots<R, N> {
             let serving = |i: usize| i != slot && admitted[i] && last[i].is_some();
             let same_source = 1 + (0..N).filter(|&i| serving(i) && client[i].ip == ip).count();
             let active = 1 + (0..N).filter(|&i| serving(i)).count();
-            // Waited its half second: requests in progress may be cut too.
+            // Waited its time: connections in an exchange may go too.
             let late = now_ms.saturating_sub(since_ms[slot]) >= GRACE_MS;
-            let rank = |i: usize| match (phase[i], now_ms.saturating_sub(since_ms[i])) {
-                (_, age) if age >= GRACE_MS => 0,
-                (Phase::Idle, _) => 0,
-                (Phase::Fresh, age) if age >= FRESH_MS => 1,
-                (Phase::Fresh | Phase::Busy, _) => 2,
-            };
-            // The first to go among the other connections `may_go` allows.
-            let first = |may_go: &dyn Fn(usize) -> bool| {
-                (0..N).filter(|&i| serving(i) && may_go(i) && (late || rank(i) < 2)).min_by_key(|&i| (rank(i), last[i]))
+            let idle = |i: usize| phase[i] == Phase::Idle || now_ms.saturating_sub(since_ms[i]) >= GRACE_MS;
+            // The idlest other connection among those `may_go` allows: idle ones first, and
+            // those in an exchange only when `any`.
+            let first = |may_go: &dyn Fn(usize) -> bool, any: bool| {
+                (0..N).filter(|&i| serving(i) && may_go(i) && (any || idle(i))).min_by_key(|&i| (!idle(i), last[i]))
             };
             let unprotected = |i: usize| !client[i].protected;
             let victim = if same_source > self.per_source {
-                first(&|i| client[i].ip == ip)
+                first(&|i| client[i].ip == ip, late)
             } else if active > self.max_active {
-                // Unprotected clients go first; a protected one only for another protected one.
-                if !protected && !(0..N).any(|i| serving(i) && unprotected(i)) {
+                if protected {
+                    // Unadmitted clients go first, at once; an admitted one only when no other
+                    // is left.
+                    first(&unprotected, true).or_else(|| first(&|_| true, late))
+                } else if (0..N).any(|i| serving(i) && unprotected(i)) {
+                    first(&unprotected, late)
+                } else {
                     last[slot] = None;
                     return Admit::Refuse;
                 }
-                first(&unprotected).or_else(|| if protected { first(&|_| true) } else { None })
             } else {
                 None
             };
@@ -249,7 +243,7 @@ impl<R: RawMutex, const N: usize> Slots<R, N> {
                     && arrived[i] < arrived[slot]
                     && (client[i].protected || !protected)
             });
-            if (room_needed && victim.is_none()) || (earlier_waits && !late) {
+            if (room_needed && victim.is_none()) || (earlier_waits && !late && !protected) {
                 return Admit::Wait;
             }
             admitted[slot] = true;
@@ -263,21 +257,24 @@ impl<R: RawMutex, const N: usize> Slots<R, N> {
     }
 
     /// Records data received on `slot` (a request, or part of one): it is in an exchange until
-    /// [`Self::answered`].
-    pub fn touch(&self, slot: usize) {
-        self.touch_at(slot, embassy_time::Instant::now().as_millis());
+    /// [`Self::answered`]. False when the connection was closed to make room meanwhile: the data
+    /// is then not to be handled (a write would be applied and never answered).
+    pub fn touch(&self, slot: usize) -> bool {
+        self.touch_at(slot, embassy_time::Instant::now().as_millis())
     }
 
     /// [`Self::touch`] at `now_ms` (ms since start).
-    pub fn touch_at(&self, slot: usize, now_ms: u64) {
+    pub fn touch_at(&self, slot: usize, now_ms: u64) -> bool {
         self.last_activity.lock(|cell| {
             let mut activity = cell.borrow_mut();
-            if activity.last[slot].is_some() {
-                activity.event(slot);
-                activity.phase[slot] = Phase::Busy;
-                activity.since_ms[slot] = now_ms;
+            if activity.last[slot].is_none() {
+                return false;
             }
-        });
+            activity.event(slot);
+            activity.phase[slot] = Phase::Busy;
+            activity.since_ms[slot] = now_ms;
+            true
+        })
     }
 
     /// Records that every complete request received on `slot` is answered: it is idle.
@@ -395,7 +392,9 @@ async fn serve_frames<R: RawMutex, M: RegisterMap, T: Read + Write, const N: usi
             Either::First(Ok(Ok(0))) => return Ended::PeerClosed,
             Either::First(Ok(Ok(n))) => {
                 filled += n;
-                slots.touch(slot);
+                if !slots.touch(slot) {
+                    return Ended::Evicted;
+                }
             }
             Either::First(Ok(Err(_))) => return Ended::Io,
             Either::First(Err(_)) => return Ended::Idle,
