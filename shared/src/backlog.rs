@@ -264,7 +264,16 @@ impl Backlog {
             let _ = self.in_flight.push((peer, now_ms));
             return Verdict::Pass;
         }
-        if self.held.iter().any(|h| h.peer == peer) {
+        if let Some(held) = self.held.iter_mut().find(|h| h.peer == peer) {
+            // The same client port again: a retransmission (the same frame), or a new
+            // connection from a port the client reused (QEMU's user network does, in a flood)
+            // with a new initial sequence number. The newest is the one its client waits for: it
+            // takes the held one's place (a SYN-ACK to the old one is answered with a RST, and
+            // the new connection would wait for its retransmission, seconds later).
+            if frame.len() <= MAX_SYN_FRAME {
+                held.frame[..frame.len()].copy_from_slice(frame);
+                held.len = frame.len();
+            }
             return Verdict::Hold;
         }
         if frame.len() > MAX_SYN_FRAME {
@@ -671,6 +680,26 @@ mod tests {
         // A SYN already held, sent again: still one held.
         assert_eq!(b.arrive(&syn(4), 1), Verdict::Hold);
         assert_eq!(b.held(), 2);
+    }
+
+    #[test]
+    fn a_new_connection_from_a_held_port_replaces_the_held_syn() {
+        // The client reused port 4 for a new connection (a new initial sequence number) while
+        // its first SYN was held: the newer SYN is the one released, in the first one's place.
+        let mut b = Backlog::new();
+        b.listening(PORT);
+        assert_eq!(b.arrive(&syn(2), 0), Verdict::Pass);
+        assert_eq!(b.arrive(&syn(4), 0), Verdict::Hold);
+        assert_eq!(b.arrive(&syn(5), 0), Verdict::Hold);
+        let mut again = syn(4);
+        again[38..42].copy_from_slice(&[0, 0x40, 0x77, 0x01]); // another sequence number
+        assert_eq!(b.arrive(&again, 1), Verdict::Hold);
+        assert_eq!(b.held(), 2);
+        b.accepted(Some(Peer { ip: [10, 0, 2, 2], port: 2 }));
+        b.listening(PORT);
+        let mut out = [0u8; MAX_SYN_FRAME];
+        let n = b.release(2, &mut out).expect("port 4 first");
+        assert_eq!(&out[..n], &again[..], "the newer SYN");
     }
 
     #[test]
