@@ -198,7 +198,8 @@ fn conversion_timeout_from_the_filter() {
 #[test]
 fn voltage_and_current_ranges_within_a_tenth_of_a_percent_of_span() {
     use remodaq_8318::acquisition::acquire;
-    use remodaq_8318::input::SHUNT_OHMS;
+    // The current input's shunt (docs/register-map-8318.md: ±20 mA through 100 ohm).
+    const SHUNT_OHMS: f64 = 100.0;
     use remodaq_8318::settings::Settings;
     use remodaq_shared::settings::Schema;
     // Code, range (mV, or mA for 06), and the mV per unit at the terminals.

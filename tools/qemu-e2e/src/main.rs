@@ -449,7 +449,7 @@ fn newcomer_limit(single: Duration) -> Duration {
 /// is answered, not reset (docs/modbus.md), and it does not wait beyond `limit`. A newcomer
 /// the guest refused (QEMU then closes the connection) fails as "reset"; one answered late
 /// fails as "waited".
-async fn newcomer(ports: &Ports, limit: Duration) -> Result<Duration, String> {
+async fn newcomer(ports: &Ports, model: u16, limit: Duration) -> Result<Duration, String> {
     let flood: Vec<_> = ports
         .flood
         .iter()
@@ -488,8 +488,8 @@ async fn newcomer(ports: &Ports, limit: Duration) -> Result<Duration, String> {
     let took = started.elapsed();
     println!("  newcomer answered after {took:?} (limit {limit:?}; {} flood connections open)", open.len());
     drop(open);
-    if answer[..2] != [0x4e, 0x43] || answer[7] != 3 || answer[8] != 2 {
-        return Err(format!("the newcomer's answer {answer:02x?}: not a read of one register"));
+    if answer[..2] != [0x4e, 0x43] || answer[7..9] != [3, 2] || answer[9..11] != model.to_be_bytes() {
+        return Err(format!("the newcomer's answer {answer:02x?}: not 40211 = {model:04x}"));
     }
     if took > limit {
         return Err(format!("the newcomer waited {took:?}, limit {limit:?}"));
@@ -508,7 +508,8 @@ async fn latency(image: &str) -> Result<(), String> {
     drop(wait_ready(addr).await?);
     println!("{image}:");
     let (single, _) = pipelining(addr, f64::INFINITY).await?;
-    let result = newcomer(&ports, newcomer_limit(single)).await;
+    let model = if image.contains("8318") { 0x8318 } else { 0x8350 };
+    let result = newcomer(&ports, model, newcomer_limit(single)).await;
     drop(qemu);
     result.map(|_| ())
 }
@@ -665,7 +666,7 @@ async fn run(model: &str, image: &str) -> Report {
     report.check("pipelined burst of 10 within 3x one request", pipelined.map(|_| ()));
     report.check(
         "newcomer answered, not reset, during a 64-connection flood (within 650x one request)",
-        newcomer(&ports, newcomer_limit(single)).await.map(|_| ()),
+        newcomer(&ports, name, newcomer_limit(single)).await.map(|_| ()),
     );
     // The flood's last connections reach the guest (and are evicted or closed) for a while
     // after the newcomer's answer: let them drain before the next check.
