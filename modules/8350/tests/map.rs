@@ -10,7 +10,7 @@ use remodaq_8350::settings::Settings;
 use remodaq_shared::modbus::{handle_pdu, MAX_PDU};
 use remodaq_shared::module::Store;
 use remodaq_shared::ram_flash::RamFlash;
-use remodaq_shared::settings::{Schema, SettingsStore};
+use remodaq_shared::settings::SettingsStore;
 
 type Flash = RamFlash<{ 4 * 1024 }, 1024>;
 
