@@ -128,8 +128,11 @@ impl<E: Effects> Network for EmbassyNet<E> {
         }
     }
 
+    /// The link (the PHY's, through the driver) and an IPv4 address. `is_config_up` alone is
+    /// no test: with a static address it holds from the stack's construction (only DHCP clears
+    /// it), so an image that broke the PHY or MAC path would confirm itself.
     fn is_up(&self) -> bool {
-        self.stack.is_config_up()
+        self.stack.is_link_up() && self.stack.config_v4().is_some()
     }
 
     async fn restart(&self) -> ! {

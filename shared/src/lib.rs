@@ -13,6 +13,7 @@ pub mod backlog;
 pub mod board;
 pub mod diagnostics;
 pub mod discovery;
+pub mod flash;
 #[cfg(feature = "embassy-net")]
 pub mod embassy_net;
 pub mod health;

@@ -8,7 +8,7 @@ use core::cell::Cell;
 
 use common::{Live, Script, S};
 use ed25519_dalek::{Signer, SigningKey};
-use embassy_boot::{BootLoader, BootLoaderConfig, FirmwareUpdater, FirmwareUpdaterConfig, State};
+use embassy_boot::{BootLoader, BootLoaderConfig, State};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::mutex::Mutex;
@@ -176,8 +176,7 @@ fn sessions_with(settings: S, dfu: &mut Dfu, state: &mut StateFlash, each: Vec<P
     let store = Mutex::<CriticalSectionRawMutex, _>::new(store);
     let map = Mutex::<NoopRawMutex, _>::new(Live(settings));
     let mut aligned = [0u8; 4];
-    let updater = FirmwareUpdater::new(FirmwareUpdaterConfig { dfu, state }, &mut aligned);
-    let mut target = BootUpdater { updater, public_key: key().verifying_key().to_bytes(), manifest_at: MANIFEST_AT };
+    let mut target = BootUpdater::new(dfu, state, &mut aligned, key().verifying_key().to_bytes(), MANIFEST_AT);
     let mut service = UpdateService::new(MODEL, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
     let results = each
         .into_iter()
@@ -363,9 +362,7 @@ fn a_replayed_or_altered_session_changes_nothing() {
     let map = Mutex::<NoopRawMutex, _>::new(Live(settings));
     {
         let mut aligned = [0u8; 4];
-        let updater = FirmwareUpdater::new(FirmwareUpdaterConfig { dfu: &mut dfu, state: &mut state }, &mut aligned);
-        let mut target =
-            BootUpdater { updater, public_key: key().verifying_key().to_bytes(), manifest_at: MANIFEST_AT };
+        let mut target = BootUpdater::new(&mut dfu, &mut state, &mut aligned, key().verifying_key().to_bytes(), MANIFEST_AT);
         let mut service = UpdateService::new(MODEL, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
         let (turn, now) = session_time();
         let outcome = block_on(service.session(&mut recorded, [127, 0, 0, 1], now, &map, &store, &mut target));
@@ -373,10 +370,7 @@ fn a_replayed_or_altered_session_changes_nothing() {
         assert_eq!((recorded.statuses(), outcome), (vec![0, 0], Outcome::Updated { version: 0xA101 }));
         // The replay: the recorded bytes, to the module as it was before.
         let mut aligned = [0u8; 4];
-        let updater =
-            FirmwareUpdater::new(FirmwareUpdaterConfig { dfu: &mut m.dfu, state: &mut m.state }, &mut aligned);
-        let mut target =
-            BootUpdater { updater, public_key: key().verifying_key().to_bytes(), manifest_at: MANIFEST_AT };
+        let mut target = BootUpdater::new(&mut m.dfu, &mut m.state, &mut aligned, key().verifying_key().to_bytes(), MANIFEST_AT);
         let mut replay = Script::new(&[]);
         replay.incoming = recorded.sent.chunks(300).map(<[u8]>::to_vec).collect();
         let (turn, now) = session_time();
@@ -395,8 +389,7 @@ fn a_replayed_or_altered_session_changes_nothing() {
     altered.alter = Some(13);
     let mut m = module_with(&old);
     let mut aligned = [0u8; 4];
-    let updater = FirmwareUpdater::new(FirmwareUpdaterConfig { dfu: &mut m.dfu, state: &mut m.state }, &mut aligned);
-    let mut target = BootUpdater { updater, public_key: key().verifying_key().to_bytes(), manifest_at: MANIFEST_AT };
+    let mut target = BootUpdater::new(&mut m.dfu, &mut m.state, &mut aligned, key().verifying_key().to_bytes(), MANIFEST_AT);
     let mut service = UpdateService::new(MODEL, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
     let (turn, now) = session_time();
     let outcome = block_on(service.session(&mut altered, [127, 0, 0, 1], now, &map, &store, &mut target));
@@ -682,4 +675,151 @@ fn power_cut_at_every_write_and_erase_of_the_swap_and_the_revert() {
     }
     eprintln!("power cut at each of {swap_ops} operations of the swap and {revert_ops} of the revert");
     assert!(swap_ops > 100 && revert_ops > 100, "every page copy was cut: {swap_ops} / {revert_ops}");
+}
+
+/// Counts the erases that reach the update partition (async, as the boards' flashes).
+struct CountingErases<'a> {
+    flash: &'a mut Dfu,
+    erases: Vec<(u32, u32)>,
+}
+
+impl embedded_storage_async::nor_flash::ErrorType for CountingErases<'_> {
+    type Error = RamFlashError;
+}
+
+impl embedded_storage_async::nor_flash::ReadNorFlash for CountingErases<'_> {
+    const READ_SIZE: usize = 1;
+    async fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+        ReadNorFlash::read(self.flash, offset, bytes)
+    }
+    fn capacity(&self) -> usize {
+        ReadNorFlash::capacity(self.flash)
+    }
+}
+
+impl embedded_storage_async::nor_flash::NorFlash for CountingErases<'_> {
+    const WRITE_SIZE: usize = 4;
+    const ERASE_SIZE: usize = PAGE;
+    async fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+        self.erases.push((from, to));
+        NorFlash::erase(self.flash, from, to)
+    }
+    async fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+        NorFlash::write(self.flash, offset, bytes)
+    }
+}
+
+/// Issue #21: a session erases each sector of the update partition it writes exactly once,
+/// one sector per erase (a settings write waits for one sector's erase at most), and no other:
+/// a 2-page image and the manifest's page. A cut session's leftovers in a sector are erased
+/// again by the next session before it writes there.
+#[test]
+fn a_session_erases_each_sector_it_writes_once() {
+    let (old, new) = (image(1, 3000), image(2, PAGE + 100));
+    let mut m = module_with(&old);
+    let file = signed(&new, 0xA101, &key());
+    let settings = S { password: credential(), ..S::defaults() };
+    let store = block_on(SettingsStore::open(
+        SettingsFlash::new(),
+        const { SettingsStore::<SettingsFlash, S>::config(0..4096) },
+    ));
+    let store = Mutex::<CriticalSectionRawMutex, _>::new(store);
+    let map = Mutex::<NoopRawMutex, _>::new(Live(settings));
+    let mut service = UpdateService::new(MODEL, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
+    let mut aligned = [0u8; 4];
+    let mut dfu = CountingErases { flash: &mut m.dfu, erases: vec![] };
+    {
+        let mut target =
+            BootUpdater::new(&mut dfu, &mut m.state, &mut aligned, key().verifying_key().to_bytes(), MANIFEST_AT);
+        // A session cut half-way through the first page, then a whole one.
+        for plan in [session_bytes(PASSWORD, &file, Some(HEADER_LEN + 2000)), session_bytes(PASSWORD, &file, None)] {
+            let mut pc = Pc::new(plan);
+            let (_turn, now) = session_time();
+            block_on(service.session(&mut pc, [127, 0, 0, 1], now, &map, &store, &mut target));
+        }
+    }
+    let page = PAGE as u32;
+    assert_eq!(
+        dfu.erases,
+        [(0, page), (0, page), (page, 2 * page), (4 * page, 5 * page)],
+        "the cut session erased page 0; the whole one pages 0 and 1 and the manifest's page 4, each once"
+    );
+    assert_eq!(m.boot(None), Ok(State::Swap));
+    assert_eq!(m.running(&old, &new), "new", "the image written over the cut session's leftovers is intact");
+}
+
+/// Issue #21, `confirm()` in each state the bootloader leaves:
+/// - Boot: nothing to do;
+/// - Swap, self-test passing: confirmed, the pending counter becomes the module's;
+/// - Swap, self-test failing: not passed when the trial ends (the caller restarts), still Swap,
+///   and the next start reverts;
+/// - Revert: confirmed at once without asking the self-test (a failing one: the old image's
+///   front end is broken too), the pending counter dropped; no restart, and a further update
+///   is accepted.
+#[test]
+fn confirm_in_boot_swap_and_revert() {
+    use remodaq_shared::update::{confirm, Confirmation, UpdateTarget};
+    let (old, new) = (image(1, 3000), image(2, 3001));
+    let settings = S { password: credential(), update: Counter { confirmed: 1, pending: 2 }, ..S::defaults() };
+    let run = |m: &mut Module, passes: bool| -> (Confirmation, S, u32, bool) {
+        let mut store = block_on(SettingsStore::open(
+            SettingsFlash::new(),
+            const { SettingsStore::<SettingsFlash, S>::config(0..4096) },
+        ));
+        block_on(store.commit(settings)).unwrap();
+        let store = Mutex::<CriticalSectionRawMutex, _>::new(store);
+        let map = Mutex::<CriticalSectionRawMutex, _>::new(Live(settings));
+        let mut aligned = [0u8; 4];
+        let mut target =
+            BootUpdater::new(&mut m.dfu, &mut m.state, &mut aligned, key().verifying_key().to_bytes(), MANIFEST_AT);
+        let asked = Cell::new(0u32);
+        let self_test = || {
+            asked.set(asked.get() + 1);
+            passes
+        };
+        let started = std::time::Instant::now();
+        let result = block_on(confirm(&mut target, &map, &store, self_test, embassy_time::Duration::from_millis(300)));
+        let waited_trial = started.elapsed() >= std::time::Duration::from_millis(300);
+        let accepts_update = block_on(target.begin()).is_ok();
+        let after = block_on(map.lock()).0;
+        assert_eq!(accepts_update, result != Confirmation::NotPassed, "{result:?}: a further update accepted");
+        (result, after, asked.get(), waited_trial)
+    };
+    // Boot.
+    let mut m = module_with(&old);
+    let (result, after, asked, _) = run(&mut m, false);
+    assert_eq!((result, after.update, asked), (Confirmation::Confirmed, settings.update, 0), "Boot");
+
+    // An update marked and swapped in: Swap.
+    let updated = || {
+        let mut m = module_with(&old);
+        let (answers, outcome) = session(&mut m.dfu, &mut m.state, session_bytes(PASSWORD, &signed(&new, 0xA101, &key()), None));
+        assert_eq!((answers, outcome), (vec![0, 0], Outcome::Updated { version: 0xA101 }));
+        assert_eq!(m.boot(None), Ok(State::Swap));
+        m
+    };
+    let mut m = updated();
+    let (result, after, asked, _) = run(&mut m, true);
+    assert_eq!((result, asked), (Confirmation::Passed, 1), "Swap, passing");
+    assert_eq!(after.update, Counter { confirmed: 2, pending: 0 }, "Swap, passing: counter 2 confirmed");
+    assert_eq!((m.boot(None), m.running(&old, &new)), (Ok(State::Boot), "new"), "confirmed: it stays");
+
+    let mut m = updated();
+    let (result, after, asked, waited) = run(&mut m, false);
+    assert_eq!(result, Confirmation::NotPassed, "Swap, failing");
+    assert!(waited && asked >= 2, "the whole trial, asking the self-test again ({asked} times)");
+    assert_eq!(after.update, settings.update, "Swap, failing: counters unchanged");
+    // The restart: the bootloader finds the swapped image unconfirmed (it returns the state it
+    // found, Swap) and reverts, leaving Revert for the application.
+    assert_eq!((m.boot(None), m.running(&old, &new)), (Ok(State::Swap), "old"), "reverted at the next start");
+
+    let (result, after, asked, waited) = run(&mut m, false);
+    assert_eq!((result, asked, waited), (Confirmation::Reverted, 0, false), "Revert: at once, no self-test");
+    assert_eq!(after.update, Counter { confirmed: 1, pending: 0 }, "Revert: the pending counter dropped");
+    // Every later start: Boot, the old image, no trial (so no restart).
+    for start in 0..3 {
+        assert_eq!((m.boot(None), m.running(&old, &new)), (Ok(State::Boot), "old"), "start {start}");
+        let (result, _, asked, _) = run(&mut m, false);
+        assert_eq!((result, asked), (Confirmation::Confirmed, 0), "start {start}: nothing to confirm");
+    }
 }
