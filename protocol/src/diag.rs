@@ -31,6 +31,9 @@ pub const REG_UPDATE_REFUSALS: u16 = 0x00FE;
 pub const REG_WRITE_BUDGET_REFUSALS: u16 = 0x00FF;
 /// 40321-40324: the first 8 bytes of the SHA-256 of the firmware update key, high byte first.
 pub const REG_UPDATE_KEY: u16 = 0x0140;
+/// 40325: times the 8350's output pattern ran dry before it was refilled (the outputs replayed
+/// old ticks) since start, 16 bits, wrapping; 0 on the 8318.
+pub const REG_PATTERN_UNDERRUNS: u16 = 0x0144;
 
 /// Security flag bits (register 40249).
 pub mod security {
@@ -124,6 +127,8 @@ pub enum Diag {
     WriteBudgetRefusals,
     /// Word 0-3 of the update key's fingerprint.
     UpdateKey(u8),
+    /// Output pattern underruns.
+    PatternUnderruns,
 }
 
 /// The diagnostics register at `addr` (4X table), if it is one.
@@ -145,6 +150,7 @@ pub fn decode(addr: u16) -> Option<Diag> {
         REG_UPDATE_REFUSALS => Diag::UpdateRefusals,
         REG_WRITE_BUDGET_REFUSALS => Diag::WriteBudgetRefusals,
         a if (REG_UPDATE_KEY..REG_UPDATE_KEY + 4).contains(&a) => Diag::UpdateKey((a - REG_UPDATE_KEY) as u8),
+        REG_PATTERN_UNDERRUNS => Diag::PatternUnderruns,
         _ => return None,
     })
 }
@@ -167,6 +173,7 @@ impl Diag {
             Diag::UpdateRefusals => REG_UPDATE_REFUSALS,
             Diag::WriteBudgetRefusals => REG_WRITE_BUDGET_REFUSALS,
             Diag::UpdateKey(i) => REG_UPDATE_KEY + u16::from(i),
+            Diag::PatternUnderruns => REG_PATTERN_UNDERRUNS,
         }
     }
 }
@@ -178,8 +185,8 @@ mod tests {
     #[test]
     fn the_registers_of_extensions_1_and_the_security_events() {
         let mapped: std::vec::Vec<u16> = (0..=u16::MAX).filter(|a| decode(*a).is_some()).collect();
-        // 40241-40248 (extensions §1), 40249-40256 and 40321-40324 (docs/diagnostics.md).
-        let expected = (40241..=40256).chain(40321..=40324).map(|r| r - 40001);
+        // 40241-40248 (extensions §1), 40249-40256 and 40321-40325 (docs/diagnostics.md).
+        let expected = (40241..=40256).chain(40321..=40325).map(|r| r - 40001);
         assert_eq!(mapped, expected.collect::<std::vec::Vec<_>>());
         for a in mapped {
             assert_eq!(decode(a).map(Diag::addr), Some(a));

@@ -58,6 +58,7 @@ pub struct Diagnostics {
     update_refusals: AtomicU16,
     write_budget_refusals: AtomicU16,
     update_key: AtomicU32x2,
+    pattern_underruns: AtomicU16,
 }
 
 /// Two 32-bit atomics (the update key's fingerprint: no 64-bit atomics on the Cortex-M4).
@@ -83,6 +84,7 @@ impl Diagnostics {
             update_refusals: AtomicU16::new(0),
             write_budget_refusals: AtomicU16::new(0),
             update_key: AtomicU32x2([AtomicU32::new(0), AtomicU32::new(0)]),
+            pattern_underruns: AtomicU16::new(0),
         }
     }
 
@@ -145,6 +147,11 @@ impl Diagnostics {
         self.status.load(Ordering::Relaxed)
     }
 
+    /// The 8350's output pattern ran dry before it was refilled (register 40325).
+    pub fn pattern_underrun(&self) {
+        self.pattern_underruns.fetch_add(1, Ordering::Relaxed);
+    }
+
     /// A request was answered (`exception`: with an exception response).
     pub fn answered(&self, exception: bool) {
         self.requests.fetch_add(1, Ordering::Relaxed);
@@ -194,6 +201,7 @@ impl Diagnostics {
             Diag::AccessRefusals => self.access_refusals.load(Ordering::Relaxed),
             Diag::UpdateRefusals => self.update_refusals.load(Ordering::Relaxed),
             Diag::WriteBudgetRefusals => self.write_budget_refusals.load(Ordering::Relaxed),
+            Diag::PatternUnderruns => self.pattern_underruns.load(Ordering::Relaxed),
             Diag::UpdateKey(i) => {
                 let half = self.update_key.0[usize::from(i / 2) % 2].load(Ordering::Relaxed);
                 if i % 2 == 0 {

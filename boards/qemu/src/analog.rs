@@ -3,7 +3,8 @@
 //! cold junction's 1.000 mV at 25 °C), ch1 20 mV, ch2 12 mA, ch3 open, ch4 a 0..10 mV ramp over
 //! 10 s (so values move), the rest 0 mV; terminals at 25 °C. From 20 s to 23 s after the start
 //! every conversion fails (an injected front-end fault, for the diagnostics registers'
-//! end-to-end test).
+//! end-to-end test); with the test switch `FRONT_END_FAULT` set (`crate::test_switches`), every
+//! conversion fails, always (a broken front end, for the update self-test's test).
 
 use embassy_time::Instant;
 use remodaq_8318::acquisition::{AnalogFrontEnd, Measurement};
@@ -31,6 +32,9 @@ impl AnalogFrontEnd for Simulated {
     type Error = &'static str;
 
     async fn measure(&mut self, channel: u8, _span_mv: f64, _detect_open: bool) -> Result<Measurement, Self::Error> {
+        if crate::test_switches::get() == crate::test_switches::FRONT_END_FAULT {
+            return Err("the front end is broken (test switch)");
+        }
         if FAULT_S.contains(&Instant::now().as_secs()) {
             return Err("injected front-end fault");
         }

@@ -1,9 +1,11 @@
 //! The "flash" of the QEMU board: regions of QEMU's code memory (writable RAM) driven as NOR
 //! flash by `remodaq-ram-nor`, at the addresses of the board's layout (`layout.x`): the
 //! settings (64 KiB in 16 KiB pages, as the STM32's sectors 12-15), and the bootloader's update
-//! (DFU, 128 KiB pages) and state (16 KiB) partitions.
+//! (DFU, 128 KiB pages) and state (one 64 KiB page) partitions. Each goes through the firmware's
+//! flash controller lock, as on the STM32 (`remodaq_shared::flash`).
 
 use remodaq_ram_nor::RamNor;
+use remodaq_shared::flash::{Serialized, CONTROLLER};
 
 /// Size of the settings region.
 pub const SIZE: usize = 64 * 1024;
@@ -12,12 +14,15 @@ pub const PAGE: usize = 16 * 1024;
 /// Erase page of the update partition (the STM32's 128 KiB sectors).
 pub const DFU_PAGE: usize = 128 * 1024;
 
+/// Erase page of the bootloader's state (the STM32's 64 KiB sector 16).
+pub const STATE_PAGE: usize = 64 * 1024;
+
 /// The settings region.
-pub type SettingsFlash = RamNor<PAGE>;
+pub type SettingsFlash = Serialized<RamNor<PAGE>>;
 /// The update (DFU) partition.
-pub type DfuFlash = RamNor<DFU_PAGE>;
+pub type DfuFlash = Serialized<RamNor<DFU_PAGE>>;
 /// The bootloader's state partition.
-pub type StateFlash = RamNor<PAGE>;
+pub type StateFlash = Serialized<RamNor<STATE_PAGE>>;
 
 unsafe extern "C" {
     static mut __settings_start: u8;
@@ -28,10 +33,10 @@ unsafe extern "C" {
     static __bootloader_state_end: u8;
 }
 
-fn region<const ERASE: usize>(start: *mut u8, end: *const u8) -> RamNor<ERASE> {
+fn region<const ERASE: usize>(start: *mut u8, end: *const u8) -> Serialized<RamNor<ERASE>> {
     // SAFETY: the linker symbols bound disjoint regions of QEMU's code memory outside the
     // application's own (layout.x); `Regions::take` hands each out once.
-    unsafe { RamNor::new(start, end as usize - start as usize) }
+    Serialized::new(unsafe { RamNor::new(start, end as usize - start as usize) }, &CONTROLLER)
 }
 
 /// The board's flash regions, each owned once.

@@ -83,6 +83,25 @@ static __INTERRUPTS: [extern "C" fn(); 32] = {
 /// The Ethernet device of this board.
 pub type Device = Lan9118<Mmio>;
 
+/// The test switches' word (layout.x): QEMU sets it at every reset when the test command starts
+/// the machine with `-device loader,addr=0x3ff000,data=VALUE,data-len=4`; 0 otherwise.
+pub mod test_switches {
+    /// Every conversion of the 8318's front end fails (a broken or missing AD7124-8), in
+    /// every image started on this machine: "FEND".
+    pub const FRONT_END_FAULT: u32 = 0x4645_4E44;
+
+    unsafe extern "C" {
+        static __test_switches: u32;
+    }
+
+    /// The word as QEMU set it.
+    pub fn get() -> u32 {
+        // SAFETY: a word of QEMU's code memory that nothing in the firmware writes (layout.x);
+        // a volatile, aligned read.
+        unsafe { core::ptr::read_volatile(core::ptr::addr_of!(__test_switches)) }
+    }
+}
+
 /// Sockets: the Modbus connection tasks, discovery, and slack.
 const STACK_SOCKETS: usize = remodaq_shared::modbus::server::SOCKETS + 3;
 
@@ -156,10 +175,14 @@ impl Board for QemuBoard {
     /// Brings up the LAN9118 and the network stack on QEMU's user network (10.0.2.15/24,
     /// whatever the stored address; the Modbus port is the stored one).
     fn start_network(self, spawner: Spawner, stored: NetConfig) -> (EmbassyNet<QemuEffects>, NetConfig) {
-        let device = match Lan9118::new(Mmio, self.mac) {
+        #[allow(unused_mut)]
+        let mut device = match Lan9118::new(Mmio, self.mac) {
             Ok(device) => device,
             Err(e) => panic!("LAN9118: {:?}", defmt::Debug2Format(&e)),
         };
+        // Test images only: a NIC whose link never comes up (the self-test must fail).
+        #[cfg(feature = "test-link-down")]
+        device.hold_link_down();
         // SAFETY: the handler is in the vector table and touches only the driver's waker.
         unsafe { NVIC::unmask(Irq(LAN9118_IRQ)) };
         let config = embassy_net::Config::ipv4_static(StaticConfigV4 {

@@ -11,11 +11,10 @@ pub mod phy;
 use defmt_rtt as _;
 use panic_probe as _;
 
-use embassy_embedded_hal::flash::partition::Partition;
 use embassy_executor::Spawner;
 use embassy_net::{Ipv4Address, Ipv4Cidr, StackResources, StaticConfigV4};
 use embassy_stm32::eth::{Ethernet, PacketQueue, Sma};
-use embassy_stm32::flash::{Async, Bank1Region1, Bank2Region1, Bank2Region3, Flash};
+use embassy_stm32::flash::{Async, Bank2Region1, Bank2Region2, Bank2Region3, Flash};
 use embassy_stm32::gpio::{Flex, Input, Level, Output, Pull, Speed};
 use embassy_stm32::peripherals::{ETH, ETH_SMA, IWDG};
 use embassy_stm32::rng::Rng;
@@ -29,6 +28,7 @@ use remodaq_shared::backlog::{Backlogged, MODBUS_BACKLOG};
 use remodaq_shared::board::{spawn, Board, Effects};
 use remodaq_shared::discovery::Effect;
 use remodaq_shared::embassy_net::EmbassyNet;
+use remodaq_shared::flash::{Serialized, CONTROLLER};
 use remodaq_shared::health::{self, Heartbeat};
 use remodaq_shared::net::{mac_from_uid, NetConfig};
 use remodaq_shared::{error, info};
@@ -43,16 +43,18 @@ bind_interrupts!(struct Irqs {
 /// The Ethernet device of this board.
 pub type Device = Ethernet<'static, ETH, phy::Lan8742a<Sma<'static, ETH_SMA>>>;
 /// The settings flash: bank 2, sectors 12-15 (16 KiB each, 0x0810_0000), see `memory.x`.
-pub type SettingsFlash = Bank2Region1<'static, Async>;
+/// Every flash partition of the board goes through [`Serialized`]: one operation, or one
+/// sector's erase, at a time on the controller (docs/design.md, "Flash").
+pub type SettingsFlash = Serialized<Bank2Region1<'static, Async>>;
 /// The update partition (DFU): bank 2 sectors 17-23 (128 KiB each, 0x0812_0000), all of the
 /// region, see `memory.x`.
-pub type DfuFlash = Bank2Region3<'static, Async>;
-/// The bootloader's state: sector 2 (0x0800_8000, 16 KiB) of bank 1 region 1 (sectors 0-3; the
-/// bootloader's own code is in sectors 0-1 and is never erased by the application).
-pub type BootStateFlash = Partition<'static, CriticalSectionRawMutex, Bank1Region1<'static, Async>>;
-/// Offset and size of the state partition in bank 1 region 1.
-const STATE_OFFSET: u32 = 0x8000;
-const STATE_SIZE: u32 = 16 * 1024;
+pub type DfuFlash = Serialized<Bank2Region3<'static, Async>>;
+/// The bootloader's state: bank 2 sector 16 (0x0811_0000, 64 KiB), all of bank 2 region 2.
+/// Not in bank 1: marking an update (or a boot) erases the state, and while a sector erases
+/// nothing can be read from its bank (RM0090 §3.6), so an erase in bank 1, where the code and
+/// the vector table are, would stall the CPU and every interrupt for up to 0.8 s (a 16 KiB
+/// sector at x8). Bank 1 is read on meanwhile (read-while-write between the banks, §3.6).
+pub type BootStateFlash = Serialized<Bank2Region2<'static, Async>>;
 
 /// Sockets: Modbus connection tasks plus the discovery socket, plus slack.
 const STACK_SOCKETS: usize = remodaq_shared::modbus::server::SOCKETS + 3;
@@ -63,10 +65,10 @@ const STACK_SOCKETS: usize = remodaq_shared::modbus::server::SOCKETS + 3;
 /// plus one feed interval, 3.5 s, under the 5.4 s minimum.
 const WATCHDOG_TIMEOUT_US: u32 = 8_000_000;
 const FEED_EVERY: Duration = Duration::from_millis(500);
-/// How late a watched task may be. A settings commit holds the register map (which the 8318's
-/// acquisition cycle takes) for its sector erases: up to 800 ms per 16 KiB sector at the x8
-/// parallelism embassy-stm32 0.6 erases with (datasheet, Flash memory programming, tERASE16KB
-/// max), and sequential-storage erases at most one sector per commit here.
+/// How late a watched task may be. Neither watched task (network runner, application) waits
+/// for the flash: settings commits run in the Modbus, discovery and update tasks, and hold the
+/// register map only to copy settings in (docs/design.md, "Locks"); every erase is in bank 2,
+/// so none stalls the CPU. The window is wide margin over a busy executor's latency.
 const ALIVE_WINDOW: Duration = Duration::from_millis(3000);
 /// Fed unconditionally this long after start-up while the tasks start (opening the settings
 /// store may repair it, erasing a sector).
@@ -134,9 +136,15 @@ fn init(spawner: Spawner) -> (Stm32Board, SettingsFlash, Io) {
     // Freeze the IWDG while the debugger halts the core (RM0090 §38.16.4, DBG_IWDG_STOP), so
     // stepping through code with probe-rs does not reset the board.
     embassy_stm32::pac::DBGMCU.apb1fzr().modify(|w| w.set_iwdg(true));
-    // The watchdog runs from here, before the settings store opens and the network starts.
-    let wdg = IndependentWatchdog::new(p.IWDG, WATCHDOG_TIMEOUT_US);
-    spawn(spawner, watchdog_task(wdg), "watchdog");
+    // The watchdog runs from here (RM0090 §21.3.1: started by writing 0xCCCC to IWDG_KR, which
+    // `unleash` does; only a reset stops it), before anything that could wait for ever: the
+    // Ethernet set-up spins on ETH_DMABMR SR, which never clears without the PHY's 50 MHz
+    // REF_CLK (embassy-stm32 0.6 `eth/v1/mod.rs`, unbounded), and the PHY scan takes up to
+    // 3.2 s when no PHY answers. A board that hangs there is reset (and a new image that does
+    // is reverted by the bootloader), instead of hanging unguarded. It is fed here until the
+    // watchdog task takes it over.
+    let mut wdg = IndependentWatchdog::new(p.IWDG, WATCHDOG_TIMEOUT_US);
+    wdg.unleash();
     // The flash accelerator (RM0090 §3.5.2, FLASH_ACR): embassy's clock set-up writes ACR with
     // the wait states only, leaving prefetch and both caches off. Reset the caches, then
     // enable them with prefetch: code runs from flash at 5 wait states otherwise.
@@ -168,6 +176,7 @@ fn init(spawner: Spawner) -> (Stm32Board, SettingsFlash, Io) {
     static PACKETS: ConstStaticCell<PacketQueue<4, 8>> = ConstStaticCell::new(PacketQueue::new());
     // Nucleo-F429ZI RMII: REF_CLK PA1, MDIO PA2, MDC PC1, CRS_DV PA7, RXD0 PC4, RXD1 PC5,
     // TX_EN PG11, TXD0 PG13, TXD1 PB13.
+    wdg.pet();
     let eth = Ethernet::new_with_phy(
         PACKETS.take(),
         p.ETH,
@@ -183,13 +192,15 @@ fn init(spawner: Spawner) -> (Stm32Board, SettingsFlash, Io) {
         phy::Lan8742a::new(Sma::new(p.ETH_SMA, p.PA2, p.PC1)),
     );
 
+    wdg.pet();
+    spawn(spawner, watchdog_task(wdg), "watchdog");
+
     let regions = Flash::new(p.FLASH, Irqs).into_regions();
-    let settings_flash = regions.bank2_region1;
-    static BANK1_REGION1: StaticCell<
-        embassy_sync::mutex::Mutex<CriticalSectionRawMutex, Bank1Region1<'static, Async>>,
-    > = StaticCell::new();
-    let region1 = BANK1_REGION1.init(embassy_sync::mutex::Mutex::new(regions.bank1_region1));
-    let boot = Some((regions.bank2_region3, Partition::new(region1, STATE_OFFSET, STATE_SIZE)));
+    let settings_flash = Serialized::new(regions.bank2_region1, &CONTROLLER);
+    let boot = Some((
+        Serialized::new(regions.bank2_region3, &CONTROLLER),
+        Serialized::new(regions.bank2_region2, &CONTROLLER),
+    ));
     // LD1 (green, PB0): the "identify" LED.
     let led = Output::new(p.PB0, Level::Low, Speed::Low);
     let factory_reset = Input::new(p.PC13, Pull::Down).is_high();
@@ -384,7 +395,8 @@ async fn identify_task(mut led: Output<'static>) -> ! {
 
 #[embassy_executor::task]
 async fn watchdog_task(mut wdg: IndependentWatchdog<'static, IWDG>) -> ! {
-    wdg.unleash();
+    // Started (and fed last) in `init`.
+    wdg.pet();
     loop {
         Timer::after(FEED_EVERY).await;
         let now = Instant::now();

@@ -7,7 +7,8 @@
 //! `poll_link` reads the LAN8742A's PHY Special Control/Status register (31; datasheet
 //! §4.2.22: bit 12 auto-negotiation done, bits 4:2 speed indication 001 10BASE-T half, 101
 //! 10BASE-T full, 010 100BASE-TX half, 110 100BASE-TX full) when the link comes up, and writes
-//! MACCR FES (bit 14, speed) and DM (bit 11, duplex) to match (RM0090 §33.8.1, ETH_MACCR).
+//! MACCR FES (bit 14, speed) and DM (bit 11, duplex) to match (RM0090 §33.8.1, ETH_MACCR),
+//! with the MAC stopped meanwhile (`set_mac`).
 //! A PHY that never answers is logged, not a panic (`GenericPhy::new_auto` panics).
 
 use core::future::Future;
@@ -16,7 +17,7 @@ use core::task::Context;
 
 use embassy_stm32::eth::{Phy, StationManagement};
 use embassy_stm32::pac;
-use embassy_stm32::pac::eth::vals::{Dm, Fes};
+use embassy_stm32::pac::eth::vals::{Dm, Fes, Ftf, St};
 use embassy_time::{Duration, Timer};
 use remodaq_shared::{error, info};
 
@@ -66,11 +67,50 @@ impl<SM: StationManagement> Lan8742a<SM> {
         Self { sm, addr: 0, mode: None }
     }
 
+    /// Sets the MAC's speed and duplex to the PHY's, with the transmitter and receiver
+    /// stopped: embassy-stm32 0.6 has already started them (`eth/v1/mod.rs`, `new_inner`), and
+    /// FES/DM changed under a running MAC would cut a frame in flight. The order is ST's
+    /// stop/start sequence for this MAC (its STM32F4 HAL, `HAL_ETH_Stop` / `HAL_ETH_Start`,
+    /// the only state in which `HAL_ETH_SetMACConfig` changes MACCR): stop the transmit DMA
+    /// (ETH_DMAOMR ST), disable the receiver (ETH_MACCR RE), flush the transmit FIFO
+    /// (ETH_DMAOMR FTF, which clears itself when done), disable the transmitter (TE); change
+    /// FES and DM; then TE, RE and the transmit DMA on again. Registers: RM0090 §33.8.1 (MAC)
+    /// and §33.8.4 (DMA). Each MACCR write is read back and followed by 10 µs, more than the
+    /// four TX_CLK/RX_CLK cycles (1.6 µs at 10 Mbit/s) the MAC needs between two writes of one
+    /// register (errata sheet ES0206, Ethernet: "successive write operations to the same
+    /// register might not be fully taken into account"; the HAL waits the same way). The
+    /// receive DMA keeps running on its descriptors.
     fn set_mac(&mut self, mode: Mode) {
-        pac::ETH.ethernet_mac().maccr().modify(|w| {
+        let mac = pac::ETH.ethernet_mac();
+        let dma = pac::ETH.ethernet_dma();
+        let settle = || {
+            let _ = mac.maccr().read();
+            embassy_time::block_for(Duration::from_micros(10));
+        };
+        dma.dmaomr().modify(|w| w.set_st(St::STOPPED));
+        mac.maccr().modify(|w| w.set_re(false));
+        settle();
+        dma.dmaomr().modify(|w| w.set_ftf(Ftf::FLUSH));
+        // FTF clears itself once the FIFO is flushed: bounded (a few TX_CLK cycles).
+        for _ in 0..1000 {
+            if dma.dmaomr().read().ftf() != Ftf::FLUSH {
+                break;
+            }
+            embassy_time::block_for(Duration::from_micros(1));
+        }
+        mac.maccr().modify(|w| w.set_te(false));
+        settle();
+        mac.maccr().modify(|w| {
             w.set_fes(if mode.fast { Fes::FES100 } else { Fes::FES10 });
             w.set_dm(if mode.full_duplex { Dm::FULL_DUPLEX } else { Dm::HALF_DUPLEX });
         });
+        settle();
+        mac.maccr().modify(|w| {
+            w.set_te(true);
+            w.set_re(true);
+        });
+        settle();
+        dma.dmaomr().modify(|w| w.set_st(St::STARTED));
         info!(
             "ethernet: link up, {} Mbit/s {} duplex",
             if mode.fast { 100 } else { 10 },

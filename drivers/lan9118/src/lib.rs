@@ -124,6 +124,8 @@ pub struct Lan9118<R: Registers> {
     tx: [u32; WORDS],
     /// Frames received and dropped (receive errors, too long).
     pub rx_dropped: u32,
+    /// The link is reported down whatever the chip says ([`Lan9118::hold_link_down`]).
+    link_held_down: bool,
 }
 
 fn wait_until(mut done: impl FnMut() -> bool) -> Result<(), InitError> {
@@ -146,7 +148,7 @@ impl<R: Registers> Lan9118<R> {
         regs.write(reg::HW_CFG, HW_CFG_SRST);
         wait_until(|| regs.read(reg::HW_CFG) & HW_CFG_SRST == 0)?;
         wait_until(|| regs.read(reg::PMT_CTRL) & PMT_READY != 0)?;
-        let chip = Self { regs, mac, rx: [0; WORDS], tx: [0; WORDS], rx_dropped: 0 };
+        let chip = Self { regs, mac, rx: [0; WORDS], tx: [0; WORDS], rx_dropped: 0, link_held_down: false };
         chip.mac_write(reg::mac::ADDRL, u32::from_le_bytes([mac[0], mac[1], mac[2], mac[3]]))?;
         chip.mac_write(reg::mac::ADDRH, u32::from(mac[4]) | u32::from(mac[5]) << 8)?;
         chip.mac_write(reg::mac::MAC_CR, MAC_CR_TXEN | MAC_CR_RXEN | MAC_CR_FDPX)?;
@@ -156,6 +158,12 @@ impl<R: Registers> Lan9118<R> {
         regs.write(reg::INT_EN, INT_RSFL);
         regs.write(reg::IRQ_CFG, IRQ_CFG_EN | IRQ_CFG_POL_HIGH | IRQ_CFG_TYPE_PUSH_PULL);
         Ok(chip)
+    }
+
+    /// From now on the link is reported down (test images: a NIC whose link never comes up,
+    /// which the firmware's self-test must see).
+    pub fn hold_link_down(&mut self) {
+        self.link_held_down = true;
     }
 
     /// Writes a MAC register through MAC_CSR.
@@ -263,8 +271,14 @@ impl<R: Registers> Driver for Lan9118<R> {
         Some(TxToken { regs: self.regs, buf: &mut self.tx })
     }
 
+    /// Up: QEMU's LAN9118 has its link up from reset (its PHY's status is not read here),
+    /// unless held down.
     fn link_state(&mut self, _cx: &mut Context) -> LinkState {
-        LinkState::Up
+        if self.link_held_down {
+            LinkState::Down
+        } else {
+            LinkState::Up
+        }
     }
 
     fn capabilities(&self) -> Capabilities {

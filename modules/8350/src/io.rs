@@ -195,6 +195,7 @@ pub async fn run<R: RawMutex>(
             }
             if let Err(e) = outputs.write(&ticks).await {
                 remodaq_shared::error!("outputs: {:?}: the pattern ran dry", e);
+                DIAGNOSTICS.pattern_underrun();
             }
         }
     };

@@ -97,10 +97,20 @@ pub async fn run(spawner: Spawner) {
         passed(settings_store(flash, original).await),
     );
     report.check("time base: a 1 s timer", time_base().await);
-    report.check(
-        "update partitions: the bootloader's state reads Boot, a DFU sector erased, written, read back",
-        passed(update_partitions(board.boot_partitions()).await),
-    );
+    match board.boot_partitions() {
+        Some((mut dfu, mut state)) => {
+            report.check(
+                "update partitions: the bootloader's state reads Boot, a DFU sector erased, written, read back",
+                passed(update_partitions(&mut dfu, &mut state).await),
+            );
+            spawn(spawner, fine_ticker(), "fine ticker");
+            report.check(
+                "bootloader state: marked updated then booted, the executor never stalls over 5 ms",
+                state_marks(&mut state).await,
+            );
+        }
+        None => report.check("update partitions", Err("the board gives no update partitions")),
+    }
     board_checks(&mut report, spawner, board, resources).await;
 
     say!("on-target: {} passed, {} failed, {} not applicable", report.passed, report.failed, report.not_applicable);
@@ -111,8 +121,7 @@ pub async fn run(spawner: Spawner) {
 /// service uses them: the state reads Boot (this image was started by the bootloader and is
 /// confirmed, or the partition is erased), and the first DFU sector takes a pattern and reads it
 /// back. Nothing is marked: the next start boots this image again.
-async fn update_partitions<D: NorFlash, S: NorFlash>(parts: Option<(D, S)>) -> Result<(), &'static str> {
-    let (dfu, state) = parts.ok_or("the board gives no update partitions")?;
+async fn update_partitions<D: NorFlash, S: NorFlash>(dfu: D, state: S) -> Result<(), &'static str> {
     // The state buffer is STATE::WRITE_SIZE long (at most 32 bytes on the targets).
     let mut aligned = [0u8; 32];
     let mut updater = embassy_boot::FirmwareUpdater::new(
@@ -134,6 +143,55 @@ async fn update_partitions<D: NorFlash, S: NorFlash>(parts: Option<(D, S)>) -> R
         return Err("the DFU did not read back what was written");
     }
     Ok(())
+}
+
+/// The longest gap between two wakes of the fine ticker, µs, since the last reset.
+static MAX_FINE_GAP_US: AtomicU32 = AtomicU32::new(0);
+/// The fine ticker's period.
+const FINE_TICK: Duration = Duration::from_micros(500);
+/// The longest executor stall allowed while the bootloader's state is marked (issue #21).
+const MARK_STALL_MAX_US: u64 = 5_000;
+
+/// Wakes every [`FINE_TICK`] and records the longest gap: a stall of the executor (or of the
+/// CPU, as an erase of the bank the code runs from would cause) shows as a longer one.
+#[embassy_executor::task]
+async fn fine_ticker() -> ! {
+    let mut last = Instant::now();
+    loop {
+        Timer::after(FINE_TICK).await;
+        let now = Instant::now();
+        MAX_FINE_GAP_US.fetch_max((now - last).as_micros() as u32, Ordering::Relaxed);
+        last = now;
+    }
+}
+
+/// Marks the bootloader's state updated, then booted, as an update session and the next start
+/// do (each erases the state's sector, in bank 2: docs/update.md), and measures the executor's
+/// longest stall meanwhile. An update marked here is never swapped: it is marked booted at
+/// once, and the bootloader refuses a swap without a signed manifest anyway.
+async fn state_marks<S: NorFlash>(state: S) -> Result<Verdict, &'static str> {
+    let mut aligned = [0u8; 32];
+    let mut firmware_state = embassy_boot::FirmwareState::new(state, &mut aligned[..S::WRITE_SIZE.min(32)]);
+    Timer::after(FINE_TICK * 4).await;
+    MAX_FINE_GAP_US.store(0, Ordering::Relaxed);
+    let start = Instant::now();
+    let updated = firmware_state.mark_updated().await;
+    let booted = firmware_state.mark_booted().await;
+    let took = start.elapsed().as_millis();
+    Timer::after(FINE_TICK * 4).await;
+    updated.map_err(|_| "marking the state updated failed")?;
+    booted.map_err(|_| "marking the state booted failed")?;
+    let stall_us = u64::from(MAX_FINE_GAP_US.load(Ordering::Relaxed)).saturating_sub(FINE_TICK.as_micros());
+    say!("on-target: state marked updated and booted in {} ms; longest executor stall {} us", took, stall_us);
+    if cfg!(feature = "board-qemu") {
+        return Ok(Verdict::NotApplicable(
+            "the QEMU board's flash is RAM and its time base has 1 ms steps: no stall to measure",
+        ));
+    }
+    if stall_us > MARK_STALL_MAX_US {
+        return Err("the executor stalled over 5 ms while the state was marked");
+    }
+    Ok(Verdict::Passed)
 }
 
 /// The settings region of the board.

@@ -22,8 +22,8 @@ mod boot {
 
     /// The swap's page: as the STM32F429's 128 KiB sectors of ACTIVE and DFU.
     const PAGE: usize = 128 * 1024;
-    /// The state partition's erase page (a 16 KiB sector on the STM32).
-    const STATE_PAGE: usize = 16 * 1024;
+    /// The state partition's erase page (bank 2 sector 16, 64 KiB, on the STM32).
+    const STATE_PAGE: usize = 64 * 1024;
 
     unsafe extern "C" {
         static mut __bootloader_state_start: u8;

@@ -2,13 +2,17 @@
 //! embassy-boot finishes or starts a swap (a marked update) or a revert (an update that did not
 //! confirm itself), then starts the application in ACTIVE. The layout is the workspace's
 //! memory.x (RM0090 §3.3, Table 6, the sectors of the 2 MiB part):
-//! - bootloader: bank 1 sectors 0-1 (0x0800_0000, 32 KiB); state: sector 2 (0x0800_8000, 16 KiB);
+//! - bootloader: bank 1 sectors 0-1 (0x0800_0000, 32 KiB);
 //! - ACTIVE: sectors 5-10 (0x0802_0000, 6 x 128 KiB);
 //! - settings: bank 2 sectors 12-15 (0x0810_0000, untouched by updates);
+//! - state: bank 2 sector 16 (0x0811_0000, 64 KiB), all of bank 2 region 2: the application
+//!   erases it when it marks an update or a boot, and an erase in bank 1 would stall the code
+//!   running there (RM0090 §3.6);
 //! - DFU: bank 2 sectors 17-23 (0x0812_0000, 7 x 128 KiB: ACTIVE and one page for the swap).
 //!
 //! Each partition lies inside one of embassy-stm32's flash regions, whose erase size is that of
-//! its sectors (16 KiB in region 1, 128 KiB in region 3), so every erase is a whole sector.
+//! its sectors (64 KiB in bank 2 region 2, 128 KiB in region 3), so every erase is a whole
+//! sector.
 //!
 //! Before a swap starts, the update partition must hold an image signed with the module's key:
 //! the manifest the application wrote at the start of DFU's last page, and the digest of the
@@ -27,7 +31,7 @@ mod boot {
 
     use embassy_boot_stm32::{BlockingFirmwareState, BootLoader, BootLoaderConfig};
     use embassy_embedded_hal::flash::partition::BlockingPartition;
-    use embassy_stm32::flash::{Flash, FLASH_BASE};
+    use embassy_stm32::flash::{Flash, FlashBank, BANK2_REGION2, FLASH_BASE};
     use embassy_stm32::gpio::{Flex, Pull, Speed};
     use embassy_sync::blocking_mutex::raw::NoopRawMutex;
     use embassy_sync::blocking_mutex::Mutex;
@@ -39,9 +43,9 @@ mod boot {
     const ACTIVE_SIZE: u32 = 6 * 128 * 1024;
     /// DFU: all of bank 2 region 3 (sectors 17-23).
     const DFU_SIZE: u32 = 7 * 128 * 1024;
-    /// State: sector 2, inside bank 1 region 1 (sectors 0-3, 16 KiB each).
-    const STATE_OFFSET: u32 = 0x8000;
-    const STATE_SIZE: u32 = 16 * 1024;
+    /// State: sector 16, all of bank 2 region 2.
+    const STATE_OFFSET: u32 = 0;
+    const STATE_SIZE: u32 = 64 * 1024;
     /// Bank 1 region 3 starts at sector 5.
     const REGION3: u32 = 0x0802_0000;
 
@@ -59,7 +63,7 @@ mod boot {
         let layout = Flash::new_blocking(p.FLASH).into_blocking_regions();
         let active = Mutex::<NoopRawMutex, _>::new(RefCell::new(layout.bank1_region3));
         let dfu = Mutex::<NoopRawMutex, _>::new(RefCell::new(layout.bank2_region3));
-        let state = Mutex::<NoopRawMutex, _>::new(RefCell::new(layout.bank1_region1));
+        let state = Mutex::<NoopRawMutex, _>::new(RefCell::new(layout.bank2_region2));
         {
             // The manifest sits where the swap's scratch page starts: right after ACTIVE's size.
             let mut dfu = BlockingPartition::new(&dfu, 0, DFU_SIZE);
@@ -83,6 +87,12 @@ mod boot {
     }
 
     const _: () = assert!(FLASH_BASE as u32 + 0x2_0000 == REGION3);
+    // The state: bank 2 sector 16, 0x0811_0000 (64 KiB into bank 2), as memory.x says.
+    const _: () = assert!(
+        matches!(BANK2_REGION2.bank, FlashBank::Bank2)
+            && BANK2_REGION2.offset == 0x1_0000
+            && BANK2_REGION2.size == STATE_SIZE
+    );
 
     // Never the repository's test key (public secret half) unless asked (docs/security.md).
     const _: () = assert!(
