@@ -1,10 +1,11 @@
 //! The 8350's terminals on the QEMU board: a simulated capture (a 1 kHz square wave on DI0, DI3
 //! steady high; samples lost from 20 s to 23 s after the start) sampled at the module's rate
-//! in simulated time, and the outputs played at its tick rate, through the same engines and
-//! I/O loop as on the STM32.
+//! in simulated time through a ring of the STM32's size (it overruns when the application
+//! drains it late, as the DMA ring does), and the outputs played at its tick rate, through the
+//! same engines and I/O loop as on the STM32.
 
 use remodaq_8350::di::SAMPLE_RATE_HZ;
-use remodaq_8350::io::{SimulatedCapture, SimulatedPattern};
+use remodaq_8350::io::{SimulatedCapture, SimulatedPattern, CAPTURE_RING};
 use remodaq_8350::M8350;
 use remodaq_shared::board::IoFor;
 
@@ -32,6 +33,9 @@ impl IoFor<M8350> for QemuBoard {
     type Io = (SimulatedCapture<fn(u64) -> Option<u16>>, SimulatedPattern<fn(u64, &[u8])>);
 
     fn io((): ()) -> Self::Io {
-        (SimulatedCapture::new(sample_at as fn(u64) -> Option<u16>), SimulatedPattern::new(played as fn(u64, &[u8])))
+        (
+            SimulatedCapture::with_ring(sample_at as fn(u64) -> Option<u16>, CAPTURE_RING),
+            SimulatedPattern::new(played as fn(u64, &[u8])),
+        )
     }
 }

@@ -31,7 +31,7 @@ bind_interrupts!(struct Irqs {
 });
 
 /// Capture ring, samples (82 ms at the module's 50 kHz).
-const CAPTURE_LEN: usize = 4096;
+const CAPTURE_LEN: usize = remodaq_8350::io::CAPTURE_RING;
 /// Output pattern ring, ticks: two of the module's refill chunks.
 const PATTERN_LEN: usize = 2 * OUTPUT_CHUNK;
 /// DMA request (channel selection) of TIM1_UP on DMA2 stream 5, TIM8_UP on DMA2 stream 1.

@@ -204,26 +204,44 @@ pub async fn run<R: RawMutex>(
     }
 }
 
+/// Samples in the boards' capture ring: 4096, 82 ms at [`crate::di::SAMPLE_RATE_HZ`]. The STM32's
+/// DMA ring holds this many; the QEMU board's simulated one too ([`SimulatedCapture::with_ring`]).
+pub const CAPTURE_RING: usize = 4096;
+
 /// A capture in simulated time (the host and QEMU boards): sample `index` since the start is
 /// `sample_at(index)`; the samples due by now are handed out as the hardware ring would. A
 /// sample given as `None` is lost (a fault the board injects): the read that meets it skips
 /// every sample due and reports [`SamplesLost`], as the STM32's ring does when it overruns.
+/// With a ring ([`with_ring`](Self::with_ring)), samples left undrained longer than the ring
+/// lasts are lost the same way, as on the STM32.
 pub struct SimulatedCapture<F> {
     start: Instant,
     done: u64,
     sample_at: F,
+    ring: Option<u64>,
 }
 
 impl<F: FnMut(u64) -> Option<u16>> SimulatedCapture<F> {
-    /// A capture starting now.
+    /// A capture starting now, whose ring never overruns (the host simulator: a busy PC must
+    /// not lose inputs a module would not).
     pub fn new(sample_at: F) -> Self {
-        Self { start: Instant::now(), done: 0, sample_at }
+        Self { start: Instant::now(), done: 0, sample_at, ring: None }
+    }
+
+    /// A capture starting now through a ring of `ring` samples, which overruns as the STM32's
+    /// does when the application drains it too late.
+    pub fn with_ring(sample_at: F, ring: usize) -> Self {
+        Self { ring: Some(ring as u64), ..Self::new(sample_at) }
     }
 }
 
 impl<F: FnMut(u64) -> Option<u16>> InputCapture for SimulatedCapture<F> {
     fn read(&mut self, out: &mut [u16]) -> Result<usize, SamplesLost> {
         let due = self.start.elapsed().as_micros() * u64::from(crate::di::SAMPLE_RATE_HZ) / 1_000_000;
+        if self.ring.is_some_and(|ring| due.saturating_sub(self.done) > ring) {
+            self.done = due;
+            return Err(SamplesLost);
+        }
         let n = (due.saturating_sub(self.done)).min(out.len() as u64) as usize;
         for (i, s) in out[..n].iter_mut().enumerate() {
             match (self.sample_at)(self.done + i as u64) {

@@ -90,6 +90,17 @@ impl Ports {
 /// QEMU started as the module starts: the board's bootloader (next to the image) as QEMU's
 /// image, the application's raw binary (`IMAGE.bin`, from scripts/qemu build) as its seed.
 fn start_qemu(image: &str, ports: &Ports) -> Result<Qemu, String> {
+    start_qemu_with(image, ports, None)
+}
+
+/// The QEMU board's test switches word (boards/qemu/layout.x) and its front-end fault value
+/// (boards/qemu/src/lib.rs, `test_switches`): "FEND".
+const TEST_SWITCHES_ADDR: u32 = 0x003F_F000;
+const FRONT_END_FAULT: u32 = 0x4645_4E44;
+
+/// [`start_qemu`], with the board's test switches word set to `switches` at every reset
+/// (a hardware fault every image on this machine sees).
+fn start_qemu_with(image: &str, ports: &Ports, switches: Option<u32>) -> Result<Qemu, String> {
     let log = std::fs::File::create(format!("{image}.qemu.log")).map_err(|e| e.to_string())?;
     let bootloader = std::path::Path::new(image).with_file_name("remodaq-qemu-bootloader");
     // An image built before the board had a bootloader (for `latency` comparisons with older
@@ -109,6 +120,9 @@ fn start_qemu(image: &str, ports: &Ports) -> Result<Qemu, String> {
         .args(["-nic", &ports.nic()])
         .args(capture)
         .args(boot)
+        .args(switches.map_or(vec![], |word| {
+            vec!["-device".to_string(), format!("loader,addr={TEST_SWITCHES_ADDR:#x},data={word:#x},data-len=4")]
+        }))
         .stdin(Stdio::null())
         .stdout(log.try_clone().map_err(|e| e.to_string())?)
         .stderr(log)
@@ -162,8 +176,8 @@ struct Report {
 /// (no boot, missing update images) counts every check it did not make as failed.
 fn checks_of(model: u16) -> u32 {
     match model {
-        0x8318 => 9,
-        0x8350 => 19,
+        0x8318 => 11,
+        0x8350 => 21,
         _ => 0,
     }
 }
@@ -691,7 +705,143 @@ async fn run(model: &str, image: &str) -> Report {
         updates(&mut report, image, addr, update, discovery).await;
     }
     drop(qemu);
+    if name == 0x8318 {
+        broken_front_end(&mut report, image).await;
+    }
     report
+}
+
+/// A diagnostics register.
+async fn diag_reg(ctx: &mut Context, d: diag::Diag) -> Result<u16, String> {
+    Ok(regs(ctx, d.addr(), 1).await?[0])
+}
+
+/// The module's uptime, s (40242-40243).
+async fn uptime(ctx: &mut Context) -> Result<u32, String> {
+    let w = regs(ctx, diag::REG_UPTIME, 2).await?;
+    Ok(u32::from(w[0]) | u32::from(w[1]) << 16)
+}
+
+/// Sets this test's password over discovery (updates are refused under the factory one); the
+/// module's MAC.
+async fn set_password(discovery: SocketAddr) -> Result<[u8; 6], String> {
+    let mut buf = [0u8; MAX_DATAGRAM];
+    let n = encode_request(12, &Request::Search, &mut buf).unwrap_or(0);
+    let mac = match discover(discovery, &buf[..n]).await.map(|reply| decode_info(&reply).map(|i| i.mac)) {
+        Ok(Some(mac)) => mac,
+        other => return Err(format!("search: {other:?}")),
+    };
+    let set = Ask::SetPassword { new: PASSWORD.as_bytes(), salt: [0x33; 16], iterations: 4096, secret: [0x44; 32] };
+    match command(discovery, mac, "remodaq", set).await {
+        Ok(Status::Ok) => Ok(mac),
+        other => Err(format!("setting the password: {other:?}")),
+    }
+}
+
+/// How long the 8318 with a broken front end is watched after the revert (issue #21).
+const NO_RESTART_FOR: Duration = Duration::from_secs(180);
+
+/// Issue #21 (the endless trial): an 8318 whose front end fails on every channel (the board's
+/// test switch, which every image started on this machine sees, as a broken AD7124-8 would)
+/// takes an update (A101) that never confirms, because its self-test fails the same way. After
+/// its 20 s trial the module restarts and the bootloader reverts to A100, which it started in
+/// the Revert state: A100 is confirmed without a trial, so it does not restart again. Watched
+/// for 3 minutes (uptime never goes back: restarts counted, 0 wanted); then a further update
+/// is accepted (the answer to a whole session is "verified and marked").
+async fn broken_front_end(report: &mut Report, image: &str) {
+    const REVERTED: &str = "update: an 8318 whose front end fails takes an update that never confirms; after the revert, no restart for 3 minutes";
+    const FURTHER: &str = "update: after that revert a further update is accepted";
+    let v2 = match std::fs::read(format!("{image}-v2.rdq")) {
+        Ok(file) => file,
+        Err(e) => {
+            report.check(REVERTED, Err(format!("{image}-v2.rdq: {e}: run scripts/qemu variants")));
+            return;
+        }
+    };
+    let Ok(ports) = Ports::free() else {
+        report.check(REVERTED, Err("no free ports".into()));
+        return;
+    };
+    let qemu = match start_qemu_with(image, &ports, Some(FRONT_END_FAULT)) {
+        Ok(q) => q,
+        Err(e) => {
+            report.check(REVERTED, Err(e));
+            return;
+        }
+    };
+    let (addr, update) = (ports.modbus(), SocketAddr::from(([127, 0, 0, 1], ports.update)));
+    let discovery = SocketAddr::from(([127, 0, 0, 1], ports.udp));
+    let reverted = async {
+        let mut ctx = wait_ready(addr).await?;
+        // The fault is seen: the front-end fault bit after the first cycles.
+        let status = regs_until(&mut ctx, diag::REG_MODULE_STATUS, 1, |v| v[0] & diag::status::FRONT_END_FAULT != 0)
+            .await?[0];
+        if status & diag::status::FRONT_END_FAULT == 0 {
+            return Err(format!("the test switch did not fail the front end: status {status:04x}"));
+        }
+        drop(ctx);
+        set_password(discovery).await?;
+        let answers = session(update, PASSWORD, &v2, usize::MAX).await?;
+        if answers != [0, 0] {
+            return Err(format!("the update (A101): the module answered {answers:?}"));
+        }
+        let started = Instant::now();
+        let mut saw_v2 = false;
+        loop {
+            match version(addr).await? {
+                0xA101 => saw_v2 = true,
+                0xA100 if saw_v2 => break,
+                _ => {}
+            }
+            if started.elapsed() > Duration::from_secs(90) {
+                return Err(format!("no return to A100 within 90 s (A101 seen: {saw_v2})"));
+            }
+            sleep(Duration::from_millis(500)).await;
+        }
+        println!("qemu-8318: A101 ran on trial and was reverted to A100 after {:.1} s", started.elapsed().as_secs_f64());
+        // A100 now: count its restarts over 3 minutes.
+        let watched = Instant::now();
+        let mut restarts = 0;
+        let mut last = 0u32;
+        let mut polls = 0;
+        while watched.elapsed() < NO_RESTART_FOR {
+            let up = match connect(addr).await {
+                Ok(mut ctx) => uptime(&mut ctx).await.ok(),
+                Err(_) => None,
+            };
+            match up {
+                Some(up) => {
+                    if up < last {
+                        restarts += 1;
+                        println!("qemu-8318: restarted: uptime {up} s after {last} s");
+                    }
+                    last = up;
+                    polls += 1;
+                }
+                None => println!("qemu-8318: no answer at {:.0} s of the watch", watched.elapsed().as_secs_f64()),
+            }
+            sleep(Duration::from_secs(5)).await;
+        }
+        println!("qemu-8318: watched A100 for {} s after the revert: {restarts} restarts, uptime {last} s, {polls} polls", NO_RESTART_FOR.as_secs());
+        if restarts > 0 || polls < 30 || u64::from(last) < NO_RESTART_FOR.as_secs() {
+            return Err(format!("{restarts} restarts in {} s (uptime {last} s, {polls} answers)", NO_RESTART_FOR.as_secs()));
+        }
+        Ok(())
+    }
+    .await;
+    let ok = reverted.is_ok();
+    report.check(REVERTED, reverted);
+    let further = async {
+        if !ok {
+            return Err("not tried: the revert check failed".to_string());
+        }
+        match session(update, PASSWORD, &v2, usize::MAX).await? {
+            a if a == [0, 0] => Ok(()),
+            a => Err(format!("the module answered {a:?}, expected [0, 0] (verified and marked)")),
+        }
+    };
+    report.check(FURTHER, further.await);
+    drop(qemu);
 }
 
 /// The firmware version register, once the module answers (after a restart: up to 60 s).
@@ -713,6 +863,18 @@ async fn version(addr: SocketAddr) -> Result<u16, String> {
 /// An update session by hand with `password`: the handshake, `file` (cut after `send`
 /// bytes); the statuses the module answered (each signature checked).
 async fn session(update: SocketAddr, password: &str, file: &[u8], send: usize) -> Result<Vec<u8>, String> {
+    paced_session(update, password, file, send, None).await
+}
+
+/// [`session`], the firmware sent `pace.0` bytes at a time with `pace.1` between them (a slow
+/// PC, so that a session lasts long enough to watch the module during it).
+async fn paced_session(
+    update: SocketAddr,
+    password: &str,
+    file: &[u8],
+    send: usize,
+    pace: Option<(usize, Duration)>,
+) -> Result<Vec<u8>, String> {
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     let cnonce = [0x5C; 16];
     // The module serves one session at a time and listens again a moment after one ends: a
@@ -769,7 +931,15 @@ async fn session(update: SocketAddr, password: &str, file: &[u8], send: usize) -
         if status[0] != 0 || step == 1 {
             break;
         }
-        stream.write_all(&file[HEADER_LEN..send]).await.map_err(|e| e.to_string())?;
+        match pace {
+            None => stream.write_all(&file[HEADER_LEN..send]).await.map_err(|e| e.to_string())?,
+            Some((chunk, every)) => {
+                for part in file[HEADER_LEN..send].chunks(chunk) {
+                    stream.write_all(part).await.map_err(|e| e.to_string())?;
+                    sleep(every).await;
+                }
+            }
+        }
         if send < file.len() {
             // Cut: close without the rest.
             break;
@@ -793,21 +963,13 @@ async fn updates(report: &mut Report, image: &str, addr: SocketAddr, update: Soc
         }
     };
     let read = |name: &str| std::fs::read(format!("{image}-{name}.rdq"));
-    let (Ok(v2), Ok(v3), Ok(v4), Ok(old), Ok(other)) = (read("v2"), read("v3"), read("v4"), read("old"), read("other"))
+    let (Ok(v2), Ok(v3), Ok(v4), Ok(v5), Ok(old), Ok(other)) =
+        (read("v2"), read("v3"), read("v4"), read("v5"), read("old"), read("other"))
     else {
         report.check("update images", Err("the test images are missing: run scripts/qemu variants".into()));
         return;
     };
     // Updates are refused while the factory password is in force; then a password is set.
-    let mut buf = [0u8; MAX_DATAGRAM];
-    let n = encode_request(12, &Request::Search, &mut buf).unwrap_or(0);
-    let mac = match discover(discovery, &buf[..n]).await.map(|reply| decode_info(&reply).map(|i| i.mac)) {
-        Ok(Some(mac)) => mac,
-        other => {
-            report.check("update: the module's MAC", Err(format!("search: {other:?}")));
-            return;
-        }
-    };
     let factory = session(update, "remodaq", &v2, usize::MAX).await;
     report.check(
         "update: refused while the factory password is in force (status 7), nothing changed",
@@ -816,13 +978,9 @@ async fn updates(report: &mut Report, image: &str, addr: SocketAddr, update: Soc
             other => Err(format!("answers {other:?}")),
         },
     );
-    let set = Ask::SetPassword { new: PASSWORD.as_bytes(), salt: [0x33; 16], iterations: 4096, secret: [0x44; 32] };
     report.check(
         "update: a password set over discovery (sealed credential)",
-        match command(discovery, mac, "remodaq", set).await {
-            Ok(Status::Ok) => Ok(()),
-            other => Err(format!("{other:?}")),
-        },
+        set_password(discovery).await.map(|_| ()),
     );
     let refused_at = async |running: u16, what: &str, file: &[u8], send: usize, want: &[u8]| -> Result<(), String> {
         let answers = session(update, PASSWORD, file, send).await?;
@@ -850,6 +1008,11 @@ async fn updates(report: &mut Report, image: &str, addr: SocketAddr, update: Soc
     report.check(
         "update: the other model's image is refused (status 3), nothing changed",
         refused("the 8318's image", &other, usize::MAX, &[3]).await,
+    );
+
+    report.check(
+        "update: during a whole session, DI0's 1 kHz counter loses no edge, the outputs never run dry, settings writes answer within 1 s",
+        during_update(addr, update, &tampered).await,
     );
 
     // v1 -> v2 with the tool.
@@ -941,6 +1104,135 @@ async fn updates(report: &mut Report, image: &str, addr: SocketAddr, update: Soc
     };
     report
         .check("update: junk marked in the update partition without a valid signature is not swapped in", forged.await);
+
+    // v5's link never comes up: its self-test cannot pass, and after its trial the bootloader
+    // reverts to v4.
+    let link_down = async {
+        let answers = session(update, PASSWORD, &v5, usize::MAX).await?;
+        if answers != [0, 0] {
+            return Err(format!("v5: the module answered {answers:?}"));
+        }
+        let marked = Instant::now();
+        let mut seen = Vec::new();
+        loop {
+            let v = version(addr).await?;
+            if seen.last() != Some(&v) {
+                seen.push(v);
+            }
+            if v == 0xA103 && seen.contains(&0xA104) || v == 0xA103 && marked.elapsed() > Duration::from_secs(15) {
+                break;
+            }
+            if marked.elapsed() > Duration::from_secs(90) {
+                return Err(format!("v4 did not answer again within 90 s (versions seen: {seen:04X?})"));
+            }
+            sleep(Duration::from_millis(500)).await;
+        }
+        // v4 again: it started at least the trial's 20 s after v5 was marked (v5 ran its trial
+        // and was reverted), after a software restart.
+        let mut ctx = connect(addr).await?;
+        let (up, cause) = (uptime(&mut ctx).await?, diag_reg(&mut ctx, diag::Diag::ResetCause).await?);
+        let before_v4 = marked.elapsed().as_secs_f64() - f64::from(up);
+        println!(
+            "qemu-8350: v5 (link down) reverted to v4: v4 started {before_v4:.1} s after v5 was marked (versions seen {seen:04X?})"
+        );
+        if before_v4 < 19.0 || cause != diag::reset_cause::SOFTWARE {
+            return Err(format!(
+                "v4 started {before_v4:.1} s after v5 was marked, reset cause {cause}: expected after the 20 s trial, a software restart"
+            ));
+        }
+        setting_intact("after the link-down revert").await
+    };
+    report.check("update: an image whose link never comes up fails its self-test and is reverted", link_down.await);
+}
+
+/// Issue #21, the 8350 during an update: a whole session (the erase of each sector written, the
+/// writes, the hash; the image's signature is bad, so it is refused at the very end and the
+/// module does not restart) while DI0's 1 kHz square wave is counted, the outputs' pattern
+/// plays, and a setting (DO0's pulse low width, persisted) is written every 0.5 s. Counted
+/// edges are bracketed by the two counter reads' send and answer times; the capture ring's
+/// overrun bit (40241 bit 0, cleared by reading it), the pattern's underrun counter (40325)
+/// and every write's answer time are checked.
+async fn during_update(addr: SocketAddr, update: SocketAddr, file: &[u8]) -> Result<(), String> {
+    let mut ctx = connect(addr).await?;
+    // The QEMU board's injected sample loss (20-23 s after the start) must be over.
+    while uptime(&mut ctx).await? < 24 {
+        sleep(Duration::from_millis(500)).await;
+    }
+    diag_reg(&mut ctx, diag::Diag::Status).await?;
+    let underruns = diag_reg(&mut ctx, diag::Diag::PatternUnderruns).await?;
+    write(&mut ctx, Point::DiMode(0).addr().1, &[1]).await?;
+    let coil = |p: Point| p.addr().1;
+    timeout(STEP, ctx.write_single_coil(coil(Point::CounterClear(0)), true)).await.map_err(|_| "no answer".to_string())?
+        .map_err(|e| e.to_string())?.map_err(|e| format!("exception {e:?}"))?;
+    timeout(STEP, ctx.write_single_coil(coil(Point::CounterRun(0)), true)).await.map_err(|_| "no answer".to_string())?
+        .map_err(|e| e.to_string())?.map_err(|e| format!("exception {e:?}"))?;
+    let counter = Point::Counter(0, Word::Low).addr().1;
+    let read_counter = async |ctx: &mut Context| -> Result<(u32, Instant, Instant), String> {
+        let sent = Instant::now();
+        let w = regs(ctx, counter, 2).await?;
+        Ok((u32::from(w[0]) | u32::from(w[1]) << 16, sent, Instant::now()))
+    };
+    let (c0, sent0, answered0) = read_counter(&mut ctx).await?;
+    let pulse_low = Point::Pulse(PulseField::Low, 0, Word::Low).addr().1;
+    let mut writer = connect(addr).await?;
+    let done = std::cell::Cell::new(false);
+    let session = async {
+        // About 5 s: 2 KiB every 60 ms (the flash of the QEMU board erases and writes at once).
+        let pace = Some((2048, Duration::from_millis(60)));
+        let answers = paced_session(update, PASSWORD, file, usize::MAX, pace).await;
+        done.set(true);
+        answers
+    };
+    // A write every 0.5 s for as long as the session runs, alternating 26 and 25 (each a commit:
+    // about 10, within the commit budget of 20 with the run's other writes).
+    let writes = async {
+        let (mut slowest, mut n) = (Duration::ZERO, 0u32);
+        while !done.get() {
+            let sent = Instant::now();
+            write(&mut writer, pulse_low, &[if n % 2 == 0 { 26 } else { 25 }, 0]).await?;
+            slowest = slowest.max(sent.elapsed());
+            n += 1;
+            for _ in 0..5 {
+                if done.get() {
+                    break;
+                }
+                sleep(Duration::from_millis(100)).await;
+            }
+        }
+        Ok::<(Duration, u32), String>((slowest, n))
+    };
+    let (answers, writes) = tokio::join!(session, writes);
+    let session_took = sent0.elapsed();
+    let (c1, sent1, answered1) = read_counter(&mut ctx).await?;
+    if answers? != [0, Status::BadSignature as u8] {
+        return Err("the session was not refused at the end for its bad signature".into());
+    }
+    let (slowest, writes_made) = writes.map_err(|e| format!("a settings write during the session: {e}"))?;
+    write(&mut writer, pulse_low, &[25, 0]).await?;
+    let counted = c1.wrapping_sub(c0);
+    let least = (sent1.saturating_duration_since(answered0).as_secs_f64() * 1000.0).floor() as u32;
+    let most = (answered1.duration_since(sent0).as_secs_f64() * 1000.0).ceil() as u32;
+    let status = diag_reg(&mut ctx, diag::Diag::Status).await?;
+    let underruns_after = diag_reg(&mut ctx, diag::Diag::PatternUnderruns).await?;
+    write(&mut ctx, Point::DiMode(0).addr().1, &[0]).await?;
+    println!(
+        "qemu-8350: during a {:.1} s update session DI0 counted {counted} (bracket {least}..={most}), status {status:04x}, underruns {underruns} -> {underruns_after}; {writes_made} settings writes, the slowest answered in {:.0} ms",
+        session_took.as_secs_f64(),
+        slowest.as_secs_f64() * 1e3
+    );
+    if writes_made < 2 || slowest > Duration::from_secs(1) {
+        return Err(format!("{writes_made} settings writes during the session, the slowest answered in {slowest:?} (1 s at most)"));
+    }
+    if !(least.saturating_sub(1)..=most + 1).contains(&counted) {
+        return Err(format!("DI0 counted {counted} edges, the 1 kHz wave gave {least}..={most}"));
+    }
+    if status & diag::status::FRONT_END_FAULT != 0 {
+        return Err("input samples were lost (the capture ring overran)".into());
+    }
+    if underruns_after != underruns {
+        return Err(format!("the output pattern ran dry {} times", underruns_after.wrapping_sub(underruns)));
+    }
+    Ok(())
 }
 
 fn main() -> ExitCode {
