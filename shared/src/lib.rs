@@ -13,9 +13,9 @@ pub mod backlog;
 pub mod board;
 pub mod diagnostics;
 pub mod discovery;
-pub mod flash;
 #[cfg(feature = "embassy-net")]
 pub mod embassy_net;
+pub mod flash;
 pub mod health;
 pub mod identity;
 pub mod modbus;

@@ -362,7 +362,8 @@ fn a_replayed_or_altered_session_changes_nothing() {
     let map = Mutex::<NoopRawMutex, _>::new(Live(settings));
     {
         let mut aligned = [0u8; 4];
-        let mut target = BootUpdater::new(&mut dfu, &mut state, &mut aligned, key().verifying_key().to_bytes(), MANIFEST_AT);
+        let mut target =
+            BootUpdater::new(&mut dfu, &mut state, &mut aligned, key().verifying_key().to_bytes(), MANIFEST_AT);
         let mut service = UpdateService::new(MODEL, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
         let (turn, now) = session_time();
         let outcome = block_on(service.session(&mut recorded, [127, 0, 0, 1], now, &map, &store, &mut target));
@@ -370,7 +371,8 @@ fn a_replayed_or_altered_session_changes_nothing() {
         assert_eq!((recorded.statuses(), outcome), (vec![0, 0], Outcome::Updated { version: 0xA101 }));
         // The replay: the recorded bytes, to the module as it was before.
         let mut aligned = [0u8; 4];
-        let mut target = BootUpdater::new(&mut m.dfu, &mut m.state, &mut aligned, key().verifying_key().to_bytes(), MANIFEST_AT);
+        let mut target =
+            BootUpdater::new(&mut m.dfu, &mut m.state, &mut aligned, key().verifying_key().to_bytes(), MANIFEST_AT);
         let mut replay = Script::new(&[]);
         replay.incoming = recorded.sent.chunks(300).map(<[u8]>::to_vec).collect();
         let (turn, now) = session_time();
@@ -389,7 +391,8 @@ fn a_replayed_or_altered_session_changes_nothing() {
     altered.alter = Some(13);
     let mut m = module_with(&old);
     let mut aligned = [0u8; 4];
-    let mut target = BootUpdater::new(&mut m.dfu, &mut m.state, &mut aligned, key().verifying_key().to_bytes(), MANIFEST_AT);
+    let mut target =
+        BootUpdater::new(&mut m.dfu, &mut m.state, &mut aligned, key().verifying_key().to_bytes(), MANIFEST_AT);
     let mut service = UpdateService::new(MODEL, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
     let (turn, now) = session_time();
     let outcome = block_on(service.session(&mut altered, [127, 0, 0, 1], now, &map, &store, &mut target));
@@ -793,7 +796,8 @@ fn confirm_in_boot_swap_and_revert() {
     // An update marked and swapped in: Swap.
     let updated = || {
         let mut m = module_with(&old);
-        let (answers, outcome) = session(&mut m.dfu, &mut m.state, session_bytes(PASSWORD, &signed(&new, 0xA101, &key()), None));
+        let (answers, outcome) =
+            session(&mut m.dfu, &mut m.state, session_bytes(PASSWORD, &signed(&new, 0xA101, &key()), None));
         assert_eq!((answers, outcome), (vec![0, 0], Outcome::Updated { version: 0xA101 }));
         assert_eq!(m.boot(None), Ok(State::Swap));
         m

@@ -4,7 +4,9 @@
 //!
 //! - Executor: Embassy's raw executor in a loop that sleeps with WFI (its stock WFE loop never
 //!   sleeps under QEMU and burns a host core).
-//! - Time: a SysTick driver at 1 kHz with embassy-time-queue-utils' queue.
+//! - Time: the FPGAIO's counter, made to count milliseconds (QEMU derives it from its virtual
+//!   clock: no tick lost when the host is busy); SysTick at 1 kHz wakes embassy-time-queue-utils'
+//!   queue.
 //! - Network: the LAN9118 driver, interrupt-driven receive; QEMU's user network gives the
 //!   guest 10.0.2.15/24 with gateway 10.0.2.2, used instead of the stored IP settings (the
 //!   Modbus port still comes from the settings).

@@ -1,4 +1,13 @@
-//! embassy-time on SysTick: a 1 kHz tick (25 MHz core clock), the timer queue checked each tick.
+//! embassy-time on the MPS2 FPGAIO's counter, with the timer queue checked at each SysTick.
+//!
+//! The time is the FPGAIO's COUNTER register (base 0x4002_8000, offset 0x18), made to count
+//! milliseconds by PRESCALE = 24 999 on its 25 MHz prescale clock (AN385/AN386 application
+//! notes, "FPGA system control and I/O"; QEMU `hw/arm/mps2.c` sets `prescale-clk` to 25 MHz and
+//! `hw/misc/mps2-fpgaio.c` computes COUNTER from its virtual clock). Counting SysTick
+//! interrupts instead loses every tick QEMU coalesces while its host thread is descheduled, and
+//! the guest's clock then lags the wall clock (0.3 % was seen under a build): the 8350's
+//! simulated inputs, which follow the guest's clock, then gave fewer edges than the seconds
+//! that passed. SysTick, at 1 kHz from the 25 MHz core clock, only wakes the timer queue.
 
 use core::cell::{Cell, RefCell};
 use core::task::Waker;
@@ -13,19 +22,49 @@ use embassy_time_queue_utils::Queue;
 const CORE_HZ: u32 = 25_000_000;
 const TICK_HZ: u32 = 1_000;
 
+/// The FPGAIO's registers.
+const FPGAIO: usize = 0x4002_8000;
+const COUNTER: usize = FPGAIO + 0x18;
+const PRESCALE: usize = FPGAIO + 0x1C;
+const PSCNTR: usize = FPGAIO + 0x20;
+/// The FPGAIO's prescale clock.
+const PRESCALE_CLK_HZ: u32 = 25_000_000;
+
+fn fpgaio_read(register: usize) -> u32 {
+    // SAFETY: a register of the FPGAIO block this machine maps at FPGAIO; aligned, volatile.
+    unsafe { core::ptr::read_volatile(register as *const u32) }
+}
+
+fn fpgaio_write(register: usize, value: u32) {
+    // SAFETY: as for `fpgaio_read`; only `start` writes the counter's registers.
+    unsafe { core::ptr::write_volatile(register as *mut u32, value) }
+}
+
 struct SysTickDriver {
-    ticks: Mutex<Cell<u64>>,
+    /// The last COUNTER value read, and the high bits of the time (its wraps, every 49 days).
+    epoch: Mutex<Cell<(u32, u64)>>,
     queue: Mutex<RefCell<Queue>>,
 }
 
 embassy_time_driver::time_driver_impl!(static DRIVER: SysTickDriver = SysTickDriver {
-    ticks: Mutex::new(Cell::new(0)),
+    epoch: Mutex::new(Cell::new((0, 0))),
     queue: Mutex::new(RefCell::new(Queue::new())),
 });
 
 impl Driver for SysTickDriver {
+    /// Milliseconds since the start, from the FPGAIO's counter; read at every SysTick, so a
+    /// wrap of its 32 bits is never missed.
     fn now(&self) -> u64 {
-        critical_section::with(|cs| self.ticks.borrow(cs).get())
+        critical_section::with(|cs| {
+            let epoch = self.epoch.borrow(cs);
+            let (last, mut high) = epoch.get();
+            let counter = fpgaio_read(COUNTER);
+            if counter < last {
+                high += 1 << 32;
+            }
+            epoch.set((counter, high));
+            high | u64::from(counter)
+        })
     }
 
     fn schedule_wake(&self, at: u64, waker: &Waker) {
@@ -40,8 +79,12 @@ impl Driver for SysTickDriver {
     }
 }
 
-/// Starts the 1 kHz tick.
+/// Starts the millisecond counter and the 1 kHz tick.
 pub fn start(syst: &mut SYST) {
+    let per_ms = PRESCALE_CLK_HZ / TICK_HZ - 1;
+    fpgaio_write(PRESCALE, per_ms);
+    fpgaio_write(PSCNTR, per_ms);
+    fpgaio_write(COUNTER, 0);
     syst.set_clock_source(SystClkSource::Core);
     syst.set_reload(CORE_HZ / TICK_HZ - 1);
     syst.clear_current();
@@ -51,10 +94,8 @@ pub fn start(syst: &mut SYST) {
 
 #[exception]
 fn SysTick() {
+    let now = DRIVER.now();
     critical_section::with(|cs| {
-        let ticks = DRIVER.ticks.borrow(cs);
-        let now = ticks.get() + 1;
-        ticks.set(now);
         DRIVER.queue.borrow(cs).borrow_mut().next_expiration(now);
     });
 }

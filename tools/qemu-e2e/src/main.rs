@@ -774,8 +774,8 @@ async fn broken_front_end(report: &mut Report, image: &str) {
     let reverted = async {
         let mut ctx = wait_ready(addr).await?;
         // The fault is seen: the front-end fault bit after the first cycles.
-        let status = regs_until(&mut ctx, diag::REG_MODULE_STATUS, 1, |v| v[0] & diag::status::FRONT_END_FAULT != 0)
-            .await?[0];
+        let status =
+            regs_until(&mut ctx, diag::REG_MODULE_STATUS, 1, |v| v[0] & diag::status::FRONT_END_FAULT != 0).await?[0];
         if status & diag::status::FRONT_END_FAULT == 0 {
             return Err(format!("the test switch did not fail the front end: status {status:04x}"));
         }
@@ -798,7 +798,10 @@ async fn broken_front_end(report: &mut Report, image: &str) {
             }
             sleep(Duration::from_millis(500)).await;
         }
-        println!("qemu-8318: A101 ran on trial and was reverted to A100 after {:.1} s", started.elapsed().as_secs_f64());
+        println!(
+            "qemu-8318: A101 ran on trial and was reverted to A100 after {:.1} s",
+            started.elapsed().as_secs_f64()
+        );
         // A100 now: count its restarts over 3 minutes.
         let watched = Instant::now();
         let mut restarts = 0;
@@ -822,9 +825,15 @@ async fn broken_front_end(report: &mut Report, image: &str) {
             }
             sleep(Duration::from_secs(5)).await;
         }
-        println!("qemu-8318: watched A100 for {} s after the revert: {restarts} restarts, uptime {last} s, {polls} polls", NO_RESTART_FOR.as_secs());
+        println!(
+            "qemu-8318: watched A100 for {} s after the revert: {restarts} restarts, uptime {last} s, {polls} polls",
+            NO_RESTART_FOR.as_secs()
+        );
         if restarts > 0 || polls < 30 || u64::from(last) < NO_RESTART_FOR.as_secs() {
-            return Err(format!("{restarts} restarts in {} s (uptime {last} s, {polls} answers)", NO_RESTART_FOR.as_secs()));
+            return Err(format!(
+                "{restarts} restarts in {} s (uptime {last} s, {polls} answers)",
+                NO_RESTART_FOR.as_secs()
+            ));
         }
         Ok(())
     }
@@ -978,10 +987,8 @@ async fn updates(report: &mut Report, image: &str, addr: SocketAddr, update: Soc
             other => Err(format!("answers {other:?}")),
         },
     );
-    report.check(
-        "update: a password set over discovery (sealed credential)",
-        set_password(discovery).await.map(|_| ()),
-    );
+    report
+        .check("update: a password set over discovery (sealed credential)", set_password(discovery).await.map(|_| ()));
     let refused_at = async |running: u16, what: &str, file: &[u8], send: usize, want: &[u8]| -> Result<(), String> {
         let answers = session(update, PASSWORD, file, send).await?;
         if answers != want {
@@ -1119,7 +1126,7 @@ async fn updates(report: &mut Report, image: &str, addr: SocketAddr, update: Soc
             if seen.last() != Some(&v) {
                 seen.push(v);
             }
-            if v == 0xA103 && seen.contains(&0xA104) || v == 0xA103 && marked.elapsed() > Duration::from_secs(15) {
+            if v == 0xA103 && (seen.contains(&0xA104) || marked.elapsed() > Duration::from_secs(15)) {
                 break;
             }
             if marked.elapsed() > Duration::from_secs(90) {
@@ -1162,10 +1169,16 @@ async fn during_update(addr: SocketAddr, update: SocketAddr, file: &[u8]) -> Res
     let underruns = diag_reg(&mut ctx, diag::Diag::PatternUnderruns).await?;
     write(&mut ctx, Point::DiMode(0).addr().1, &[1]).await?;
     let coil = |p: Point| p.addr().1;
-    timeout(STEP, ctx.write_single_coil(coil(Point::CounterClear(0)), true)).await.map_err(|_| "no answer".to_string())?
-        .map_err(|e| e.to_string())?.map_err(|e| format!("exception {e:?}"))?;
-    timeout(STEP, ctx.write_single_coil(coil(Point::CounterRun(0)), true)).await.map_err(|_| "no answer".to_string())?
-        .map_err(|e| e.to_string())?.map_err(|e| format!("exception {e:?}"))?;
+    timeout(STEP, ctx.write_single_coil(coil(Point::CounterClear(0)), true))
+        .await
+        .map_err(|_| "no answer".to_string())?
+        .map_err(|e| e.to_string())?
+        .map_err(|e| format!("exception {e:?}"))?;
+    timeout(STEP, ctx.write_single_coil(coil(Point::CounterRun(0)), true))
+        .await
+        .map_err(|_| "no answer".to_string())?
+        .map_err(|e| e.to_string())?
+        .map_err(|e| format!("exception {e:?}"))?;
     let counter = Point::Counter(0, Word::Low).addr().1;
     let read_counter = async |ctx: &mut Context| -> Result<(u32, Instant, Instant), String> {
         let sent = Instant::now();
@@ -1221,7 +1234,9 @@ async fn during_update(addr: SocketAddr, update: SocketAddr, file: &[u8]) -> Res
         slowest.as_secs_f64() * 1e3
     );
     if writes_made < 2 || slowest > Duration::from_secs(1) {
-        return Err(format!("{writes_made} settings writes during the session, the slowest answered in {slowest:?} (1 s at most)"));
+        return Err(format!(
+            "{writes_made} settings writes during the session, the slowest answered in {slowest:?} (1 s at most)"
+        ));
     }
     if !(least.saturating_sub(1)..=most + 1).contains(&counted) {
         return Err(format!("DI0 counted {counted} edges, the 1 kHz wave gave {least}..={most}"));
