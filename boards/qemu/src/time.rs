@@ -68,8 +68,8 @@ impl Driver for SysTickDriver {
     }
 
     fn schedule_wake(&self, at: u64, waker: &Waker) {
+        let now = self.now();
         critical_section::with(|cs| {
-            let now = self.ticks.borrow(cs).get();
             let mut queue = self.queue.borrow(cs).borrow_mut();
             if queue.schedule_wake(at, waker) {
                 // Wake anything already due; the rest is checked at each tick.
