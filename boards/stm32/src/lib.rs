@@ -136,7 +136,7 @@ fn init(spawner: Spawner) -> (Stm32Board, SettingsFlash, Io) {
     // Freeze the IWDG while the debugger halts the core (RM0090 §38.16.4, DBG_IWDG_STOP), so
     // stepping through code with probe-rs does not reset the board.
     embassy_stm32::pac::DBGMCU.apb1fzr().modify(|w| w.set_iwdg(true));
-    // The watchdog runs from here (RM0090 §21.3.1: started by writing 0xCCCC to IWDG_KR, which
+    // The watchdog runs from here (RM0090 §21.3: started by writing 0xCCCC to IWDG_KR, which
     // `unleash` does; only a reset stops it), before anything that could wait for ever: the
     // Ethernet set-up spins on ETH_DMABMR SR, which never clears without the PHY's 50 MHz
     // REF_CLK (embassy-stm32 0.6 `eth/v1/mod.rs`, unbounded), and the PHY scan takes up to
