@@ -68,20 +68,36 @@ impl<F: NorFlash> NorFlash for Serialized<F> {
         let mut at = from;
         while at < to {
             let end = at.saturating_add(sector).min(to);
-            let _controller = self.controller.lock().await;
-            self.inner.erase(at, end).await?;
+            {
+                let _controller = self.controller.lock().await;
+                self.inner.erase(at, end).await?;
+            }
+            yield_to_waiters().await;
             at = end;
         }
         Ok(())
     }
 
     async fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
-        let _controller = self.controller.lock().await;
-        self.inner.write(offset, bytes).await
+        let written = {
+            let _controller = self.controller.lock().await;
+            self.inner.write(offset, bytes).await
+        };
+        yield_to_waiters().await;
+        written
     }
 }
 
 impl<F: MultiwriteNorFlash> MultiwriteNorFlash for Serialized<F> {}
+
+/// After a long operation (an erase, a write), lets a task that waited for the controller take
+/// it before this one asks again: embassy-sync's mutex is not first come, first served, and a
+/// task that releases and locks again without yielding would keep it (the update service
+/// writes sector after sector while a settings commit waits). The waiter was woken when the
+/// lock was released, so it runs before this task is polled again.
+async fn yield_to_waiters() {
+    embassy_futures::yield_now().await;
+}
 
 #[cfg(test)]
 mod tests {
@@ -136,6 +152,57 @@ mod tests {
         assert_eq!(inner.held, [true, true, true], "each under the controller's lock");
         assert_eq!(inner.flash.image()[1024], 0xFF, "erased");
         assert!(TEST_CONTROLLER.try_lock().is_ok(), "released after the range");
+    }
+
+    /// A flash whose every operation takes one poll (as an erase on the STM32 waits for its
+    /// interrupt), logging the operations in order.
+    struct Slow<'a> {
+        name: &'static str,
+        log: &'a core::cell::RefCell<std::vec::Vec<std::string::String>>,
+    }
+    impl ErrorType for Slow<'_> {
+        type Error = core::convert::Infallible;
+    }
+    impl ReadNorFlash for Slow<'_> {
+        const READ_SIZE: usize = 1;
+        async fn read(&mut self, offset: u32, _bytes: &mut [u8]) -> Result<(), Self::Error> {
+            embassy_futures::yield_now().await;
+            self.log.borrow_mut().push(std::format!("{} read {offset}", self.name));
+            Ok(())
+        }
+        fn capacity(&self) -> usize {
+            4096
+        }
+    }
+    impl NorFlash for Slow<'_> {
+        const WRITE_SIZE: usize = 4;
+        const ERASE_SIZE: usize = 1024;
+        async fn erase(&mut self, from: u32, _to: u32) -> Result<(), Self::Error> {
+            embassy_futures::yield_now().await;
+            self.log.borrow_mut().push(std::format!("{} erase {from}", self.name));
+            Ok(())
+        }
+        async fn write(&mut self, offset: u32, _bytes: &[u8]) -> Result<(), Self::Error> {
+            embassy_futures::yield_now().await;
+            self.log.borrow_mut().push(std::format!("{} write {offset}", self.name));
+            Ok(())
+        }
+    }
+
+    /// Issue #21: a settings read that arrives while the update partition erases sector after
+    /// sector gets the controller after the sector being erased, not after the whole range.
+    #[test]
+    fn a_waiting_partition_goes_between_two_sectors_of_another() {
+        static FAIR: Controller = Mutex::new(());
+        let log = core::cell::RefCell::new(std::vec::Vec::new());
+        let mut dfu = Serialized::new(Slow { name: "dfu", log: &log }, &FAIR);
+        let mut settings = Serialized::new(Slow { name: "settings", log: &log }, &FAIR);
+        let mut buf = [0u8; 4];
+        block_on(embassy_futures::join::join(
+            NorFlash::erase(&mut dfu, 0, 3 * 1024),
+            ReadNorFlash::read(&mut settings, 0, &mut buf),
+        ));
+        assert_eq!(*log.borrow(), ["dfu erase 0", "settings read 0", "dfu erase 1024", "dfu erase 2048"]);
     }
 
     #[test]

@@ -595,14 +595,18 @@ where
     loop {
         if self_test() {
             match target.mark_booted().await {
-                Ok(()) => crate::info!("update: self-test passed, image confirmed"),
+                Ok(()) => {
+                    crate::info!("update: self-test passed, image confirmed");
+                    // Anti-rollback: from now on, images below this one's counter are refused.
+                    if crate::module::commit_change(map, store, settle(false)).await.is_err() {
+                        crate::error!("update: the security counter could not be stored");
+                    }
+                    return Confirmation::Passed;
+                }
+                // Tried again until the trial ends; then the restart reverts, and the counter
+                // never moved.
                 Err(_) => crate::error!("update: the image could not be confirmed"),
             }
-            // Anti-rollback: from now on, images below this one's counter are refused.
-            if crate::module::commit_change(map, store, settle(false)).await.is_err() {
-                crate::error!("update: the security counter could not be stored");
-            }
-            return Confirmation::Passed;
         }
         if embassy_time::Instant::now() > deadline {
             return Confirmation::NotPassed;

@@ -773,11 +773,13 @@ async fn broken_front_end(report: &mut Report, image: &str) {
     let discovery = SocketAddr::from(([127, 0, 0, 1], ports.udp));
     let reverted = async {
         let mut ctx = wait_ready(addr).await?;
-        // The fault is seen: the front-end fault bit after the first cycles.
+        // The fault is seen: the front-end fault bit after the first cycles, outside the board's
+        // own injected fault (20-23 s after the start).
         let status =
             regs_until(&mut ctx, diag::REG_MODULE_STATUS, 1, |v| v[0] & diag::status::FRONT_END_FAULT != 0).await?[0];
-        if status & diag::status::FRONT_END_FAULT == 0 {
-            return Err(format!("the test switch did not fail the front end: status {status:04x}"));
+        let up = uptime(&mut ctx).await?;
+        if status & diag::status::FRONT_END_FAULT == 0 || (19..=24).contains(&up) {
+            return Err(format!("the test switch did not fail the front end: status {status:04x} at {up} s"));
         }
         drop(ctx);
         set_password(discovery).await?;
@@ -1085,6 +1087,46 @@ async fn updates(report: &mut Report, image: &str, addr: SocketAddr, update: Soc
     };
     report.check("update: a v3 that never confirms rolls back to v2 after its reset", rollback.await);
 
+    // v5's link never comes up: its self-test cannot pass, and after its trial the bootloader
+    // reverts to v2. (Before v4: reverted to, v4 would forge its swap again and restart once
+    // more, since the update partition would no longer hold its junk.)
+    let link_down = async {
+        let answers = session(update, PASSWORD, &v5, usize::MAX).await?;
+        if answers != [0, 0] {
+            return Err(format!("v5: the module answered {answers:?}"));
+        }
+        let marked = Instant::now();
+        let mut seen = Vec::new();
+        loop {
+            let v = version(addr).await?;
+            if seen.last() != Some(&v) {
+                seen.push(v);
+            }
+            if v == 0xA101 && (seen.contains(&0xA104) || marked.elapsed() > Duration::from_secs(15)) {
+                break;
+            }
+            if marked.elapsed() > Duration::from_secs(90) {
+                return Err(format!("v2 did not answer again within 90 s (versions seen: {seen:04X?})"));
+            }
+            sleep(Duration::from_millis(500)).await;
+        }
+        // v2 again: it started at least the trial's 20 s after v5 was marked (v5 ran its trial
+        // and was reverted), after a software restart.
+        let mut ctx = connect(addr).await?;
+        let (up, cause) = (uptime(&mut ctx).await?, diag_reg(&mut ctx, diag::Diag::ResetCause).await?);
+        let before_v2 = marked.elapsed().as_secs_f64() - f64::from(up);
+        println!(
+            "qemu-8350: v5 (link down) reverted to v2: v2 started {before_v2:.1} s after v5 was marked (versions seen {seen:04X?})"
+        );
+        if before_v2 < 19.0 || cause != diag::reset_cause::SOFTWARE {
+            return Err(format!(
+                "v2 started {before_v2:.1} s after v5 was marked, reset cause {cause}: expected after the 20 s trial, a software restart"
+            ));
+        }
+        setting_intact("after the link-down revert").await
+    };
+    report.check("update: an image whose link never comes up fails its self-test and is reverted", link_down.await);
+
     // v4 confirms itself, then (as code that took the module over might) writes junk with a
     // forged manifest into the update partition, marks it and restarts: the bootloader refuses
     // the swap and v4 starts again.
@@ -1116,45 +1158,6 @@ async fn updates(report: &mut Report, image: &str, addr: SocketAddr, update: Soc
     };
     report
         .check("update: junk marked in the update partition without a valid signature is not swapped in", forged.await);
-
-    // v5's link never comes up: its self-test cannot pass, and after its trial the bootloader
-    // reverts to v4.
-    let link_down = async {
-        let answers = session(update, PASSWORD, &v5, usize::MAX).await?;
-        if answers != [0, 0] {
-            return Err(format!("v5: the module answered {answers:?}"));
-        }
-        let marked = Instant::now();
-        let mut seen = Vec::new();
-        loop {
-            let v = version(addr).await?;
-            if seen.last() != Some(&v) {
-                seen.push(v);
-            }
-            if v == 0xA103 && (seen.contains(&0xA104) || marked.elapsed() > Duration::from_secs(15)) {
-                break;
-            }
-            if marked.elapsed() > Duration::from_secs(90) {
-                return Err(format!("v4 did not answer again within 90 s (versions seen: {seen:04X?})"));
-            }
-            sleep(Duration::from_millis(500)).await;
-        }
-        // v4 again: it started at least the trial's 20 s after v5 was marked (v5 ran its trial
-        // and was reverted), after a software restart.
-        let mut ctx = connect(addr).await?;
-        let (up, cause) = (uptime(&mut ctx).await?, diag_reg(&mut ctx, diag::Diag::ResetCause).await?);
-        let before_v4 = marked.elapsed().as_secs_f64() - f64::from(up);
-        println!(
-            "qemu-8350: v5 (link down) reverted to v4: v4 started {before_v4:.1} s after v5 was marked (versions seen {seen:04X?})"
-        );
-        if before_v4 < 19.0 || cause != diag::reset_cause::SOFTWARE {
-            return Err(format!(
-                "v4 started {before_v4:.1} s after v5 was marked, reset cause {cause}: expected after the 20 s trial, a software restart"
-            ));
-        }
-        setting_intact("after the link-down revert").await
-    };
-    report.check("update: an image whose link never comes up fails its self-test and is reverted", link_down.await);
 }
 
 /// Issue #21, the 8350 during an update: a whole session (the erase of each sector written, the
@@ -1227,6 +1230,7 @@ async fn during_update(addr: SocketAddr, update: SocketAddr, file: &[u8]) -> Res
     }
     let (slowest, writes_made) = writes.map_err(|e| format!("a settings write during the session: {e}"))?;
     write(&mut writer, pulse_low, &[25, 0]).await?;
+    const LAG: u32 = 3;
     let counted = c1.wrapping_sub(c0);
     let least = (sent1.saturating_duration_since(answered0).as_secs_f64() * 1000.0).floor() as u32;
     let most = (answered1.duration_since(sent0).as_secs_f64() * 1000.0).ceil() as u32;
@@ -1243,8 +1247,10 @@ async fn during_update(addr: SocketAddr, update: SocketAddr, file: &[u8]) -> Res
             "{writes_made} settings writes during the session, the slowest answered in {slowest:?} (1 s at most)"
         ));
     }
-    if !(least.saturating_sub(1)..=most + 1).contains(&counted) {
-        return Err(format!("DI0 counted {counted} edges, the 1 kHz wave gave {least}..={most}"));
+    // The counter moves when the capture is drained, every 2 ms: each read may lag the wave by
+    // up to 2 edges, and 1 more for where the edge falls.
+    if !(least.saturating_sub(LAG)..=most + LAG).contains(&counted) {
+        return Err(format!("DI0 counted {counted} edges, the 1 kHz wave gave {least}..={most} (± {LAG})"));
     }
     if status & diag::status::FRONT_END_FAULT != 0 {
         return Err("input samples were lost (the capture ring overran)".into());
