@@ -111,8 +111,10 @@ pub fn with<R: RawMutex, T>(cell: &IoCell<R>, f: impl FnOnce(&mut Io) -> T) -> T
 /// How often the captured input samples are handed to the engine (the STM32 capture ring holds
 /// 82 ms, so this leaves a wide margin). Each pass is the application's heartbeat.
 pub const DRAIN_INTERVAL: Duration = Duration::from_millis(2);
-/// Input samples taken from the capture per read.
-pub const DRAIN_BATCH: usize = 512;
+/// Input samples taken from the capture per read (the drain reads until the capture is empty:
+/// 100 samples are due every 2 ms at 50 kHz). 256: the buffer lives in the application task's
+/// static future, and 512 took the 8350 over its RAM goal once the flash lock came (issue #21).
+pub const DRAIN_BATCH: usize = 256;
 /// Input samples processed per lock of the I/O state, and output ticks computed per lock. The
 /// lock is a critical section (interrupts off on the target): at most 58 instructions a
 /// sample with edges on all 12 inputs and 225 a tick for 6 pulse trains (`tools/m4-cost`),
