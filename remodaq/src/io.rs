@@ -524,7 +524,7 @@ async fn read_digital(m: &mut Module) -> Result<Digital, Error> {
 /// Asks the module's discovery service whether its writes are restricted (`None`: no answer).
 async fn writes_restricted(addr: SocketAddr, timeout: Duration, at: &DiscoveryAt) -> Option<bool> {
     let to = at.discovery.unwrap_or(SocketAddr::new(addr.ip(), remodaq_protocol::discovery::PORT));
-    let found = crate::lan::find(to, timeout.min(Duration::from_millis(500))).await.ok()?;
+    let found = crate::lan::find(to, None, timeout.min(Duration::from_millis(500))).await.ok()?;
     // The module that serves this Modbus port (several simulated modules may share a PC).
     found.iter().find(|f| f.modbus_port == addr.port())?.writes_restricted
 }

@@ -14,6 +14,7 @@ use remodaq_protocol::net::NetConfig;
 use serde::Serialize;
 use tokio::net::UdpSocket;
 
+use crate::ifaces::{self, Iface};
 use crate::Error;
 
 /// The length of a received datagram; `None` for a receive error, which ends nothing: on
@@ -86,6 +87,9 @@ pub struct Found {
     pub factory_password: bool,
     /// The fingerprint of the key the module verifies firmware images with.
     pub update_key: String,
+    /// The interface of this PC the module answered on (`name (address)`): `null` for a search
+    /// sent to one module's address.
+    pub interface: Option<String>,
 }
 
 /// Most modules one search lists.
@@ -110,15 +114,48 @@ fn request_id() -> u16 {
     (std::process::id() as u16) ^ (nanos >> 8) as u16
 }
 
-/// Sends a search to `to` and collects INFO answers for `timeout`.
-pub async fn find(to: SocketAddr, timeout: Duration) -> Result<Vec<Found>, Error> {
-    let socket = socket().await?;
-    let id = request_id();
-    let mut buf = [0u8; MAX_DATAGRAM];
-    let n = encode_request(id, &Request::Search, &mut buf).unwrap_or(0);
-    socket.send_to(&buf[..n], to).await.map_err(|e| Error::Other(format!("cannot send to {to}: {e}")))?;
-    let deadline = Instant::now() + timeout;
-    let mut found: Vec<Found> = Vec::new();
+/// Whether `to` is the limited broadcast address (the search and commands then go out on
+/// every interface, or on `--interface`).
+fn is_broadcast(to: SocketAddr) -> bool {
+    to.ip() == std::net::IpAddr::V4(Ipv4Addr::BROADCAST)
+}
+
+/// The sockets a datagram to `to` leaves by, with their interface: for the broadcast address,
+/// one per IPv4 interface that is up (those `only` names), or, on a PC with none but loopback,
+/// one unbound socket as before; for one module's address, one socket on `only`'s interface, or
+/// unbound (the PC's routes choose).
+async fn vias(to: SocketAddr, only: Option<&str>) -> Result<Vec<(Option<Iface>, UdpSocket)>, Error> {
+    let interfaces = match (is_broadcast(to), only) {
+        (_, Some(only)) => ifaces::list(Some(only))?,
+        (true, None) => ifaces::list(None)?,
+        (false, None) => vec![],
+    };
+    if interfaces.is_empty() {
+        return Ok(vec![(None, socket().await?)]);
+    }
+    interfaces.into_iter().map(|i| ifaces::socket(&i).map(|s| (Some(i), s))).collect()
+}
+
+/// A module's answer to a search, on an interface.
+struct Answer {
+    mac: [u8; 6],
+    found: Found,
+}
+
+/// Sends `request` (search id `id`) by `socket` and collects the INFO answers until
+/// `deadline`, or until `stop_at` answers.
+async fn collect(
+    socket: UdpSocket,
+    interface: Option<String>,
+    to: SocketAddr,
+    request: Vec<u8>,
+    id: u16,
+    deadline: Instant,
+    stop_at: Option<[u8; 6]>,
+) -> Result<Vec<Answer>, Error> {
+    let on = interface.as_deref().map_or(String::new(), |i| format!(" on {i}"));
+    socket.send_to(&request, to).await.map_err(|e| Error::Other(format!("cannot send to {to}{on}: {e}")))?;
+    let mut answers = Vec::new();
     let mut seen = std::collections::HashSet::new();
     let mut rx = [0u8; 512];
     while let Ok(received) = tokio::time::timeout_at(deadline.into(), socket.recv_from(&mut rx)).await {
@@ -126,29 +163,110 @@ pub async fn find(to: SocketAddr, timeout: Duration) -> Result<Vec<Found>, Error
         let Some(info) = decode_info(&rx[..n]) else { continue };
         // Each module once (a set, not a scan of the list), and at most MAX_FOUND of them: a
         // flood of forged answers cannot grow the list without bound.
-        if info.id != id || found.len() >= MAX_FOUND || !seen.insert(info.mac) {
+        if info.id != id || answers.len() >= MAX_FOUND || !seen.insert(info.mac) {
             continue;
         }
-        found.push(Found {
-            model: format!("{:04X}", info.model),
-            name: sanitize(info.name),
-            firmware: format!("{:04X}", info.version),
-            mac: Mac(info.mac).to_string(),
-            running: info.running.into(),
-            stored: info.stored.into(),
-            uptime_s: info.uptime_s,
-            modbus_port: info.running.port,
-            writes_restricted: Some(info.flags & info_flags::WRITES_RESTRICTED != 0),
-            factory_password: info.flags & info_flags::FACTORY_PASSWORD != 0,
-            update_key: info.update_key.iter().map(|b| format!("{b:02x}")).collect(),
+        answers.push(Answer {
+            mac: info.mac,
+            found: Found {
+                model: format!("{:04X}", info.model),
+                name: sanitize(info.name),
+                firmware: format!("{:04X}", info.version),
+                mac: Mac(info.mac).to_string(),
+                running: info.running.into(),
+                stored: info.stored.into(),
+                uptime_s: info.uptime_s,
+                modbus_port: info.running.port,
+                writes_restricted: Some(info.flags & info_flags::WRITES_RESTRICTED != 0),
+                factory_password: info.flags & info_flags::FACTORY_PASSWORD != 0,
+                update_key: info.update_key.iter().map(|b| format!("{b:02x}")).collect(),
+                interface: interface.clone(),
+            },
         });
+        if stop_at == Some(info.mac) {
+            break;
+        }
     }
-    Ok(found)
+    Ok(answers)
+}
+
+/// Sends a search to `to` (on every interface for the broadcast address, or on `only`) and
+/// collects INFO answers for `timeout`, each module once (by MAC, on the first interface it
+/// answered on).
+pub async fn find(to: SocketAddr, only: Option<&str>, timeout: Duration) -> Result<Vec<Found>, Error> {
+    find_until(to, only, timeout, None).await.map(|(found, _)| found)
+}
+
+/// [`find`], ending as soon as `stop_at` answers; the sockets, by interface, that were used.
+async fn find_until(
+    to: SocketAddr,
+    only: Option<&str>,
+    timeout: Duration,
+    stop_at: Option<[u8; 6]>,
+) -> Result<(Vec<Found>, Vec<Option<Iface>>), Error> {
+    let id = request_id();
+    let mut buf = [0u8; MAX_DATAGRAM];
+    let n = encode_request(id, &Request::Search, &mut buf).unwrap_or(0);
+    let deadline = Instant::now() + timeout;
+    let mut tasks = tokio::task::JoinSet::new();
+    let mut interfaces = Vec::new();
+    for (iface, socket) in vias(to, only).await? {
+        let label = iface.as_ref().map(Iface::label);
+        interfaces.push(iface);
+        tasks.spawn(collect(socket, label, to, buf[..n].to_vec(), id, deadline, stop_at));
+    }
+    let mut found: Vec<Found> = Vec::new();
+    let mut seen = std::collections::HashSet::new();
+    let mut failures = Vec::new();
+    while let Some(done) = tasks.join_next().await {
+        match done {
+            Ok(Ok(answers)) => {
+                let stop = stop_at.is_some_and(|mac| answers.iter().any(|a| a.mac == mac));
+                for a in answers {
+                    if found.len() < MAX_FOUND && seen.insert(a.mac) {
+                        found.push(a.found);
+                    }
+                }
+                if stop {
+                    tasks.abort_all();
+                }
+            }
+            Ok(Err(e)) => failures.push(e),
+            Err(e) if e.is_cancelled() => {}
+            Err(e) => failures.push(Error::Other(format!("the search failed: {e}"))),
+        }
+    }
+    // Every interface failed to send: say why (one that sent and heard nothing is no error).
+    if found.is_empty() && !failures.is_empty() && failures.len() == interfaces.len() {
+        return Err(failures.remove(0));
+    }
+    Ok((found, interfaces))
+}
+
+/// The socket a command for `mac` goes out by: for the broadcast address, one on the interface
+/// where `mac` answers a search (configuration commands go where the module was found); for one
+/// module's address, as [`vias`] gives it.
+async fn via(to: SocketAddr, mac: Mac, only: Option<&str>, timeout: Duration) -> Result<UdpSocket, Error> {
+    let mut sockets = vias(to, only).await?;
+    if sockets.len() == 1 {
+        return Ok(sockets.remove(0).1);
+    }
+    drop(sockets);
+    let (found, interfaces) = find_until(to, only, timeout, Some(mac.0)).await?;
+    let mac_text = mac.to_string();
+    let on = found.iter().find(|f| f.mac == mac_text).and_then(|f| f.interface.clone());
+    match interfaces.into_iter().flatten().find(|i| Some(i.label()) == on) {
+        Some(iface) => ifaces::socket(&iface),
+        None => Err(Error::Timeout(format!(
+            "module {mac} did not answer a search on any interface of this PC within {:.1} s",
+            timeout.as_secs_f64()
+        ))),
+    }
 }
 
 /// `remodaq search`.
-pub async fn search(to: SocketAddr, timeout: Duration, json: bool) -> Result<(), Error> {
-    let found = find(to, timeout).await?;
+pub async fn search(to: SocketAddr, only: Option<&str>, timeout: Duration, json: bool) -> Result<(), Error> {
+    let found = find(to, only, timeout).await?;
     if json {
         println!("{}", serde_json::to_string_pretty(&found).unwrap_or_default());
         return Ok(());
@@ -161,7 +279,16 @@ pub async fn search(to: SocketAddr, timeout: Duration, json: bool) -> Result<(),
         "{:<14} {:<18} {:<16} {:<16} {:<16} {:>6} {:>9}",
         "model", "mac", "ip", "mask", "gateway", "port", "uptime"
     );
+    // Grouped by the interface they answered on, as the manuals' tree shows them under
+    // `Host (address)`.
+    let mut found = found;
+    found.sort_by(|a, b| a.interface.cmp(&b.interface));
+    let mut host = None;
     for f in &found {
+        if f.interface.is_some() && f.interface != host {
+            host = f.interface.clone();
+            println!("host {}", host.as_deref().unwrap_or_default());
+        }
         let r = f.running;
         println!(
             "{:<14} {:<18} {:<16} {:<16} {:<16} {:>6} {:>8}s",
@@ -209,8 +336,10 @@ pub enum Command<'a> {
 }
 
 /// `remodaq net set`.
+#[allow(clippy::too_many_arguments)]
 pub async fn set_network(
     to: SocketAddr,
+    only: Option<&str>,
     mac: Mac,
     password: &str,
     change: NetChange,
@@ -226,12 +355,14 @@ pub async fn set_network(
     if !net.is_valid() {
         return Err(Error::Other("these settings are not usable (mask, address or port)".into()));
     }
-    command(to, mac, Some(password), Command::SetNetwork(net), timeout, json).await
+    command(to, only, mac, Some(password), Command::SetNetwork(net), timeout, json).await
 }
 
 /// Sends a configuration command and prints its result.
+#[allow(clippy::too_many_arguments)]
 pub async fn command(
     to: SocketAddr,
+    only: Option<&str>,
     mac: Mac,
     password: Option<&str>,
     cmd: Command<'_>,
@@ -247,7 +378,8 @@ pub async fn command(
         Command::SetAccess(list) if list.is_empty() => "Modbus writes allowed from any client",
         Command::SetAccess(..) => "Modbus writes allowed from the listed networks only",
     };
-    let (reply, factory) = exchange(to, mac, password, &cmd, timeout).await?;
+    let socket = via(to, mac, only, timeout).await?;
+    let (reply, factory) = exchange(&socket, to, mac, password, &cmd, timeout).await?;
     if let Some(list) = reply.list {
         let nets: Vec<String> = list.iter().map(cidr).collect();
         if json {
@@ -331,25 +463,24 @@ async fn receive<T>(
 /// the module's signed reply (an error unless it is Ok). Also says whether the factory
 /// password is in force.
 async fn exchange(
+    socket: &UdpSocket,
     to: SocketAddr,
     mac: Mac,
     password: Option<&str>,
     cmd: &Command<'_>,
     timeout: Duration,
 ) -> Result<(Reply, bool), Error> {
-    let socket = socket().await?;
     let deadline = Instant::now() + timeout;
     let silent = || format!("module {mac} did not answer at {to} within {:.1} s", timeout.as_secs_f64());
-    let send = |bytes: Vec<u8>| {
-        let socket = &socket;
-        async move { socket.send_to(&bytes, to).await.map_err(|e| Error::Other(format!("cannot send to {to}: {e}"))) }
+    let send = |bytes: Vec<u8>| async move {
+        socket.send_to(&bytes, to).await.map_err(|e| Error::Other(format!("cannot send to {to}: {e}")))
     };
     let mut buf = [0u8; MAX_DATAGRAM];
     if let Command::Identify = cmd {
         let id = request_id();
         let n = encode_request(id, &Request::Identify { mac: mac.0 }, &mut buf).unwrap_or(0);
         send(buf[..n].to_vec()).await?;
-        let reply = receive(&socket, deadline, silent, |d| {
+        let reply = receive(socket, deadline, silent, |d| {
             decode_reply(d).filter(|r| r.opcode == op::IDENTIFY && r.id == id && r.mac == mac.0)
         })
         .await?;
@@ -361,7 +492,7 @@ async fn exchange(
         let (id, cnonce) = (request_id(), random::<16>()?);
         let n = encode_request(id, &Request::Challenge { mac: mac.0, cnonce }, &mut buf).unwrap_or(0);
         send(buf[..n].to_vec()).await?;
-        let challenge = receive(&socket, deadline, silent, |d| {
+        let challenge = receive(socket, deadline, silent, |d| {
             decode_challenge(d).filter(|c| c.id == id && c.mac == mac.0 && c.cnonce == cnonce)
         })
         .await?;
@@ -387,7 +518,7 @@ async fn exchange(
         client::prove(&mut buf[..n], &client_key);
         let request = buf[..n].to_vec();
         send(request.clone()).await?;
-        let (reply, bytes) = receive(&socket, deadline, silent, |d| {
+        let (reply, bytes) = receive(socket, deadline, silent, |d| {
             decode_reply(d)
                 .filter(|r| r.opcode == command.opcode() && r.id == id && r.mac == mac.0)
                 .map(|r| (r, d.to_vec()))

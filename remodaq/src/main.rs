@@ -1,6 +1,7 @@
 //! `remodaq`: find RemoDAQ-8300 modules on the LAN, change their network settings, restart
 //! and identify them, and read, watch and configure their I/O over Modbus/TCP.
 
+mod ifaces;
 mod io;
 mod lan;
 mod sign;
@@ -22,6 +23,11 @@ struct Cli {
     /// Seconds to wait for answers.
     #[arg(long, global = true, default_value_t = 2.0)]
     timeout: f64,
+    /// Search and configure through this interface of the PC only (its name, like `eth1`, or
+    /// its address): by default a search goes out on every IPv4 interface that is up, and a
+    /// command for a module by the interface it answered on.
+    #[arg(long, global = true)]
+    interface: Option<String>,
     #[command(subcommand)]
     command: Command,
 }
@@ -320,23 +326,25 @@ fn main() -> ExitCode {
 async fn run(cli: Cli) -> Result<(), Error> {
     let timeout = Duration::from_secs_f64(cli.timeout.max(0.01));
     let json = cli.json;
+    let only = cli.interface.as_deref();
     match cli.command {
-        Command::Search { to } => lan::search(to, timeout, json).await,
+        Command::Search { to } => lan::search(to, only, timeout, json).await,
         Command::Net { command: NetCommand::Set { target, password, ip, mask, gateway, port } } => {
             let change = lan::NetChange { ip, mask, gateway, port };
-            lan::set_network(target.to, target.mac, &password.get()?, change, timeout, json).await
+            lan::set_network(target.to, only, target.mac, &password.get()?, change, timeout, json).await
         }
         Command::Restart { target, password } => {
             let password = password.get()?;
-            lan::command(target.to, target.mac, Some(&password), lan::Command::Restart, timeout, json).await
+            lan::command(target.to, only, target.mac, Some(&password), lan::Command::Restart, timeout, json).await
         }
         Command::Identify { target } => {
-            lan::command(target.to, target.mac, None, lan::Command::Identify, timeout, json).await
+            lan::command(target.to, only, target.mac, None, lan::Command::Identify, timeout, json).await
         }
         Command::Password { target, password, new } => {
             let password = password.get()?;
             let new = new_password(new)?;
-            lan::command(target.to, target.mac, Some(&password), lan::Command::SetPassword(&new), timeout, json).await
+            lan::command(target.to, only, target.mac, Some(&password), lan::Command::SetPassword(&new), timeout, json)
+                .await
         }
         Command::Read { module, discovery } => io::read(&module, discovery, timeout, json).await,
         Command::Watch { module, discovery, interval, count } => {
@@ -356,7 +364,7 @@ async fn run(cli: Cli) -> Result<(), Error> {
                 }
             };
             let password = password.get()?;
-            lan::command(target.to, target.mac, Some(&password), cmd, timeout, json).await
+            lan::command(target.to, only, target.mac, Some(&password), cmd, timeout, json).await
         }
         Command::Config { module, setting } => io::config(&module, setting, timeout, json).await,
         Command::Keygen { key } => sign::keygen(&key),
