@@ -32,7 +32,7 @@ impl AnalogFrontEnd for Simulated {
     type Error = &'static str;
 
     async fn measure(&mut self, channel: u8, _span_mv: f64, _detect_open: bool) -> Result<Measurement, Self::Error> {
-        if crate::test_switches::get() == crate::test_switches::FRONT_END_FAULT {
+        if crate::test_switches::front_end_fault() {
             return Err("the front end is broken (test switch)");
         }
         if FAULT_S.contains(&Instant::now().as_secs()) {

@@ -4,12 +4,13 @@
 //!
 //! - Executor: Embassy's raw executor in a loop that sleeps with WFI (its stock WFE loop never
 //!   sleeps under QEMU and burns a host core).
-//! - Time: the FPGAIO's counter, made to count milliseconds (QEMU derives it from its virtual
+//! - Time: the FPGAIO's counter, made to count microseconds (QEMU derives it from its virtual
 //!   clock: no tick lost when the host is busy); SysTick at 1 kHz wakes embassy-time-queue-utils'
 //!   queue.
-//! - Network: the LAN9118 driver, interrupt-driven receive; QEMU's user network gives the
-//!   guest 10.0.2.15/24 with gateway 10.0.2.2, used instead of the stored IP settings (the
-//!   Modbus port still comes from the settings).
+//! - Network: the LAN9118 driver, interrupt-driven receive, with the MAC QEMU gives the NIC.
+//!   QEMU's user network gives the guest 10.0.2.15/24 with gateway 10.0.2.2, used instead of
+//!   the stored IP settings (the Modbus port still comes from the settings); on a TAP device
+//!   (`scripts/qemu run MODEL --tap`, the `TAP` test switch) the stored settings, as on a LAN.
 //! - Flash: regions of QEMU's writable code memory driven as NOR flash (`remodaq-ram-nor`):
 //!   the settings, and the update and state partitions of the bootloader (`bootloader/`),
 //!   which starts the application (layout.x).
@@ -85,22 +86,36 @@ static __INTERRUPTS: [extern "C" fn(); 32] = {
 /// The Ethernet device of this board.
 pub type Device = Lan9118<Mmio>;
 
-/// The test switches' word (layout.x): QEMU sets it at every reset when the test command starts
-/// the machine with `-device loader,addr=0x3ff000,data=VALUE,data-len=4`; 0 otherwise.
+/// The test switches (layout.x): words QEMU sets at every reset when the test command or
+/// `scripts/qemu run --tap` starts the machine with `-device loader,addr=ADDR,data=VALUE,
+/// data-len=4`; 0 otherwise. Each switch is one word and is on only with its exact value.
 pub mod test_switches {
-    /// Every conversion of the 8318's front end fails (a broken or missing AD7124-8), in
-    /// every image started on this machine: "FEND".
+    /// At 0x003F_F000: every conversion of the 8318's front end fails (a broken or missing
+    /// AD7124-8), in every image started on this machine: "FEND".
     pub const FRONT_END_FAULT: u32 = 0x4645_4E44;
+    /// At 0x003F_F004: the NIC is on a TAP device, on a LAN of its own: the module takes its
+    /// stored network settings (factory 192.168.0.1/24), as on a real LAN, instead of QEMU's
+    /// user-network address: "TAP ".
+    pub const TAP: u32 = 0x5441_5020;
 
     unsafe extern "C" {
-        static __test_switches: u32;
+        static __test_switches: [u32; 2];
     }
 
-    /// The word as QEMU set it.
-    pub fn get() -> u32 {
-        // SAFETY: a word of QEMU's code memory that nothing in the firmware writes (layout.x);
-        // a volatile, aligned read.
-        unsafe { core::ptr::read_volatile(core::ptr::addr_of!(__test_switches)) }
+    fn word(n: usize) -> u32 {
+        // SAFETY: words of QEMU's code memory that nothing in the firmware writes (layout.x);
+        // volatile, aligned reads.
+        unsafe { core::ptr::read_volatile(core::ptr::addr_of!(__test_switches[n])) }
+    }
+
+    /// The front-end fault switch.
+    pub fn front_end_fault() -> bool {
+        word(0) == FRONT_END_FAULT
+    }
+
+    /// The TAP switch.
+    pub fn tap() -> bool {
+        word(1) == TAP
     }
 }
 
@@ -129,7 +144,10 @@ impl Board for QemuBoard {
         let Some(mut core) = cortex_m::Peripherals::take() else { panic!("init twice") };
         time::start(&mut core.SYST);
         let regions = flash::Regions::take();
-        let board = QemuBoard { mac: mac_from_uid(b"qemu-mps2-an"), boot: Some((regions.dfu, regions.state)) };
+        // The MAC the LAN9118 holds from its EEPROM (QEMU's `-nic ...,mac=`, so that two
+        // modules on one LAN differ), or one of the board's own.
+        let mac = remodaq_lan9118::stored_mac(Mmio).unwrap_or_else(|| mac_from_uid(b"qemu-mps2-an"));
+        let board = QemuBoard { mac, boot: Some((regions.dfu, regions.state)) };
         (board, regions.settings, ())
     }
 
@@ -174,8 +192,9 @@ impl Board for QemuBoard {
         seed
     }
 
-    /// Brings up the LAN9118 and the network stack on QEMU's user network (10.0.2.15/24,
-    /// whatever the stored address; the Modbus port is the stored one).
+    /// Brings up the LAN9118 and the network stack: on QEMU's user network at 10.0.2.15/24,
+    /// whatever the stored address (the Modbus port is the stored one); on a TAP device (the
+    /// `TAP` test switch) at the stored settings.
     fn start_network(self, spawner: Spawner, stored: NetConfig) -> (EmbassyNet<QemuEffects>, NetConfig) {
         #[allow(unused_mut)]
         let mut device = match Lan9118::new(Mmio, self.mac) {
@@ -187,14 +206,24 @@ impl Board for QemuBoard {
         device.hold_link_down();
         // SAFETY: the handler is in the vector table and touches only the driver's waker.
         unsafe { NVIC::unmask(Irq(LAN9118_IRQ)) };
+        // On a TAP device the stored settings, as on a real LAN; on QEMU's user network its
+        // fixed guest address (the stored port still applies).
+        let running = if test_switches::tap() {
+            stored
+        } else {
+            NetConfig { ip: GUEST_IP, mask: [255, 255, 255, 0], gateway: GATEWAY, port: stored.port }
+        };
+        let gateway = (running.gateway != [0; 4]).then(|| Ipv4Address::from(running.gateway));
         let config = embassy_net::Config::ipv4_static(StaticConfigV4 {
-            address: Ipv4Cidr::new(Ipv4Address::from(GUEST_IP), 24),
-            gateway: Some(Ipv4Address::from(GATEWAY)),
+            address: Ipv4Cidr::new(Ipv4Address::from(running.ip), running.prefix_len().unwrap_or(24)),
+            gateway,
             dns_servers: heapless::Vec::new(),
         });
-        // Only intact SYNs to this MAC and address wait in the backlog; every client comes from
-        // QEMU's user-network gateway (10.0.2.2), so one source may fill it.
-        MODBUS_BACKLOG.identify(self.mac, GUEST_IP, remodaq_shared::backlog::HELD);
+        // Only intact SYNs to this MAC and address wait in the backlog. On the user network every
+        // client comes from QEMU's gateway (10.0.2.2), so one source may fill it.
+        let held =
+            if test_switches::tap() { remodaq_shared::backlog::HELD_PER_SOURCE } else { remodaq_shared::backlog::HELD };
+        MODBUS_BACKLOG.identify(self.mac, running.ip, held);
         static RESOURCES: StaticCell<StackResources<STACK_SOCKETS>> = StaticCell::new();
         let (stack, runner) = embassy_net::new(
             Backlogged::new(device, &MODBUS_BACKLOG),
@@ -203,8 +232,7 @@ impl Board for QemuBoard {
             0x5EED_8300,
         );
         spawn(spawner, net_task(runner), "net");
-        info!("network: 10.0.2.15/24 (QEMU user network)");
-        let running = NetConfig { ip: GUEST_IP, mask: [255, 255, 255, 0], gateway: GATEWAY, port: stored.port };
+        info!("network: {}.{}.{}.{}", running.ip[0], running.ip[1], running.ip[2], running.ip[3]);
         (EmbassyNet { stack, port: stored.port, effects: QemuEffects }, running)
     }
 

@@ -1,13 +1,17 @@
 //! embassy-time on the MPS2 FPGAIO's counter, with the timer queue checked at each SysTick.
 //!
 //! The time is the FPGAIO's COUNTER register (base 0x4002_8000, offset 0x18), made to count
-//! milliseconds by PRESCALE = 24 999 on its 25 MHz prescale clock (AN385/AN386 application
+//! microseconds by PRESCALE = 24 on its 25 MHz prescale clock (AN385/AN386 application
 //! notes, "FPGA system control and I/O"; QEMU `hw/arm/mps2.c` sets `prescale-clk` to 25 MHz and
 //! `hw/misc/mps2-fpgaio.c` computes COUNTER from its virtual clock). Counting SysTick
 //! interrupts instead loses every tick QEMU coalesces while its host thread is descheduled, and
 //! the guest's clock then lags the wall clock (0.3 % was seen under a build): the 8350's
 //! simulated inputs, which follow the guest's clock, then gave fewer edges than the seconds
-//! that passed. SysTick, at 1 kHz from the 25 MHz core clock, only wakes the timer queue.
+//! that passed. Microseconds, as on the STM32 (embassy-time's `tick-hz-1_000_000`): with a 1 ms
+//! time base a deadline 500 ms after an event fell up to 1 ms early in wall-clock terms (the
+//! event's instant rounded down), which the 8350's host-watchdog check saw as a trip 499.8 ms
+//! after its arming write. SysTick, at 1 kHz from the 25 MHz core clock, only wakes the timer
+//! queue (timers wake within 1 ms).
 
 use core::cell::{Cell, RefCell};
 use core::task::Waker;
@@ -20,7 +24,10 @@ use embassy_time_driver::Driver;
 use embassy_time_queue_utils::Queue;
 
 const CORE_HZ: u32 = 25_000_000;
-const TICK_HZ: u32 = 1_000;
+/// The SysTick interrupt's rate: the timer queue is checked this often.
+const SYSTICK_HZ: u32 = 1_000;
+/// The time base's rate (embassy-time's tick rate).
+const TICK_HZ: u32 = 1_000_000;
 
 /// The FPGAIO's registers.
 const FPGAIO: usize = 0x4002_8000;
@@ -52,8 +59,8 @@ embassy_time_driver::time_driver_impl!(static DRIVER: SysTickDriver = SysTickDri
 });
 
 impl Driver for SysTickDriver {
-    /// Milliseconds since the start, from the FPGAIO's counter; read at every SysTick, so a
-    /// wrap of its 32 bits is never missed.
+    /// Microseconds since the start, from the FPGAIO's counter; read at every SysTick, so a
+    /// wrap of its 32 bits (every 71 minutes) is never missed.
     fn now(&self) -> u64 {
         critical_section::with(|cs| {
             let epoch = self.epoch.borrow(cs);
@@ -79,14 +86,14 @@ impl Driver for SysTickDriver {
     }
 }
 
-/// Starts the millisecond counter and the 1 kHz tick.
+/// Starts the microsecond counter and the 1 kHz tick.
 pub fn start(syst: &mut SYST) {
-    let per_ms = PRESCALE_CLK_HZ / TICK_HZ - 1;
-    fpgaio_write(PRESCALE, per_ms);
-    fpgaio_write(PSCNTR, per_ms);
+    let per_tick = PRESCALE_CLK_HZ / TICK_HZ - 1;
+    fpgaio_write(PRESCALE, per_tick);
+    fpgaio_write(PSCNTR, per_tick);
     fpgaio_write(COUNTER, 0);
     syst.set_clock_source(SystClkSource::Core);
-    syst.set_reload(CORE_HZ / TICK_HZ - 1);
+    syst.set_reload(CORE_HZ / SYSTICK_HZ - 1);
     syst.clear_current();
     syst.enable_interrupt();
     syst.enable_counter();

@@ -128,6 +128,26 @@ pub struct Lan9118<R: Registers> {
     link_held_down: bool,
 }
 
+/// Reads a MAC register through MAC_CSR.
+fn csr_read<R: Registers>(regs: R, index: u32) -> Result<u32, InitError> {
+    regs.write(reg::MAC_CSR_CMD, CSR_BUSY | CSR_READ | index);
+    wait_until(|| regs.read(reg::MAC_CSR_CMD) & CSR_BUSY == 0)?;
+    Ok(regs.read(reg::MAC_CSR_DATA))
+}
+
+/// The MAC address the chip holds before the driver sets one (loaded from its EEPROM at reset;
+/// under QEMU, the `-nic ...,mac=` address), if the chip answers and it is a usable unicast
+/// address (not all zeros, not a group address).
+pub fn stored_mac<R: Registers>(regs: R) -> Option<[u8; 6]> {
+    if regs.read(reg::BYTE_TEST) != BYTE_TEST_VALUE {
+        return None;
+    }
+    let low = csr_read(regs, reg::mac::ADDRL).ok()?.to_le_bytes();
+    let high = csr_read(regs, reg::mac::ADDRH).ok()?.to_le_bytes();
+    let mac = [low[0], low[1], low[2], low[3], high[0], high[1]];
+    (mac != [0; 6] && mac[0] & 1 == 0).then_some(mac)
+}
+
 fn wait_until(mut done: impl FnMut() -> bool) -> Result<(), InitError> {
     for _ in 0..POLLS {
         if done() {
@@ -175,9 +195,7 @@ impl<R: Registers> Lan9118<R> {
 
     /// Reads a MAC register through MAC_CSR.
     pub fn mac_read(&self, index: u32) -> Result<u32, InitError> {
-        self.regs.write(reg::MAC_CSR_CMD, CSR_BUSY | CSR_READ | index);
-        wait_until(|| self.regs.read(reg::MAC_CSR_CMD) & CSR_BUSY == 0)?;
-        Ok(self.regs.read(reg::MAC_CSR_DATA))
+        csr_read(self.regs, index)
     }
 
     /// Pops received frames until one is good; its length (CRC removed) stays in `rx`.

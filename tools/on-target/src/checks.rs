@@ -188,7 +188,7 @@ async fn state_marks<S: NorFlash>(state: S) -> Result<Verdict, &'static str> {
     say!("on-target: state marked updated and booted in {} ms; longest executor stall {} us", took, stall_us);
     if cfg!(feature = "board-qemu") {
         return Ok(Verdict::NotApplicable(
-            "the QEMU board's flash is RAM and its time base has 1 ms steps: no stall to measure",
+            "the QEMU board's flash is RAM (an erase takes no time) and its timers wake at 1 kHz: no stall to measure",
         ));
     }
     if stall_us > MARK_STALL_MAX_US {
