@@ -266,10 +266,22 @@ async fn via(to: SocketAddr, mac: Mac, only: Option<&str>, timeout: Duration) ->
 
 /// `remodaq search`.
 pub async fn search(to: SocketAddr, only: Option<&str>, timeout: Duration, json: bool) -> Result<(), Error> {
-    let found = find(to, only, timeout).await?;
+    let (found, interfaces) = find_until(to, only, timeout, None).await?;
     if json {
         println!("{}", serde_json::to_string_pretty(&found).unwrap_or_default());
         return Ok(());
+    }
+    // Where the search went, and what answered on each interface.
+    let searched: Vec<String> = interfaces
+        .iter()
+        .flatten()
+        .map(|i| {
+            let n = found.iter().filter(|f| f.interface.as_deref() == Some(&i.label())).count();
+            format!("{} {n}", i.label())
+        })
+        .collect();
+    if !searched.is_empty() {
+        println!("searched on {}: modules found {}", searched.len(), searched.join(", "));
     }
     if found.is_empty() {
         println!("no module answered within {:.1} s", timeout.as_secs_f64());

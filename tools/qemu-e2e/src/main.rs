@@ -1024,9 +1024,21 @@ async fn updates(report: &mut Report, image: &str, addr: SocketAddr, update: Soc
         refused("the 8318's image", &other, usize::MAX, &[3]).await,
     );
 
+    // The module's clock is QEMU's, which follows the wall clock: when this machine keeps QEMU
+    // from running for longer than the output ring lasts (6.4 ms), the guest finds its ring
+    // run dry, as a module would whose CPU stopped. A firmware that blocks its executor does
+    // so in every session; a busy host, rarely twice: one more session is made after a lost
+    // sample or an underrun only, and said.
+    let mut during = during_update(addr, update, &tampered).await;
+    if let Err(e) = &during {
+        if e.contains(RAN_DRY) || e.contains(OVERRAN) {
+            println!("qemu-8350: during the update session: {e}; one more session");
+            during = during_update(addr, update, &tampered).await;
+        }
+    }
     report.check(
         "update: during a whole session, DI0's 1 kHz counter loses no edge, the outputs never run dry, settings writes answer within 1 s",
-        during_update(addr, update, &tampered).await,
+        during,
     );
 
     // v1 -> v2 with the tool.
@@ -1160,10 +1172,14 @@ async fn updates(report: &mut Report, image: &str, addr: SocketAddr, update: Soc
         .check("update: junk marked in the update partition without a valid signature is not swapped in", forged.await);
 }
 
+/// What [`during_update`] says of an underrun, and of an overrun.
+const RAN_DRY: &str = "the output pattern ran dry";
+const OVERRAN: &str = "the capture ring overran";
+
 /// Issue #21, the 8350 during an update: a whole session (the erase of each sector written, the
 /// writes, the hash; the image's signature is bad, so it is refused at the very end and the
 /// module does not restart) while DI0's 1 kHz square wave is counted, the outputs' pattern
-/// plays, and a setting (DO0's pulse low width, persisted) is written every 0.5 s. Counted
+/// plays, and a setting (DO0's pulse low width, persisted) is written every second. Counted
 /// edges are bracketed by the two counter reads' send and answer times; the capture ring's
 /// overrun bit (40241 bit 0, cleared by reading it), the pattern's underrun counter (40325)
 /// and every write's answer time are checked.
@@ -1204,8 +1220,9 @@ async fn during_update(addr: SocketAddr, update: SocketAddr, file: &[u8]) -> Res
         done.set(true);
         answers
     };
-    // A write every 0.5 s for as long as the session runs, alternating 26 and 25 (each a commit:
-    // about 10, within the commit budget of 20 with the run's other writes).
+    // A write every second for as long as the session runs, alternating 26 and 25 (each a
+    // commit: about 5 a session, within the commit budget of 20 with the run's other writes
+    // even when a second session is made).
     let writes = async {
         let (mut slowest, mut n) = (Duration::ZERO, 0u32);
         while !done.get() {
@@ -1213,7 +1230,7 @@ async fn during_update(addr: SocketAddr, update: SocketAddr, file: &[u8]) -> Res
             write(&mut writer, pulse_low, &[if n % 2 == 0 { 26 } else { 25 }, 0]).await?;
             slowest = slowest.max(sent.elapsed());
             n += 1;
-            for _ in 0..5 {
+            for _ in 0..10 {
                 if done.get() {
                     break;
                 }
@@ -1253,10 +1270,10 @@ async fn during_update(addr: SocketAddr, update: SocketAddr, file: &[u8]) -> Res
         return Err(format!("DI0 counted {counted} edges, the 1 kHz wave gave {least}..={most} (± {LAG})"));
     }
     if status & diag::status::FRONT_END_FAULT != 0 {
-        return Err("input samples were lost (the capture ring overran)".into());
+        return Err(format!("input samples were lost ({OVERRAN})"));
     }
     if underruns_after != underruns {
-        return Err(format!("the output pattern ran dry {} times", underruns_after.wrapping_sub(underruns)));
+        return Err(format!("{RAN_DRY} {} times", underruns_after.wrapping_sub(underruns)));
     }
     Ok(())
 }
