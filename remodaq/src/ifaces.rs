@@ -40,13 +40,15 @@ impl Iface {
     }
 }
 
-/// The IPv4 interfaces that are up, without loopback; only those whose name or address is
-/// `only`, when given.
+/// The IPv4 interfaces that are up (operationally: with a carrier), without loopback and
+/// point-to-point links (VPN tunnels: no module is there, and a search should not leak into
+/// them); only those whose name or address is `only`, when given (loopback included then).
 pub fn list(only: Option<&str>) -> Result<Vec<Iface>, Error> {
     let all = if_addrs::get_if_addrs().map_err(|e| Error::Other(format!("cannot list the network interfaces: {e}")))?;
+    let named = |i: &if_addrs::Interface| only.is_some_and(|o| i.name == o || i.ip().to_string() == o);
     let mut out: Vec<Iface> = all
         .into_iter()
-        .filter(|i| !i.is_loopback() && i.oper_status != if_addrs::IfOperStatus::Down)
+        .filter(|i| named(i) || (!i.is_loopback() && i.is_oper_up() && !i.is_p2p()))
         .filter_map(|i| match i.addr {
             if_addrs::IfAddr::V4(v4) => Some(Iface { name: i.name, ip: v4.ip, prefix: v4.prefixlen, index: i.index }),
             if_addrs::IfAddr::V6(_) => None,

@@ -133,7 +133,23 @@ async fn vias(to: SocketAddr, only: Option<&str>) -> Result<Vec<(Option<Iface>, 
     if interfaces.is_empty() {
         return Ok(vec![(None, socket().await?)]);
     }
-    interfaces.into_iter().map(|i| ifaces::socket(&i).map(|s| (Some(i), s))).collect()
+    // An interface whose socket cannot be made (an address going away, a duplicate one) is
+    // said and left out; the others are searched.
+    let mut sockets = Vec::new();
+    let mut first_error = None;
+    for iface in interfaces {
+        match ifaces::socket(&iface) {
+            Ok(socket) => sockets.push((Some(iface), socket)),
+            Err(e) => {
+                eprintln!("warning: {e}");
+                first_error.get_or_insert(e);
+            }
+        }
+    }
+    match (sockets.is_empty(), first_error) {
+        (true, Some(e)) => Err(e),
+        _ => Ok(sockets),
+    }
 }
 
 /// A module's answer to a search, on an interface.
@@ -143,7 +159,7 @@ struct Answer {
 }
 
 /// Sends `request` (search id `id`) by `socket` and collects the INFO answers until
-/// `deadline`, or until `stop_at` answers.
+/// `deadline` (the module `want` counted even beyond [`MAX_FOUND`]).
 async fn collect(
     socket: UdpSocket,
     interface: Option<String>,
@@ -151,7 +167,7 @@ async fn collect(
     request: Vec<u8>,
     id: u16,
     deadline: Instant,
-    stop_at: Option<[u8; 6]>,
+    want: Option<[u8; 6]>,
 ) -> Result<Vec<Answer>, Error> {
     let on = interface.as_deref().map_or(String::new(), |i| format!(" on {i}"));
     socket.send_to(&request, to).await.map_err(|e| Error::Other(format!("cannot send to {to}{on}: {e}")))?;
@@ -162,8 +178,9 @@ async fn collect(
         let Some(n) = datagram(received) else { continue };
         let Some(info) = decode_info(&rx[..n]) else { continue };
         // Each module once (a set, not a scan of the list), and at most MAX_FOUND of them: a
-        // flood of forged answers cannot grow the list without bound.
-        if info.id != id || answers.len() >= MAX_FOUND || !seen.insert(info.mac) {
+        // flood of forged answers cannot grow the list without bound (nor hide `want`).
+        let room = answers.len() < MAX_FOUND || want == Some(info.mac);
+        if info.id != id || !room || !seen.insert(info.mac) {
             continue;
         }
         answers.push(Answer {
@@ -183,90 +200,105 @@ async fn collect(
                 interface: interface.clone(),
             },
         });
-        if stop_at == Some(info.mac) {
-            break;
-        }
     }
     Ok(answers)
 }
 
 /// Sends a search to `to` (on every interface for the broadcast address, or on `only`) and
-/// collects INFO answers for `timeout`, each module once (by MAC, on the first interface it
-/// answered on).
+/// collects INFO answers for `timeout`, each module once (by MAC, under the first interface,
+/// in the system's order, it answered on).
 pub async fn find(to: SocketAddr, only: Option<&str>, timeout: Duration) -> Result<Vec<Found>, Error> {
-    find_until(to, only, timeout, None).await.map(|(found, _)| found)
+    let (by_interface, _) = search_each(to, only, timeout, None).await?;
+    Ok(merge(by_interface))
 }
 
-/// [`find`], ending as soon as `stop_at` answers; the sockets, by interface, that were used.
-async fn find_until(
+/// The answers on each interface searched (in the system's order), and the interfaces. An
+/// interface that could not send is said (stderr) and has no answers; an error only when none
+/// could.
+async fn search_each(
     to: SocketAddr,
     only: Option<&str>,
     timeout: Duration,
-    stop_at: Option<[u8; 6]>,
-) -> Result<(Vec<Found>, Vec<Option<Iface>>), Error> {
+    want: Option<[u8; 6]>,
+) -> Result<(Vec<Vec<Answer>>, Vec<Option<Iface>>), Error> {
     let id = request_id();
     let mut buf = [0u8; MAX_DATAGRAM];
     let n = encode_request(id, &Request::Search, &mut buf).unwrap_or(0);
     let deadline = Instant::now() + timeout;
     let mut tasks = tokio::task::JoinSet::new();
     let mut interfaces = Vec::new();
-    for (iface, socket) in vias(to, only).await? {
+    for (i, (iface, socket)) in vias(to, only).await?.into_iter().enumerate() {
         let label = iface.as_ref().map(Iface::label);
         interfaces.push(iface);
-        tasks.spawn(collect(socket, label, to, buf[..n].to_vec(), id, deadline, stop_at));
+        let request = buf[..n].to_vec();
+        tasks.spawn(async move { (i, collect(socket, label, to, request, id, deadline, want).await) });
     }
-    let mut found: Vec<Found> = Vec::new();
-    let mut seen = std::collections::HashSet::new();
+    let mut by_interface: Vec<Vec<Answer>> = interfaces.iter().map(|_| Vec::new()).collect();
     let mut failures = Vec::new();
     while let Some(done) = tasks.join_next().await {
         match done {
-            Ok(Ok(answers)) => {
-                let stop = stop_at.is_some_and(|mac| answers.iter().any(|a| a.mac == mac));
-                for a in answers {
-                    if found.len() < MAX_FOUND && seen.insert(a.mac) {
-                        found.push(a.found);
-                    }
-                }
-                if stop {
-                    tasks.abort_all();
-                }
+            Ok((i, Ok(answers))) => by_interface[i] = answers,
+            Ok((_, Err(e))) => {
+                eprintln!("warning: {e}");
+                failures.push(e);
             }
-            Ok(Err(e)) => failures.push(e),
-            Err(e) if e.is_cancelled() => {}
             Err(e) => failures.push(Error::Other(format!("the search failed: {e}"))),
         }
     }
-    // Every interface failed to send: say why (one that sent and heard nothing is no error).
-    if found.is_empty() && !failures.is_empty() && failures.len() == interfaces.len() {
+    if !failures.is_empty() && failures.len() == interfaces.len() {
         return Err(failures.remove(0));
     }
-    Ok((found, interfaces))
+    Ok((by_interface, interfaces))
+}
+
+/// Each module once, by MAC, under the first interface it answered on; at most [`MAX_FOUND`].
+fn merge(by_interface: Vec<Vec<Answer>>) -> Vec<Found> {
+    let mut seen = std::collections::HashSet::new();
+    by_interface.into_iter().flatten().filter(|a| seen.insert(a.mac)).take(MAX_FOUND).map(|a| a.found).collect()
 }
 
 /// The socket a command for `mac` goes out by: for the broadcast address, one on the interface
-/// where `mac` answers a search (configuration commands go where the module was found); for one
-/// module's address, as [`vias`] gives it.
+/// where `mac` answers a search (configuration commands go where the module was found; asked
+/// twice, for a lost datagram); for one module's address, as [`vias`] gives it. A MAC that
+/// answers on more than one interface is refused: a host on another segment (a Wi-Fi, a VPN)
+/// could answer a search with any module's MAC and draw the command, its proof of the password
+/// among it, to itself. `--interface` then says which.
 async fn via(to: SocketAddr, mac: Mac, only: Option<&str>, timeout: Duration) -> Result<UdpSocket, Error> {
     let mut sockets = vias(to, only).await?;
     if sockets.len() == 1 {
         return Ok(sockets.remove(0).1);
     }
     drop(sockets);
-    let (found, interfaces) = find_until(to, only, timeout, Some(mac.0)).await?;
-    let mac_text = mac.to_string();
-    let on = found.iter().find(|f| f.mac == mac_text).and_then(|f| f.interface.clone());
-    match interfaces.into_iter().flatten().find(|i| Some(i.label()) == on) {
-        Some(iface) => ifaces::socket(&iface),
-        None => Err(Error::Timeout(format!(
-            "module {mac} did not answer a search on any interface of this PC within {:.1} s",
-            timeout.as_secs_f64()
-        ))),
+    for _ in 0..2 {
+        let (by_interface, interfaces) = search_each(to, only, timeout, Some(mac.0)).await?;
+        let on: Vec<Iface> = by_interface
+            .iter()
+            .zip(interfaces)
+            .filter(|(answers, _)| answers.iter().any(|a| a.mac == mac.0))
+            .filter_map(|(_, iface)| iface)
+            .collect();
+        match on.as_slice() {
+            [] => continue,
+            [iface] => return ifaces::socket(iface),
+            several => {
+                let names: Vec<String> = several.iter().map(Iface::label).collect();
+                return Err(Error::Other(format!(
+                    "module {mac} answered on {}: choose one with --interface (another host may be answering for it)",
+                    names.join(" and ")
+                )));
+            }
+        }
     }
+    Err(Error::Timeout(format!(
+        "module {mac} did not answer a search on any interface of this PC within {:.1} s (asked twice)",
+        timeout.as_secs_f64()
+    )))
 }
 
 /// `remodaq search`.
 pub async fn search(to: SocketAddr, only: Option<&str>, timeout: Duration, json: bool) -> Result<(), Error> {
-    let (found, interfaces) = find_until(to, only, timeout, None).await?;
+    let (by_interface, interfaces) = search_each(to, only, timeout, None).await?;
+    let found = merge(by_interface);
     if json {
         println!("{}", serde_json::to_string_pretty(&found).unwrap_or_default());
         return Ok(());

@@ -48,7 +48,7 @@ fn fpgaio_write(register: usize, value: u32) {
 }
 
 struct SysTickDriver {
-    /// The last COUNTER value read, and the high bits of the time (its wraps, every 49 days).
+    /// The last COUNTER value read, and the high bits of the time (its wraps, every 71.6 minutes at 1 MHz).
     epoch: Mutex<Cell<(u32, u64)>>,
     queue: Mutex<RefCell<Queue>>,
 }
