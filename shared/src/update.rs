@@ -595,19 +595,17 @@ where
     let deadline = embassy_time::Instant::now() + trial;
     loop {
         if self_test() {
-            match target.mark_booted().await {
-                Ok(()) => {
-                    crate::info!("update: self-test passed, image confirmed");
-                    // Anti-rollback: from now on, images below this one's counter are refused.
-                    if crate::module::commit_change(map, store, settle(false)).await.is_err() {
-                        crate::error!("update: the security counter could not be stored");
-                    }
-                    return Confirmation::Passed;
+            if target.mark_booted().await.is_ok() {
+                crate::info!("update: self-test passed, image confirmed");
+                // Anti-rollback: from now on, images below this one's counter are refused.
+                if crate::module::commit_change(map, store, settle(false)).await.is_err() {
+                    crate::error!("update: the security counter could not be stored");
                 }
-                // Tried again until the trial ends; then the restart reverts, and the counter
-                // never moved.
-                Err(_) => crate::error!("update: the image could not be confirmed"),
+                return Confirmation::Passed;
             }
+            // Tried again until the trial ends; then the restart reverts, and the counter never
+            // moved.
+            crate::error!("update: the image could not be confirmed");
         }
         if embassy_time::Instant::now() > deadline {
             return Confirmation::NotPassed;

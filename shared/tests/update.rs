@@ -166,17 +166,24 @@ fn sessions(dfu: &mut Dfu, state: &mut StateFlash, each: Vec<Plan>) -> Vec<(Vec<
 
 type SettingsFlash = RamFlash<4096, 1024>;
 
-/// Sessions against a module with `settings`; the answers and outcomes, and the settings after.
-fn sessions_with(settings: S, dfu: &mut Dfu, state: &mut StateFlash, each: Vec<Plan>) -> (Vec<(Vec<u8>, Outcome)>, S) {
+/// A settings store on a blank flash, holding `settings` when given (the defaults otherwise).
+fn store_with(settings: Option<S>) -> Mutex<CriticalSectionRawMutex, SettingsStore<SettingsFlash, S>> {
     let mut store = block_on(SettingsStore::open(
         SettingsFlash::new(),
         const { SettingsStore::<SettingsFlash, S>::config(0..4096) },
     ));
-    block_on(store.commit(settings)).unwrap();
-    let store = Mutex::<CriticalSectionRawMutex, _>::new(store);
+    if let Some(settings) = settings {
+        block_on(store.commit(settings)).unwrap();
+    }
+    Mutex::new(store)
+}
+
+/// Sessions against a module with `settings`; the answers and outcomes, and the settings after.
+fn sessions_with(settings: S, dfu: &mut Dfu, state: &mut StateFlash, each: Vec<Plan>) -> (Vec<(Vec<u8>, Outcome)>, S) {
+    let store = store_with(Some(settings));
     let map = Mutex::<NoopRawMutex, _>::new(Live(settings));
     let mut aligned = [0u8; 4];
-    let mut target = BootUpdater::new(dfu, state, &mut aligned, key().verifying_key().to_bytes(), MANIFEST_AT);
+    let mut target = updater(dfu, state, &mut aligned);
     let mut service = UpdateService::new(MODEL, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
     let results = each
         .into_iter()
@@ -210,6 +217,15 @@ fn session_time() -> (std::sync::MutexGuard<'static, ()>, u64) {
 /// Where the module writes the manifest for the bootloader: the start of the update
 /// partition's last page.
 const MANIFEST_AT: u32 = 4 * PAGE as u32;
+
+/// The update target over `dfu` and `state`, for this test key's images.
+fn updater<'d, D, St>(dfu: D, state: St, aligned: &'d mut [u8]) -> BootUpdater<'d, D, St>
+where
+    D: embedded_storage_async::nor_flash::NorFlash,
+    St: embedded_storage_async::nor_flash::NorFlash,
+{
+    BootUpdater::new(dfu, state, aligned, key().verifying_key().to_bytes(), MANIFEST_AT)
+}
 
 /// One session.
 fn session(dfu: &mut Dfu, state: &mut StateFlash, plan: Plan) -> (Vec<u8>, Outcome) {
@@ -354,16 +370,11 @@ fn a_replayed_or_altered_session_changes_nothing() {
     let mut dfu: Dfu = RamFlash::from_image(m.dfu.image());
     let mut state: StateFlash = RamFlash::from_image(m.state.image());
     let mut recorded = Pc::new(session_bytes(PASSWORD, &file, None));
-    let store = block_on(SettingsStore::open(
-        SettingsFlash::new(),
-        const { SettingsStore::<SettingsFlash, S>::config(0..4096) },
-    ));
-    let store = Mutex::<CriticalSectionRawMutex, _>::new(store);
+    let store = store_with(None);
     let map = Mutex::<NoopRawMutex, _>::new(Live(settings));
     {
         let mut aligned = [0u8; 4];
-        let mut target =
-            BootUpdater::new(&mut dfu, &mut state, &mut aligned, key().verifying_key().to_bytes(), MANIFEST_AT);
+        let mut target = updater(&mut dfu, &mut state, &mut aligned);
         let mut service = UpdateService::new(MODEL, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
         let (turn, now) = session_time();
         let outcome = block_on(service.session(&mut recorded, [127, 0, 0, 1], now, &map, &store, &mut target));
@@ -371,8 +382,7 @@ fn a_replayed_or_altered_session_changes_nothing() {
         assert_eq!((recorded.statuses(), outcome), (vec![0, 0], Outcome::Updated { version: 0xA101 }));
         // The replay: the recorded bytes, to the module as it was before.
         let mut aligned = [0u8; 4];
-        let mut target =
-            BootUpdater::new(&mut m.dfu, &mut m.state, &mut aligned, key().verifying_key().to_bytes(), MANIFEST_AT);
+        let mut target = updater(&mut m.dfu, &mut m.state, &mut aligned);
         let mut replay = Script::new(&[]);
         replay.incoming = recorded.sent.chunks(300).map(<[u8]>::to_vec).collect();
         let (turn, now) = session_time();
@@ -391,8 +401,7 @@ fn a_replayed_or_altered_session_changes_nothing() {
     altered.alter = Some(13);
     let mut m = module_with(&old);
     let mut aligned = [0u8; 4];
-    let mut target =
-        BootUpdater::new(&mut m.dfu, &mut m.state, &mut aligned, key().verifying_key().to_bytes(), MANIFEST_AT);
+    let mut target = updater(&mut m.dfu, &mut m.state, &mut aligned);
     let mut service = UpdateService::new(MODEL, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
     let (turn, now) = session_time();
     let outcome = block_on(service.session(&mut altered, [127, 0, 0, 1], now, &map, &store, &mut target));
@@ -722,18 +731,13 @@ fn a_session_erases_each_sector_it_writes_once() {
     let mut m = module_with(&old);
     let file = signed(&new, 0xA101, &key());
     let settings = S { password: credential(), ..S::defaults() };
-    let store = block_on(SettingsStore::open(
-        SettingsFlash::new(),
-        const { SettingsStore::<SettingsFlash, S>::config(0..4096) },
-    ));
-    let store = Mutex::<CriticalSectionRawMutex, _>::new(store);
+    let store = store_with(None);
     let map = Mutex::<NoopRawMutex, _>::new(Live(settings));
     let mut service = UpdateService::new(MODEL, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
     let mut aligned = [0u8; 4];
     let mut dfu = CountingErases { flash: &mut m.dfu, erases: vec![] };
     {
-        let mut target =
-            BootUpdater::new(&mut dfu, &mut m.state, &mut aligned, key().verifying_key().to_bytes(), MANIFEST_AT);
+        let mut target = updater(&mut dfu, &mut m.state, &mut aligned);
         // A session cut half-way through the first page, then a whole one.
         for plan in [session_bytes(PASSWORD, &file, Some(HEADER_LEN + 2000)), session_bytes(PASSWORD, &file, None)] {
             let mut pc = Pc::new(plan);
@@ -765,16 +769,10 @@ fn confirm_in_boot_swap_and_revert() {
     let (old, new) = (image(1, 3000), image(2, 3001));
     let settings = S { password: credential(), update: Counter { confirmed: 1, pending: 2 }, ..S::defaults() };
     let run = |m: &mut Module, passes: bool| -> (Confirmation, S, u32, bool) {
-        let mut store = block_on(SettingsStore::open(
-            SettingsFlash::new(),
-            const { SettingsStore::<SettingsFlash, S>::config(0..4096) },
-        ));
-        block_on(store.commit(settings)).unwrap();
-        let store = Mutex::<CriticalSectionRawMutex, _>::new(store);
+        let store = store_with(Some(settings));
         let map = Mutex::<CriticalSectionRawMutex, _>::new(Live(settings));
         let mut aligned = [0u8; 4];
-        let mut target =
-            BootUpdater::new(&mut m.dfu, &mut m.state, &mut aligned, key().verifying_key().to_bytes(), MANIFEST_AT);
+        let mut target = updater(&mut m.dfu, &mut m.state, &mut aligned);
         let asked = Cell::new(0u32);
         let self_test = || {
             asked.set(asked.get() + 1);

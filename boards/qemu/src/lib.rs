@@ -196,14 +196,17 @@ impl Board for QemuBoard {
     /// whatever the stored address (the Modbus port is the stored one); on a TAP device (the
     /// `TAP` test switch) at the stored settings.
     fn start_network(self, spawner: Spawner, stored: NetConfig) -> (EmbassyNet<QemuEffects>, NetConfig) {
-        #[allow(unused_mut)]
-        let mut device = match Lan9118::new(Mmio, self.mac) {
+        let device = match Lan9118::new(Mmio, self.mac) {
             Ok(device) => device,
             Err(e) => panic!("LAN9118: {:?}", defmt::Debug2Format(&e)),
         };
         // Test images only: a NIC whose link never comes up (the self-test must fail).
         #[cfg(feature = "test-link-down")]
-        device.hold_link_down();
+        let device = {
+            let mut device = device;
+            device.hold_link_down();
+            device
+        };
         // SAFETY: the handler is in the vector table and touches only the driver's waker.
         unsafe { NVIC::unmask(Irq(LAN9118_IRQ)) };
         // On a TAP device the stored settings, as on a real LAN; on QEMU's user network its

@@ -787,23 +787,8 @@ async fn broken_front_end(report: &mut Report, image: &str) {
         if answers != [0, 0] {
             return Err(format!("the update (A101): the module answered {answers:?}"));
         }
-        let started = Instant::now();
-        let mut saw_v2 = false;
-        loop {
-            match version(addr).await? {
-                0xA101 => saw_v2 = true,
-                0xA100 if saw_v2 => break,
-                _ => {}
-            }
-            if started.elapsed() > Duration::from_secs(90) {
-                return Err(format!("no return to A100 within 90 s (A101 seen: {saw_v2})"));
-            }
-            sleep(Duration::from_millis(500)).await;
-        }
-        println!(
-            "qemu-8318: A101 ran on trial and was reverted to A100 after {:.1} s",
-            started.elapsed().as_secs_f64()
-        );
+        let took = reverted(addr, 0xA101, 0xA100).await?;
+        println!("qemu-8318: A101 ran on trial and was reverted to A100 after {:.1} s", took.as_secs_f64());
         // A100 now: count its restarts over 3 minutes.
         let watched = Instant::now();
         let mut restarts = 0;
@@ -871,6 +856,24 @@ async fn version(addr: SocketAddr) -> Result<u16, String> {
         }
         if started.elapsed() > Duration::from_secs(60) {
             return Err("the module did not answer within 60 s".into());
+        }
+        sleep(Duration::from_millis(500)).await;
+    }
+}
+
+/// Waits until the module answered version `trial` and then `previous` again (a new image that
+/// ran on trial and was reverted), at most 90 s; how long that took.
+async fn reverted(addr: SocketAddr, trial: u16, previous: u16) -> Result<Duration, String> {
+    let started = Instant::now();
+    let mut saw_trial = false;
+    loop {
+        match version(addr).await? {
+            v if v == trial => saw_trial = true,
+            v if v == previous && saw_trial => return Ok(started.elapsed()),
+            _ => {}
+        }
+        if started.elapsed() > Duration::from_secs(90) {
+            return Err(format!("no return to {previous:04X} within 90 s ({trial:04X} seen: {saw_trial})"));
         }
         sleep(Duration::from_millis(500)).await;
     }
@@ -1081,20 +1084,8 @@ async fn updates(report: &mut Report, image: &str, addr: SocketAddr, update: Soc
         if answers != [0, 0] {
             return Err(format!("v3: the module answered {answers:?}"));
         }
-        let started = Instant::now();
-        let mut saw_v3 = false;
-        loop {
-            match version(addr).await? {
-                0xA102 => saw_v3 = true,
-                0xA101 if saw_v3 => break,
-                _ => {}
-            }
-            if started.elapsed() > Duration::from_secs(90) {
-                return Err(format!("no return to v2 within 90 s (v3 seen: {saw_v3})"));
-            }
-            sleep(Duration::from_secs(1)).await;
-        }
-        println!("qemu-8350: v3 ran on trial and was reverted to v2 after {:.1} s", started.elapsed().as_secs_f64());
+        let took = reverted(addr, 0xA102, 0xA101).await?;
+        println!("qemu-8350: v3 ran on trial and was reverted to v2 after {:.1} s", took.as_secs_f64());
         setting_intact("after the rollback").await
     };
     report.check("update: a v3 that never confirms rolls back to v2 after its reset", rollback.await);
