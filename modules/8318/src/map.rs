@@ -3,10 +3,11 @@
 use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::mutex::Mutex;
 use embedded_storage_async::nor_flash::NorFlash;
-use remodaq_protocol::m8318::{decode, Reg};
+use remodaq_protocol::m8318::{decode, Reg, CHANNELS, REG_CJC, REG_STATUS, REG_VALUE};
 use remodaq_shared::access;
 use remodaq_shared::diagnostics::DIAGNOSTICS;
 use remodaq_shared::identity::FIRMWARE_VERSION;
+use remodaq_shared::modbus::map::{allows_each, read_registers_each};
 use remodaq_shared::modbus::{Access, Exception, RegisterMap, Table, WriteValues};
 use remodaq_shared::module::{write_update, SettingsAccess, Store};
 use remodaq_shared::warn;
@@ -36,6 +37,12 @@ impl<'a, F: NorFlash> Map8318<'a, F> {
     }
 }
 
+/// A run of registers held in one array.
+enum Run<'a> {
+    Values(&'a [u16]),
+    Statuses(&'a [crate::acquisition::ChannelStatus]),
+}
+
 /// The settings after a validated write of `values` at `start`.
 fn written(settings: &mut Settings, start: u16, values: &WriteValues<'_>) {
     for (i, v) in values.iter().enumerate() {
@@ -60,6 +67,43 @@ impl<F: NorFlash> RegisterMap for Map8318<'_, F> {
 
     fn admit(&mut self, from: [u8; 4], function: u8) -> Result<(), Exception> {
         access::admit(&self.settings.allow, from, function)
+    }
+
+    /// The two runs a poll reads, each of read-only registers, are checked in one go: the
+    /// values with the CJC (40001-40009) and the statuses (40225-40232).
+    fn allows(&self, table: Table, start: u16, count: u16, write: bool) -> bool {
+        let end = u32::from(start) + u32::from(count);
+        let polled =
+            end <= u32::from(REG_CJC) + 1 || (start >= REG_STATUS && end <= u32::from(REG_STATUS) + CHANNELS as u32);
+        (table == Table::Registers && !write && polled) || allows_each(self, table, start, count, write)
+    }
+
+    /// The values and the statuses are copied in one go; other runs register by register.
+    fn read_registers(&mut self, start: u16, out: &mut [u8]) {
+        let first = usize::from(start);
+        let words = out.len() / 2;
+        let status = usize::from(REG_STATUS);
+        let within = |base: usize, len: usize| first.checked_sub(base).filter(|i| i + words <= len);
+        let run = if let Some(i) = within(usize::from(REG_VALUE), CHANNELS) {
+            self.snapshot.values.get(i..i + words).map(Run::Values)
+        } else if let Some(i) = within(status, CHANNELS) {
+            self.snapshot.status.get(i..i + words).map(Run::Statuses)
+        } else {
+            None
+        };
+        match run {
+            Some(Run::Values(values)) => {
+                for (word, v) in out.chunks_exact_mut(2).zip(values) {
+                    word.copy_from_slice(&v.to_be_bytes());
+                }
+            }
+            Some(Run::Statuses(statuses)) => {
+                for (word, s) in out.chunks_exact_mut(2).zip(statuses) {
+                    word.copy_from_slice(&(*s as u16).to_be_bytes());
+                }
+            }
+            None => read_registers_each(self, start, out),
+        }
     }
 
     fn read(&mut self, table: Table, addr: u16) -> u16 {

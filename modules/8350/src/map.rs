@@ -8,10 +8,13 @@
 use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::mutex::Mutex;
 use embedded_storage_async::nor_flash::NorFlash;
-use remodaq_protocol::m8350::{decode, Point, PulseField, Word};
+use remodaq_protocol::m8350::{
+    decode, Point, PulseField, Word, BIT_COUNTER, BIT_DI, BIT_DO, DI_CHANNELS, DO_CHANNELS, REG_COUNTER,
+};
 use remodaq_shared::access;
 use remodaq_shared::diagnostics::{status, DIAGNOSTICS};
 use remodaq_shared::identity::FIRMWARE_VERSION;
+use remodaq_shared::modbus::map::{allows_each, read_bits_each, read_registers_each};
 use remodaq_shared::modbus::{Access, Exception, RegisterMap, Table, WriteValues};
 use remodaq_shared::module::{write_update, SettingsAccess, Store, UpdateError};
 use remodaq_shared::warn;
@@ -54,6 +57,11 @@ pub struct Map8350<'a, F: NorFlash, R: RawMutex> {
     store: &'a Store<F, Settings>,
     settings: Settings,
     io: &'a IoCell<R>,
+}
+
+/// The DOs as a word, DO0 in bit 0.
+fn do_word(io: &mut crate::io::Io) -> u16 {
+    (0..pulse::CHANNELS).filter(|n| io.pulse.do_bit(*n)).fold(0, |acc, n| acc | 1 << n)
 }
 
 /// Exception 04 for a write that would move an output while the host watchdog is tripped.
@@ -184,7 +192,7 @@ impl<'a, F: NorFlash, R: RawMutex> Map8350<'a, F, R> {
             Point::DiMode(n) => settings.di_modes[usize::from(n)] as u16,
             Point::DoMode(n) => settings.do_modes[usize::from(n)] as u16,
             Point::AllDi => s.di.state(),
-            Point::AllDo => (0..pulse::CHANNELS).filter(|n| s.pulse.do_bit(*n)).fold(0, |acc, n| acc | 1 << n),
+            Point::AllDo => do_word(s),
             Point::Name => MODULE_NAME,
             Point::Version => FIRMWARE_VERSION,
             // "Samples lost since the last read of this register": cleared by the read.
@@ -219,6 +227,66 @@ impl<F: NorFlash, R: RawMutex> RegisterMap for Map8350<'_, F, R> {
 
     fn read(&mut self, table: Table, addr: u16) -> u16 {
         decode(table, addr).map_or(0, |point| self.read_point(point))
+    }
+
+    /// The runs a poll reads or writes are checked in one go (spec §3.1): the DI states (read
+    /// only), the DOs, the counter bits and the counters (read only); others address by address.
+    fn allows(&self, table: Table, start: u16, count: u16, write: bool) -> bool {
+        let within = |base: u16, len: usize| start >= base && usize::from(start - base) + usize::from(count) <= len;
+        let block = match table {
+            Table::Bits => {
+                (!write && within(BIT_DI, DI_CHANNELS))
+                    || within(BIT_DO, DO_CHANNELS)
+                    || within(BIT_COUNTER, 4 * DI_CHANNELS)
+            }
+            Table::Registers => !write && within(REG_COUNTER, 2 * DI_CHANNELS),
+        };
+        block || allows_each(self, table, start, count, write)
+    }
+
+    /// The DI states, the DOs and the counters are read under one lock of the I/O state; other
+    /// runs point by point.
+    fn read_bits(&mut self, start: u16, count: u16, out: &mut [u8]) {
+        let within = |base: u16, len: usize| start.checked_sub(base).filter(|i| usize::from(i + count) <= len);
+        let word = if let Some(i) = within(BIT_DI, DI_CHANNELS) {
+            io::with(self.io, |s| s.di.state()) >> i
+        } else if let Some(i) = within(BIT_DO, DO_CHANNELS) {
+            io::with(self.io, do_word) >> i
+        } else {
+            return read_bits_each(self, start, count, out);
+        };
+        let word = word & ((1u32 << count) - 1) as u16;
+        for (byte, value) in out.iter_mut().zip(word.to_le_bytes()) {
+            *byte = value;
+        }
+    }
+
+    fn read_registers(&mut self, start: u16, out: &mut [u8]) {
+        let first = start.checked_sub(REG_COUNTER).map(usize::from).filter(|i| i + out.len() / 2 <= 2 * DI_CHANNELS);
+        if let Some(first) = first {
+            io::with(self.io, |s| {
+                for (i, word) in out.chunks_exact_mut(2).enumerate() {
+                    let (n, w) = ((first + i) / 2, Word::of((first + i) as u16));
+                    word.copy_from_slice(&w.get(s.di.counter_value(n)).to_be_bytes());
+                }
+            });
+            return;
+        }
+        read_registers_each(self, start, out)
+    }
+
+    /// A write that touches RAM only (the bits, the extra pulses, the all-DO register, the
+    /// watchdog's clear) is carried out at once; a write that changes a setting is left to
+    /// [`RegisterMap::write`], which commits it without the map's lock.
+    fn write_now(&mut self, start: u16, values: &WriteValues<'_>) -> Option<Result<(), Exception>> {
+        if values.table() == Table::Bits {
+            return Some(Self::write_bits(self.io, start, values));
+        }
+        match Self::plan(self.io, &self.settings, start, values) {
+            Ok(plan) if plan.settings == self.settings => Some(Self::apply_live(self.io, &plan)),
+            Ok(_) => None,
+            Err(e) => Some(Err(e)),
+        }
     }
 
     fn validate(&self, start: u16, values: &WriteValues<'_>) -> Result<(), Exception> {

@@ -66,6 +66,21 @@ fn manual_2_2_read_di0_to_di7() {
     assert_eq!(m.ask("01 02 00 00 00 0C"), "01 02 02 A5 00");
 }
 
+/// Runs inside the DI block start anywhere (spec §3.1: bit n of the answer is the n-th
+/// address asked); a run past DI11 reaches an unmapped address (exception 02).
+#[test]
+fn di_runs_from_any_address() {
+    let mut m = Module::new();
+    // DI0, DI2, DI5, DI7 and DI11 high.
+    m.inputs(&[0x8A5]);
+    // DI2..DI6: DI2 and DI5 high.
+    assert_eq!(m.ask("01 02 00 02 00 05"), "01 02 01 09");
+    // DI5..DI11: DI5, DI7 and DI11 high.
+    assert_eq!(m.ask("01 01 00 05 00 07"), "01 01 01 45");
+    assert_eq!(m.ask("01 02 00 0A 00 03"), "01 82 02");
+    assert_eq!(m.ask("01 02 00 0F 00 02"), "01 82 02", "an unmapped address before DO0");
+}
+
 #[test]
 fn manual_2_4_start_counter_of_di0() {
     let mut m = Module::new();

@@ -103,10 +103,19 @@ pub trait RegisterMap {
     /// Check the values of a write to `start..start + values.len()`, all writable.
     fn validate(&self, start: u16, values: &WriteValues<'_>) -> Result<(), Exception>;
 
+    /// Applies a validated write at once, under the lock the checks ran under, when it only
+    /// touches RAM (an output, a counter's run flag): `Some` with the outcome, all or nothing.
+    /// `None` when the write has to persist: the engine then releases the lock and calls
+    /// [`RegisterMap::write`]. The default: `None` for every write.
+    fn write_now(&mut self, start: u16, values: &WriteValues<'_>) -> Option<Result<(), Exception>> {
+        let _ = (start, values);
+        None
+    }
+
     /// Apply a validated write: all or nothing. Persisted values must be committed to flash
     /// before this returns `Ok` (durable on acknowledgement). Called by the default
-    /// [`RegisterMap::write`] (and by `answer_now`); a map that overrides `write` need not
-    /// implement it (the default refuses with exception 04).
+    /// [`RegisterMap::write`]; a map that overrides `write` need not implement it (the default
+    /// refuses with exception 04).
     async fn apply(&mut self, start: u16, values: &WriteValues<'_>) -> Result<(), Exception> {
         let _ = (start, values);
         Err(Exception::ServerDeviceFailure)
@@ -139,32 +148,48 @@ pub trait RegisterMap {
     /// Whether every address of `start..start + count` (inside the 16-bit space, checked by the
     /// engine) allows reading, or writing when `write`.
     fn allows(&self, table: Table, start: u16, count: u16, write: bool) -> bool {
-        // `start + i` stays within 16 bits: the engine checked `start + count <= 0x1_0000`.
-        (0..count).all(|i| {
-            let access = self.access(table, start + i);
-            if write {
-                access.writable()
-            } else {
-                access.readable()
-            }
-        })
+        allows_each(self, table, start, count, write)
     }
 
     /// Reads registers `start..` into `out` as big-endian words (`out.len()` is even), after
     /// `allows` accepted the run.
     fn read_registers(&mut self, start: u16, out: &mut [u8]) {
-        for (i, word) in out.chunks_exact_mut(2).enumerate() {
-            word.copy_from_slice(&self.read(Table::Registers, start + i as u16).to_be_bytes());
-        }
+        read_registers_each(self, start, out)
     }
 
     /// Reads `count` bits from `start` into `out`, packed LSB first (`out` is zeroed and holds
     /// `ceil(count / 8)` bytes), after `allows` accepted the run.
     fn read_bits(&mut self, start: u16, count: u16, out: &mut [u8]) {
-        for i in 0..count {
-            if self.read(Table::Bits, start + i) != 0 {
-                out[usize::from(i / 8)] |= 1 << (i % 8);
-            }
+        read_bits_each(self, start, count, out)
+    }
+}
+
+/// [`RegisterMap::allows`] one address at a time, through [`RegisterMap::access`]: the default,
+/// and the fallback of a map that answers some runs in one go.
+pub fn allows_each<M: RegisterMap + ?Sized>(map: &M, table: Table, start: u16, count: u16, write: bool) -> bool {
+    // `start + i` stays within 16 bits: the engine checked `start + count <= 0x1_0000`.
+    (0..count).all(|i| {
+        let access = map.access(table, start + i);
+        if write {
+            access.writable()
+        } else {
+            access.readable()
+        }
+    })
+}
+
+/// [`RegisterMap::read_registers`] one register at a time, through [`RegisterMap::read`].
+pub fn read_registers_each<M: RegisterMap + ?Sized>(map: &mut M, start: u16, out: &mut [u8]) {
+    for (i, word) in out.chunks_exact_mut(2).enumerate() {
+        word.copy_from_slice(&map.read(Table::Registers, start + i as u16).to_be_bytes());
+    }
+}
+
+/// [`RegisterMap::read_bits`] one bit at a time, through [`RegisterMap::read`].
+pub fn read_bits_each<M: RegisterMap + ?Sized>(map: &mut M, start: u16, count: u16, out: &mut [u8]) {
+    for i in 0..count {
+        if map.read(Table::Bits, start + i) != 0 {
+            out[usize::from(i / 8)] |= 1 << (i % 8);
         }
     }
 }

@@ -27,25 +27,37 @@ const MAX_WRITE_REGISTERS: u16 = 123;
 
 /// Answer one request PDU (function code first) from the client at `from` into `resp`;
 /// returns the response PDU length. Never panics: every malformed request gets an exception
-/// response. The map is locked for the checks and reads only; a write is carried out by
-/// [`RegisterMap::write`], which commits to flash without holding the lock.
+/// response. The map is locked once, for the checks, the reads and a write that only touches
+/// RAM ([`RegisterMap::write_now`]); a write that persists is carried out by
+/// [`RegisterMap::write`] after that lock is released, so reads go on while it commits to
+/// flash.
 pub async fn handle_pdu<R: RawMutex, M: RegisterMap>(
     map: &Mutex<R, M>,
     from: [u8; 4],
     req: &[u8],
     resp: &mut [u8; MAX_PDU],
 ) -> usize {
-    let step = prepare(&mut *map.lock().await, from, req, resp);
-    match step {
+    // Uncontended (the common case), the lock is taken without a pending future.
+    let mut locked = match map.try_lock() {
+        Ok(locked) => locked,
+        Err(_) => map.lock().await,
+    };
+    match prepare(&mut *locked, from, req, resp) {
         Step::Answered(len) => len,
-        Step::Write { start, values } => written(req, resp, M::write(map, start, &values).await),
+        Step::Write { start, values } => {
+            if let Some(result) = locked.write_now(start, &values) {
+                return written(req, resp, result);
+            }
+            drop(locked);
+            written(req, resp, M::write(map, start, &values).await)
+        }
     }
 }
 
 /// The answer to a write once applied: codes 05, 06, 15 and 16 answer with the request's
 /// function and first four data bytes; a failed apply with its exception.
 #[inline]
-pub fn written(req: &[u8], resp: &mut [u8; MAX_PDU], result: Result<(), Exception>) -> usize {
+fn written(req: &[u8], resp: &mut [u8; MAX_PDU], result: Result<(), Exception>) -> usize {
     match (result, req.get(..5)) {
         (Ok(()), Some(echo)) => {
             resp[..5].copy_from_slice(echo);
@@ -57,7 +69,7 @@ pub fn written(req: &[u8], resp: &mut [u8; MAX_PDU], result: Result<(), Exceptio
 }
 
 /// What is left to do after the synchronous part of a request.
-pub enum Step<'a> {
+enum Step<'a> {
     /// The answer is in the response buffer, this long.
     Answered(usize),
     /// A validated write, to apply (all or nothing).
@@ -73,7 +85,7 @@ pub enum Step<'a> {
 /// admission, the checks in the order of the Modbus application protocol, and reads answered
 /// in place.
 #[inline]
-pub fn prepare<'a, M: RegisterMap>(map: &mut M, from: [u8; 4], req: &'a [u8], resp: &mut [u8; MAX_PDU]) -> Step<'a> {
+fn prepare<'a, M: RegisterMap>(map: &mut M, from: [u8; 4], req: &'a [u8], resp: &mut [u8; MAX_PDU]) -> Step<'a> {
     let Some((&function, data)) = req.split_first() else {
         // An empty PDU has no function code to answer with: treat it as an unknown function 0.
         return Step::Answered(exception(resp, 0, Exception::IllegalFunction));

@@ -26,10 +26,8 @@ use embassy_sync::signal::Signal;
 use embassy_time::{with_timeout, Duration};
 use embedded_io_async::{Read, Write};
 
-use core::future::Future;
-
 use super::frame::{classify, write_header, Frame, Header, MAX_ADU, MBAP_LEN};
-use super::pdu::{handle_pdu, prepare, written, Step, MAX_PDU};
+use super::pdu::{handle_pdu, MAX_PDU};
 use super::RegisterMap;
 
 /// Clients served at once.
@@ -456,24 +454,4 @@ fn finish(head: &mut [u8; MBAP_LEN], header: Header, body: &[u8; MAX_PDU], n: us
     write_header(head, header, n);
     crate::diagnostics::DIAGNOSTICS.answered(body[0] & 0x80 != 0);
     MBAP_LEN + n
-}
-
-/// The answer to one whole request frame, computed at once: for maps whose `apply` never
-/// waits (a plain memory map; the request-cost benchmark). `None` for anything but one
-/// complete request, or if the map would wait.
-pub fn answer_now<M: RegisterMap>(map: &mut M, frame: &[u8], out: &mut [u8; MAX_ADU]) -> Option<usize> {
-    let Frame::Request { header, len } = classify(frame) else { return None };
-    let pdu = frame.get(MBAP_LEN..len)?;
-    let (head, body) = split(out)?;
-    let n = match prepare(map, [0; 4], pdu, body) {
-        Step::Answered(n) => n,
-        Step::Write { start, values } => {
-            let apply = core::pin::pin!(map.apply(start, &values));
-            match apply.poll(&mut core::task::Context::from_waker(core::task::Waker::noop())) {
-                core::task::Poll::Ready(result) => written(pdu, body, result),
-                core::task::Poll::Pending => return None,
-            }
-        }
-    };
-    Some(finish(head, header, body, n))
 }

@@ -1,10 +1,7 @@
-//! libmodbus 3.1 (Debian's libmodbus-dev) through its C API: `modbus_reply` answers a request
-//! into a socket; here one end of a Unix socket pair, drained after each answer.
+//! libmodbus 3.1.6 through its C API, built from source by build.rs: `modbus_reply` answers a
+//! request, here into memory (`libmodbus-bench.c`'s backend).
 
-use std::io::Read;
-use std::os::fd::AsRawFd;
-use std::os::raw::{c_char, c_int, c_uint, c_void};
-use std::os::unix::net::UnixStream;
+use std::os::raw::{c_int, c_uint, c_void};
 
 #[repr(C)]
 pub struct Mapping {
@@ -23,8 +20,8 @@ pub struct Mapping {
 }
 
 extern "C" {
-    fn modbus_new_tcp(ip: *const c_char, port: c_int) -> *mut c_void;
-    fn modbus_set_socket(ctx: *mut c_void, s: c_int) -> c_int;
+    fn bench_new_context() -> *mut c_void;
+    fn bench_last_answer(out: *mut u8) -> c_int;
     fn modbus_set_response_timeout(ctx: *mut c_void, sec: u32, usec: u32) -> c_int;
     fn modbus_mapping_new_start_address(
         start_bits: c_uint,
@@ -47,37 +44,38 @@ pub fn serve_libmodbus(ctx: *mut c_void, request: &[u8], mapping: *mut Mapping) 
     unsafe { modbus_reply(ctx, request.as_ptr(), request.len() as c_int, mapping) }
 }
 
-/// Answers `request` `n` times; returns the last answer.
-pub fn run(request: &[u8], n: u32) -> Vec<u8> {
-    let (ours, mut theirs) = UnixStream::pair().expect("socket pair");
+/// Answers `request` `n` times from a mapping holding `bits` and `registers` (in both tables of
+/// each kind); returns the last answer.
+pub fn run(request: &[u8], n: u32, bits: &[bool], registers: &[u16]) -> Vec<u8> {
     let size = super::SIZE as c_uint;
     // SAFETY: plain constructor calls; the results are checked for null.
-    let (ctx, mapping) = unsafe {
-        let ctx = modbus_new_tcp(c"127.0.0.1".as_ptr(), 1502);
-        let mapping = modbus_mapping_new_start_address(0, size, 0, size, 0, size, 0, size);
-        (ctx, mapping)
-    };
-    assert!(!ctx.is_null() && !mapping.is_null(), "libmodbus constructors");
-    // SAFETY: ctx is valid; the socket outlives the run. A response timeout of 1 µs: libmodbus
-    // sleeps for it before some exception answers.
+    let (ctx, mapping) =
+        unsafe { (bench_new_context(), modbus_mapping_new_start_address(0, size, 0, size, 0, size, 0, size)) };
+    if ctx.is_null() || mapping.is_null() {
+        eprintln!("libmodbus: no context or mapping");
+        return Vec::new();
+    }
+    // SAFETY: ctx is valid. A response timeout of 1 µs: libmodbus sleeps for it before some
+    // exception answers. The mapping's tables hold `size` entries each.
     unsafe {
-        modbus_set_socket(ctx, ours.as_raw_fd());
         modbus_set_response_timeout(ctx, 0, 1);
         let m = &mut *mapping;
-        for i in 0..super::SIZE {
-            *m.tab_bits.add(i) = u8::from(super::bit(i));
-            *m.tab_input_bits.add(i) = u8::from(super::bit(i));
-            *m.tab_registers.add(i) = super::register(i);
-            *m.tab_input_registers.add(i) = super::register(i);
+        for (i, (&b, &r)) in bits.iter().zip(registers).enumerate().take(super::SIZE) {
+            *m.tab_bits.add(i) = u8::from(b);
+            *m.tab_input_bits.add(i) = u8::from(b);
+            *m.tab_registers.add(i) = r;
+            *m.tab_input_registers.add(i) = r;
         }
     }
-    let mut buf = [0u8; 512];
-    let mut last = Vec::new();
+    let mut sent = 0;
     for _ in 0..n {
-        let sent = serve_libmodbus(ctx, std::hint::black_box(request), mapping);
-        let got = theirs.read(&mut buf).expect("answer");
-        assert_eq!(sent as usize, got);
-        last = buf[..got].to_vec();
+        sent = serve_libmodbus(ctx, std::hint::black_box(request), mapping);
     }
-    last
+    let mut buf = [0u8; 260];
+    // SAFETY: the buffer has room for libmodbus's largest TCP ADU (260 bytes).
+    let got = unsafe { bench_last_answer(buf.as_mut_ptr()) };
+    if got != sent {
+        eprintln!("libmodbus: sent {sent} bytes, {got} kept");
+    }
+    buf[..usize::try_from(got).unwrap_or(0)].to_vec()
 }

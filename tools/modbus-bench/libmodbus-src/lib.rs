@@ -1,0 +1,1 @@
+//! Empty: this package only fetches libmodbus-sys (see Cargo.toml).
