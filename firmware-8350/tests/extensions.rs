@@ -371,3 +371,28 @@ async fn alternating_writes_meet_the_commit_budget() {
     assert_eq!(regs(&mut ctx, 0x00FF, 1).await, [1], "counted in 40256");
     write_reg(&mut ctx, REG_DI_MODE, 2).await.expect("the value in force: still answered");
 }
+
+/// Issue #23: a DO write reaches the output pattern within 1 ms, not at the next refill (6.4 to
+/// 12.8 ms): the module measures each command from its write to the first tick that plays it
+/// (40326, worst 40327). Here 200 writes of DO0, each read back 15 ms later. The median and 95 %
+/// of the writes are held to the goal; the worst is shown, not held: the simulated module
+/// shares this PC's two cores with the other tests, and a process put aside by the OS for a few
+/// ms is not the module's design.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_do_write_reaches_the_pattern_within_1_ms() {
+    const REG_OUTPUT_LATENCY: u16 = 0x145;
+    let module = SimModule::start(BIN, &temp("latency.flash"));
+    let mut ctx = connect(module.addr).await;
+    let mut seen = Vec::new();
+    for i in 0..200 {
+        write_bit(&mut ctx, BIT_DO, i % 2 == 0).await.unwrap();
+        sleep(Duration::from_millis(15)).await;
+        seen.push(regs(&mut ctx, REG_OUTPUT_LATENCY, 1).await[0]);
+    }
+    seen.sort_unstable();
+    let (median, p95, worst) = (seen[100], seen[190], seen[199]);
+    eprintln!("DO write to the output pattern, 200 writes: median {median} µs, 95 % {p95} µs, worst {worst} µs");
+    assert!(median <= 1000 && p95 <= 1000, "median {median} µs, 95 % {p95} µs");
+    let worst_since_start = regs(&mut ctx, REG_OUTPUT_LATENCY + 1, 1).await[0];
+    assert!(worst_since_start >= worst, "40327 reads {worst_since_start} µs, below the worst seen");
+}

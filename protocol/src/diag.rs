@@ -34,6 +34,12 @@ pub const REG_UPDATE_KEY: u16 = 0x0140;
 /// 40325: times the 8350's output pattern ran dry before it was refilled (the outputs replayed
 /// old ticks) since start, 16 bits, wrapping; 0 on the 8318.
 pub const REG_PATTERN_UNDERRUNS: u16 = 0x0144;
+/// 40326: µs from the 8350's last output command (a DO bit, a hold, a mode) to the first tick
+/// of the output pattern that plays it, as the module measured it; 65535 or more reads 65535;
+/// 0 before any command, and on the 8318.
+pub const REG_OUTPUT_LATENCY: u16 = 0x0145;
+/// 40327: the longest such latency since start, µs (65535 or more reads 65535).
+pub const REG_OUTPUT_LATENCY_WORST: u16 = 0x0146;
 
 /// Security flag bits (register 40249).
 pub mod security {
@@ -129,6 +135,10 @@ pub enum Diag {
     UpdateKey(u8),
     /// Output pattern underruns.
     PatternUnderruns,
+    /// The last output command's latency, µs.
+    OutputLatency,
+    /// The longest output command latency, µs.
+    OutputLatencyWorst,
 }
 
 /// The diagnostics register at `addr` (4X table), if it is one.
@@ -151,6 +161,8 @@ pub fn decode(addr: u16) -> Option<Diag> {
         REG_WRITE_BUDGET_REFUSALS => Diag::WriteBudgetRefusals,
         a if (REG_UPDATE_KEY..REG_UPDATE_KEY + 4).contains(&a) => Diag::UpdateKey((a - REG_UPDATE_KEY) as u8),
         REG_PATTERN_UNDERRUNS => Diag::PatternUnderruns,
+        REG_OUTPUT_LATENCY => Diag::OutputLatency,
+        REG_OUTPUT_LATENCY_WORST => Diag::OutputLatencyWorst,
         _ => return None,
     })
 }
@@ -174,6 +186,8 @@ impl Diag {
             Diag::WriteBudgetRefusals => REG_WRITE_BUDGET_REFUSALS,
             Diag::UpdateKey(i) => REG_UPDATE_KEY + u16::from(i),
             Diag::PatternUnderruns => REG_PATTERN_UNDERRUNS,
+            Diag::OutputLatency => REG_OUTPUT_LATENCY,
+            Diag::OutputLatencyWorst => REG_OUTPUT_LATENCY_WORST,
         }
     }
 }
@@ -185,8 +199,8 @@ mod tests {
     #[test]
     fn the_registers_of_extensions_1_and_the_security_events() {
         let mapped: std::vec::Vec<u16> = (0..=u16::MAX).filter(|a| decode(*a).is_some()).collect();
-        // 40241-40248 (extensions §1), 40249-40256 and 40321-40325 (docs/diagnostics.md).
-        let expected = (40241..=40256).chain(40321..=40325).map(|r| r - 40001);
+        // 40241-40248 (extensions §1), 40249-40256 and 40321-40327 (docs/diagnostics.md).
+        let expected = (40241..=40256).chain(40321..=40327).map(|r| r - 40001);
         assert_eq!(mapped, expected.collect::<std::vec::Vec<_>>());
         for a in mapped {
             assert_eq!(decode(a).map(Diag::addr), Some(a));

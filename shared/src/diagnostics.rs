@@ -59,6 +59,8 @@ pub struct Diagnostics {
     write_budget_refusals: AtomicU16,
     update_key: AtomicU32x2,
     pattern_underruns: AtomicU16,
+    output_latency: AtomicU16,
+    output_latency_worst: AtomicU16,
 }
 
 /// Two 32-bit atomics (the update key's fingerprint: no 64-bit atomics on the Cortex-M4).
@@ -85,6 +87,8 @@ impl Diagnostics {
             write_budget_refusals: AtomicU16::new(0),
             update_key: AtomicU32x2([AtomicU32::new(0), AtomicU32::new(0)]),
             pattern_underruns: AtomicU16::new(0),
+            output_latency: AtomicU16::new(0),
+            output_latency_worst: AtomicU16::new(0),
         }
     }
 
@@ -152,6 +156,13 @@ impl Diagnostics {
         self.pattern_underruns.fetch_add(1, Ordering::Relaxed);
     }
 
+    /// The 8350 played an output command `us` µs after it was given (registers 40326-40327).
+    pub fn output_latency(&self, us: u64) {
+        let us = u16::try_from(us).unwrap_or(u16::MAX);
+        self.output_latency.store(us, Ordering::Relaxed);
+        self.output_latency_worst.fetch_max(us, Ordering::Relaxed);
+    }
+
     /// A request was answered (`exception`: with an exception response).
     pub fn answered(&self, exception: bool) {
         self.requests.fetch_add(1, Ordering::Relaxed);
@@ -202,6 +213,8 @@ impl Diagnostics {
             Diag::UpdateRefusals => self.update_refusals.load(Ordering::Relaxed),
             Diag::WriteBudgetRefusals => self.write_budget_refusals.load(Ordering::Relaxed),
             Diag::PatternUnderruns => self.pattern_underruns.load(Ordering::Relaxed),
+            Diag::OutputLatency => self.output_latency.load(Ordering::Relaxed),
+            Diag::OutputLatencyWorst => self.output_latency_worst.load(Ordering::Relaxed),
             Diag::UpdateKey(i) => {
                 let half = self.update_key.0[usize::from(i / 2) % 2].load(Ordering::Relaxed);
                 if i % 2 == 0 {

@@ -35,6 +35,15 @@ impl Played {
         }
     }
 
+    /// Forgets the changes from `tick` on (the ticks from there are being rewritten), and
+    /// returns the levels in force before it.
+    fn rewind(&mut self, tick: u64) -> Option<u8> {
+        while self.0.back().is_some_and(|&(at, _)| at >= tick) {
+            self.0.pop_back();
+        }
+        self.0.back().map(|&(_, levels)| levels)
+    }
+
     /// The levels at `tick`, forgetting the changes before the one in force (the capture reads
     /// forward).
     fn at(&mut self, tick: u64) -> u8 {
@@ -81,15 +90,15 @@ impl IoFor<M8350> for HostBoard {
             }
             Some(sample)
         };
-        let mut last = None;
         let played = move |first: u64, ticks: &[u8]| {
+            let Ok(mut played) = played.lock() else { return };
+            // The ticks from `first` on are these (a forced rewrite replaces queued ones).
+            let mut last = played.rewind(first);
             for (i, &levels) in ticks.iter().enumerate() {
                 if last != Some(levels) {
                     log::debug!("DO levels {levels:06b}");
                     last = Some(levels);
-                    if let Ok(mut played) = played.lock() {
-                        played.change(first + i as u64, levels);
-                    }
+                    played.change(first + i as u64, levels);
                 }
             }
         };

@@ -8,7 +8,9 @@
 //! - Outputs DO0-DO5 on PF12, PF13, PF14, PF15, PF3, PF5. TIM8's update event, 10 000 times a
 //!   second (the pulse engine's 0.1 ms tick), triggers DMA2 stream 1 (channel 7) to copy one
 //!   word per tick from a 128-tick circular pattern into GPIOF's set/reset register; the output
-//!   task refills each half as it is played. A 5 kHz train is exact however busy the CPU is.
+//!   task refills each half as it is played. A 5 kHz train is exact however busy the CPU is. An
+//!   output command is written into the queued words from 3 ticks after the DMA's position
+//!   (read from NDTR), so it reaches the pin about 0.3 ms after the output task runs.
 
 use embassy_stm32::dma::{Channel, ReadableRingBuffer, TransferOptions, WritableRingBuffer};
 use embassy_stm32::gpio::{AnyPin, Input, Level, Output, Pull, Speed};
@@ -17,7 +19,7 @@ use embassy_stm32::time::Hertz;
 use embassy_stm32::timer::low_level::{RoundTo, Timer};
 use embassy_stm32::{bind_interrupts, dma, pac, Peri};
 use remodaq_8350::di::SAMPLE_RATE_HZ;
-use remodaq_8350::io::{InputCapture, OutputPattern, PatternUnderrun, SamplesLost, OUTPUT_CHUNK};
+use remodaq_8350::io::{InputCapture, OutputPattern, PatternUnderrun, SamplesLost, FORCE_AHEAD, OUTPUT_CHUNK};
 use remodaq_8350::pulse::TICK_HZ;
 use remodaq_8350::M8350;
 use remodaq_shared::board::IoFor;
@@ -81,8 +83,15 @@ impl InputCapture for Capture {
 /// The running output pattern.
 pub struct Pattern {
     ring: WritableRingBuffer<'static, u32>,
+    /// The ring's memory, for rewriting queued ticks in place ([`OutputPattern::force`]).
+    words: *mut u32,
     _pins: [Output<'static>; 6],
     _timer: Timer<'static, TIM8>,
+}
+
+/// The set/reset bits of the DOs in `mask` (bit n = DOn): both halves of each pin.
+fn bsrr_pins(mask: u8) -> u32 {
+    DO_PINS.iter().enumerate().filter(|(n, _)| mask >> n & 1 == 1).fold(0, |word, (_, pin)| word | 0x1_0001 << pin)
 }
 
 /// The set/reset word of one tick's levels (bit n = DOn).
@@ -99,17 +108,69 @@ fn bsrr(levels: u8) -> u32 {
     )
 }
 
+impl Pattern {
+    /// Ticks queued and not played yet (the ring's capacity less its free room), or `None`
+    /// when the ring overran.
+    fn queued(&mut self) -> Option<usize> {
+        self.ring.len().ok().map(|free| PATTERN_LEN.saturating_sub(free))
+    }
+}
+
 impl OutputPattern for Pattern {
-    async fn write(&mut self, levels: &[u8]) -> Result<(), PatternUnderrun> {
+    async fn room(&mut self) {
+        core::future::poll_fn(|cx| {
+            self.ring.set_waker(cx.waker());
+            match self.ring.len() {
+                Ok(free) if free < OUTPUT_CHUNK => core::task::Poll::Pending,
+                // Room, or an overrun that `write` reports.
+                _ => core::task::Poll::Ready(()),
+            }
+        })
+        .await
+    }
+
+    fn write(&mut self, levels: &[u8]) -> Result<u32, PatternUnderrun> {
         let mut words = [0u32; OUTPUT_CHUNK];
         let n = levels.len().min(words.len());
         for (w, l) in words.iter_mut().zip(&levels[..n]) {
             *w = bsrr(*l);
         }
-        self.ring.write_exact(&words[..n]).await.map(|_| ()).map_err(|_| {
-            self.ring.clear();
-            PatternUnderrun
-        })
+        let ahead = self.queued();
+        match (ahead, self.ring.write(&words[..n])) {
+            (Some(ahead), Ok(_)) => Ok(ahead as u32),
+            _ => {
+                self.ring.clear();
+                Err(PatternUnderrun)
+            }
+        }
+    }
+
+    fn force(&mut self, mask: u8, levels: u8) -> u32 {
+        let Some(queued) = self.queued() else { return 0 };
+        let ahead = FORCE_AHEAD as usize;
+        if queued <= ahead {
+            return queued as u32;
+        }
+        // The word the DMA transfers next: NDTR counts the transfers left in the pass over the
+        // circular buffer and is reloaded with its length at the end of each (RM0090 §10.3.9
+        // "Circular mode", §10.5.6 DMA_SxNDTR). Stream 1 of DMA2 (TIM8_UP, see `start`).
+        let left = usize::from(pac::DMA2.st(1).ndtr().read().ndt());
+        let next = (PATTERN_LEN - left.min(PATTERN_LEN)) % PATTERN_LEN;
+        let pins = bsrr_pins(mask);
+        let new = bsrr(levels) & pins;
+        for k in ahead..queued {
+            let i = (next + k) % PATTERN_LEN;
+            // SAFETY: `words` is the ring's 'static buffer of PATTERN_LEN words and i is below
+            // PATTERN_LEN. The words from the DMA's next one (plus FORCE_AHEAD ticks of margin,
+            // 0.3 ms) to the ring's write index are queued: the DMA has not read them yet and
+            // embassy's ring writes only after its write index, so nothing else writes them now.
+            // Every access to the buffer, embassy's and these, is volatile.
+            unsafe {
+                let word = self.words.add(i);
+                word.write_volatile((word.read_volatile() & !pins) | new);
+            }
+        }
+        FORCE_AHEAD
     }
 }
 
@@ -148,6 +209,7 @@ impl DigitalPeripherals {
         let outputs = self.outputs.map(|pin| Output::new(pin, Level::Low, Speed::High));
         static PATTERN: StaticCell<[u32; PATTERN_LEN]> = StaticCell::new();
         let buffer = PATTERN.init([bsrr(0); PATTERN_LEN]);
+        let words = buffer.as_mut_ptr();
         // SAFETY: GPIOF's set/reset register is a valid, write-only peripheral address whose
         // writes only change the pins of its set bits; the buffer is 'static.
         let mut ring = unsafe {
@@ -164,6 +226,6 @@ impl DigitalPeripherals {
         timer.set_frequency(Hertz(TICK_HZ), RoundTo::Slower);
         timer.enable_update_dma(true);
         timer.start();
-        (capture, Pattern { ring, _pins: outputs, _timer: timer })
+        (capture, Pattern { ring, words, _pins: outputs, _timer: timer })
     }
 }

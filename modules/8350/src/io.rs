@@ -7,6 +7,7 @@ use core::cell::RefCell;
 use embassy_futures::select::{select, Either};
 use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::blocking_mutex::Mutex;
+use embassy_sync::waitqueue::WakerRegistration;
 use embassy_time::{Duration, Instant, Ticker, Timer};
 
 use remodaq_shared::diagnostics::{status, DIAGNOSTICS};
@@ -28,6 +29,10 @@ pub struct Io {
     pub watchdog: HostWatchdog,
     /// The outputs' levels in the watchdog's safe state.
     safe: u8,
+    /// When the first output command not yet in the pattern was given.
+    commanded_at: Option<Instant>,
+    /// The output task, waiting for a command to write into the queued pattern.
+    output_task: WakerRegistration,
 }
 
 impl Io {
@@ -40,6 +45,8 @@ impl Io {
             extra: [0; pulse::CHANNELS],
             watchdog: HostWatchdog::new(settings.watchdog, Instant::now()),
             safe: settings.safe,
+            commanded_at: None,
+            output_task: WakerRegistration::new(),
         };
         io.configure(settings);
         io.pulse.hold(settings.power_on);
@@ -53,11 +60,25 @@ impl Io {
         }
     }
 
+    /// To call once commands have changed outputs (a DO bit, a hold, a mode): the output task
+    /// writes the new levels into the pattern already queued, a few ticks ahead of the one
+    /// playing ([`OutputPattern::force`]), rather than at its next refill.
+    pub fn outputs_commanded(&mut self) {
+        if self.pulse.commanded() == 0 {
+            return;
+        }
+        if self.commanded_at.is_none() {
+            self.commanded_at = Some(Instant::now());
+        }
+        self.output_task.wake();
+    }
+
     /// Checks the host watchdog at `now`; on a trip, every output goes to its safe level and
     /// every pulse train stops.
     pub fn poll_watchdog(&mut self, now: Instant) {
         if self.watchdog.poll(now) {
             self.pulse.hold(self.safe);
+            self.outputs_commanded();
             DIAGNOSTICS.set(status::HOST_WATCHDOG, true);
             remodaq_shared::warn!("host watchdog: no request in time, outputs in the safe state {:02X}h", self.safe);
         }
@@ -68,6 +89,7 @@ impl Io {
     pub fn keep_safe(&mut self) -> bool {
         if self.watchdog.tripped() {
             self.pulse.hold(self.safe);
+            self.outputs_commanded();
         }
         self.watchdog.tripped()
     }
@@ -97,6 +119,7 @@ impl Io {
             self.pulse.set_mode(n, settings.do_modes[n]);
             self.pulse.set_config(n, settings.pulses[n]);
         }
+        self.outputs_commanded();
     }
 }
 
@@ -124,7 +147,8 @@ pub const LOCKED_SAMPLES: usize = 32;
 /// See [`LOCKED_SAMPLES`].
 pub const LOCKED_TICKS: usize = 12;
 /// Output ticks computed per refill: half of the boards' output pattern ring (64 ticks, 6.4
-/// ms). A command reaches the outputs one to two chunks later: 6.4 to 12.8 ms.
+/// ms). A command does not wait for them: it is written into the ticks already queued
+/// ([`OutputPattern::force`]).
 pub const OUTPUT_CHUNK: usize = 64;
 
 /// The captured input samples were not drained in time: some were lost.
@@ -148,9 +172,24 @@ pub trait InputCapture {
 /// [`crate::pulse::TICK_HZ`], played from a ring of `2 * OUTPUT_CHUNK` ticks.
 #[allow(async_fn_in_trait)]
 pub trait OutputPattern {
-    /// Queues `ticks` (at most [`OUTPUT_CHUNK`]), waiting until the ring has room for them.
-    async fn write(&mut self, ticks: &[u8]) -> Result<(), PatternUnderrun>;
+    /// Waits until the ring has room for [`OUTPUT_CHUNK`] ticks; queues nothing (a wait
+    /// dropped half way leaves the ring as it was).
+    async fn room(&mut self);
+
+    /// Queues `ticks` (at most [`OUTPUT_CHUNK`], the room [`room`](Self::room) waited for) after
+    /// those queued. Returns how many ticks after the one playing now the first of them plays.
+    fn write(&mut self, ticks: &[u8]) -> Result<u32, PatternUnderrun>;
+
+    /// Forces the outputs of `mask` to their bit in `levels` in every queued tick from
+    /// [`FORCE_AHEAD`] ticks after the one playing now. Returns how many ticks after the one
+    /// playing the forced levels start: [`FORCE_AHEAD`], or fewer when fewer ticks are queued
+    /// (the ticks written next carry them).
+    fn force(&mut self, mask: u8, levels: u8) -> u32;
 }
+
+/// Ticks between the one playing and the first one [`OutputPattern::force`] rewrites (0.3 ms):
+/// room for the DMA's read of the next tick and for the rewrite itself, interrupts allowed.
+pub const FORCE_AHEAD: u32 = 3;
 
 /// The 8350's application: drains the input capture into the DI engine every
 /// [`DRAIN_INTERVAL`] (each pass calls `alive`), and keeps the output pattern filled from the
@@ -191,19 +230,95 @@ pub async fn run<R: RawMutex>(
     };
     let fill = async {
         let mut ticks = [0u8; OUTPUT_CHUNK];
-        loop {
-            for part in ticks.chunks_mut(LOCKED_TICKS) {
-                with(cell, |s| s.pulse.fill(part));
+        if !FORCE {
+            // As before issue #23: a chunk is computed, then queued once there is room, so a
+            // command reaches the outputs 12.8 to 19.2 ms later.
+            loop {
+                let at = compute(cell, &mut ticks);
+                outputs.room().await;
+                if let (Some(ahead), Some(at)) = (queue(&mut outputs, &ticks), at) {
+                    output_latency(at, ahead);
+                }
             }
-            if let Err(e) = outputs.write(&ticks).await {
-                remodaq_shared::error!("outputs: {:?}: the pattern ran dry", e);
-                DIAGNOSTICS.pattern_underrun();
+        }
+        loop {
+            match select(outputs.room(), commanded(cell)).await {
+                Either::First(()) => {
+                    compute(cell, &mut ticks);
+                    queue(&mut outputs, &ticks);
+                }
+                Either::Second(at) => {
+                    // The commanded outputs that hold a level: a train a command started begins
+                    // at the next refill, exact; one it stopped ends here.
+                    let (mask, levels) = with(cell, |s| {
+                        let (steady, levels) = s.pulse.steady();
+                        (s.pulse.take_commanded() & steady, levels)
+                    });
+                    if mask != 0 {
+                        output_latency(at, outputs.force(mask, levels));
+                    }
+                }
             }
         }
     };
     match select(drain, fill).await {
         Either::First(never) | Either::Second(never) => never,
     }
+}
+
+/// Whether output commands are written into the queued pattern ([`OutputPattern::force`]);
+/// off with the feature `refill-only` (the behaviour before issue #23, for comparisons): they
+/// then reach the outputs with the next refill, 6.4 to 12.8 ms later.
+const FORCE: bool = !cfg!(feature = "refill-only");
+
+/// Computes the next chunk of ticks; the time of the first command they are the first to carry
+/// (used without forcing).
+fn compute<R: RawMutex>(cell: &IoCell<R>, ticks: &mut [u8; OUTPUT_CHUNK]) -> Option<Instant> {
+    for part in ticks.chunks_mut(LOCKED_TICKS) {
+        with(cell, |s| s.pulse.fill(part));
+    }
+    if FORCE {
+        None
+    } else {
+        with(cell, |s| s.commanded_at.take())
+    }
+}
+
+/// Queues a computed chunk (there is room); how many ticks after the one playing it starts, or
+/// `None` when the pattern ran dry (counted, 40325).
+fn queue(outputs: &mut impl OutputPattern, ticks: &[u8]) -> Option<u32> {
+    match outputs.write(ticks) {
+        Ok(ahead) => Some(ahead),
+        Err(e) => {
+            remodaq_shared::error!("outputs: {:?}: the pattern ran dry", e);
+            DIAGNOSTICS.pattern_underrun();
+            None
+        }
+    }
+}
+
+/// Waits for an output command not yet in the pattern; the time it was given.
+async fn commanded<R: RawMutex>(cell: &IoCell<R>) -> Instant {
+    if !FORCE {
+        return core::future::pending().await;
+    }
+    core::future::poll_fn(|cx| {
+        with(cell, |s| match s.commanded_at.take() {
+            Some(at) => core::task::Poll::Ready(at),
+            None => {
+                s.output_task.register(cx.waker());
+                core::task::Poll::Pending
+            }
+        })
+    })
+    .await
+}
+
+/// Counts the latency of an output command given at `at`, whose levels play `ahead` ticks
+/// after the one playing now (diagnostics 40326-40327).
+fn output_latency(at: Instant, ahead: u32) {
+    let us = at.elapsed().as_micros() + u64::from(ahead) * 1_000_000 / u64::from(pulse::TICK_HZ);
+    DIAGNOSTICS.output_latency(us);
 }
 
 /// Samples in the boards' capture ring: 4096, 82 ms at [`crate::di::SAMPLE_RATE_HZ`]. The STM32's
@@ -260,34 +375,67 @@ impl<F: FnMut(u64) -> Option<u16>> InputCapture for SimulatedCapture<F> {
 }
 
 /// An output ring played in simulated time (the host and QEMU boards): ticks are consumed at
-/// [`pulse::TICK_HZ`] from the start; `played(first, levels)` sees each queued chunk and the
-/// index of its first tick (ticks since the start: tick `k` plays at `k / TICK_HZ` s).
+/// [`pulse::TICK_HZ`] from the start; `played(first, levels)` sees the ticks queued from tick
+/// `first` on (ticks since the start: tick `k` plays at `k / TICK_HZ` s), each call replacing
+/// what an earlier one said of the ticks from `first` on (a forced rewrite).
 pub struct SimulatedPattern<F> {
     start: Instant,
     queued: u64,
+    /// The queued ticks, tick `k` at `k % RING`.
+    ring: [u8; RING],
     played: F,
 }
+
+/// The simulated ring's length, ticks: the STM32's.
+const RING: usize = 2 * OUTPUT_CHUNK;
+/// One tick, µs.
+const TICK_US: u64 = 1_000_000 / pulse::TICK_HZ as u64;
 
 impl<F: FnMut(u64, &[u8])> SimulatedPattern<F> {
     /// A ring starting now, empty.
     pub fn new(played: F) -> Self {
-        Self { start: Instant::now(), queued: 0, played }
+        Self { start: Instant::now(), queued: 0, ring: [0; RING], played }
+    }
+
+    /// The tick playing now.
+    fn playing(&self) -> u64 {
+        self.start.elapsed().as_micros() / TICK_US
     }
 }
 
 impl<F: FnMut(u64, &[u8])> OutputPattern for SimulatedPattern<F> {
-    async fn write(&mut self, ticks: &[u8]) -> Result<(), PatternUnderrun> {
-        let tick_us = 1_000_000 / u64::from(pulse::TICK_HZ);
-        let capacity = 2 * OUTPUT_CHUNK as u64;
-        // Wait until the ring has played enough to take these ticks.
-        let room_at = (self.queued + ticks.len() as u64).saturating_sub(capacity) * tick_us;
+    async fn room(&mut self) {
+        // Room once the ring has played enough to take a chunk.
+        let room_at = (self.queued + OUTPUT_CHUNK as u64).saturating_sub(RING as u64) * TICK_US;
         Timer::at(self.start + Duration::from_micros(room_at)).await;
-        let playing = self.start.elapsed().as_micros() / tick_us;
+    }
+
+    fn write(&mut self, ticks: &[u8]) -> Result<u32, PatternUnderrun> {
+        let playing = self.playing();
         let result = if playing > self.queued && self.queued > 0 { Err(PatternUnderrun) } else { Ok(()) };
         // After a late refill the ring plays on from where it is, as the DMA ring does.
         let first = self.queued.max(playing);
+        for (k, &levels) in (first..).zip(ticks) {
+            self.ring[(k % RING as u64) as usize] = levels;
+        }
         self.queued = first + ticks.len() as u64;
         (self.played)(first, ticks);
-        result
+        result.map(|()| (first - playing) as u32)
+    }
+
+    fn force(&mut self, mask: u8, levels: u8) -> u32 {
+        let playing = self.playing();
+        let from = playing + u64::from(FORCE_AHEAD);
+        if from >= self.queued {
+            return self.queued.saturating_sub(playing) as u32;
+        }
+        let mut rewritten = [0u8; RING];
+        for (k, out) in (from..self.queued).zip(&mut rewritten) {
+            let tick = &mut self.ring[(k % RING as u64) as usize];
+            *tick = (*tick & !mask) | (levels & mask);
+            *out = *tick;
+        }
+        (self.played)(from, &rewritten[..(self.queued - from) as usize]);
+        FORCE_AHEAD
     }
 }

@@ -145,6 +145,7 @@ impl<'a, F: NorFlash, R: RawMutex> Map8350<'a, F, R> {
                 for n in 0..pulse::CHANNELS {
                     s.pulse.set_do(n, all & (1 << n) != 0);
                 }
+                s.outputs_commanded();
             }
             if plan.clear_watchdog {
                 s.clear_watchdog();
@@ -162,7 +163,10 @@ impl<'a, F: NorFlash, R: RawMutex> Map8350<'a, F, R> {
             }
             for (point, on) in points() {
                 match (point, on) {
-                    (Some(Point::Do(n)), _) => s.pulse.set_do(usize::from(n), on),
+                    (Some(Point::Do(n)), _) => {
+                        s.pulse.set_do(usize::from(n), on);
+                        s.outputs_commanded();
+                    }
                     (Some(Point::CounterRun(n)), run) => s.di.set_run(usize::from(n), run),
                     (Some(Point::CounterClear(n)), true) => s.di.clear_counter(usize::from(n)),
                     (Some(Point::Overflow(n)), false) => s.di.clear_overflow(usize::from(n)),

@@ -109,6 +109,8 @@ impl Output {
 /// The six outputs. Outputs are off at power-up.
 pub struct PulseEngine {
     outputs: [Output; CHANNELS],
+    /// Outputs a command changed (a DO bit, a hold, a mode) since [`PulseEngine::take_commanded`].
+    commanded: u8,
 }
 
 impl Default for PulseEngine {
@@ -120,7 +122,7 @@ impl Default for PulseEngine {
 impl PulseEngine {
     /// All outputs off, normal mode.
     pub const fn new() -> Self {
-        Self { outputs: [Output::OFF; CHANNELS] }
+        Self { outputs: [Output::OFF; CHANNELS], commanded: 0 }
     }
 
     /// The levels of the next tick (bit n = DOn), then advances one tick.
@@ -133,6 +135,30 @@ impl PulseEngine {
             out.advance();
         }
         levels
+    }
+
+    /// The outputs commands changed since [`PulseEngine::take_commanded`] (bit n = DOn).
+    pub fn commanded(&self) -> u8 {
+        self.commanded
+    }
+
+    /// The outputs commands changed since the last call (bit n = DOn), and forgets them.
+    pub fn take_commanded(&mut self) -> u8 {
+        core::mem::take(&mut self.commanded)
+    }
+
+    /// The outputs whose level stays put from the next tick on, and those levels: a held
+    /// output, a normal-mode output, a pulse-mode output with no train running (off). An
+    /// output running a train is not in the mask.
+    pub fn steady(&self) -> (u8, u8) {
+        self.outputs.iter().enumerate().fold((0, 0), |(mask, levels), (n, out)| {
+            let steady = out.held.is_some() || out.mode == DoMode::Normal || !out.running;
+            if steady {
+                (mask | 1 << n, levels | u8::from(out.level_now()) << n)
+            } else {
+                (mask, levels)
+            }
+        })
     }
 
     /// Fills `ticks` with the next ticks' levels.
@@ -162,6 +188,7 @@ impl PulseEngine {
     /// Writes output `n`'s DO bit: a level in normal mode; start (if not running) or stop in
     /// pulse mode. A held level ends.
     pub fn set_do(&mut self, n: usize, on: bool) {
+        self.commanded |= 1 << (n % CHANNELS);
         let out = &mut self.outputs[n % CHANNELS];
         out.held = None;
         match out.mode {
@@ -188,6 +215,7 @@ impl PulseEngine {
     /// pulse train stops. The DO bits read the held levels until a client writes them (or the
     /// mode). The host watchdog's safe state and the power-on values (extensions §3).
     pub fn hold(&mut self, levels: u8) {
+        self.commanded = (1 << CHANNELS) - 1;
         for (n, out) in self.outputs.iter_mut().enumerate() {
             let level = levels >> n & 1 != 0;
             out.running = false;
@@ -205,6 +233,7 @@ impl PulseEngine {
         let out = &mut self.outputs[n % CHANNELS];
         if out.mode != mode {
             *out = Output { mode, config: out.config, ..Output::OFF };
+            self.commanded |= 1 << (n % CHANNELS);
         }
     }
 

@@ -41,13 +41,20 @@ struct FakePattern {
 }
 
 impl OutputPattern for FakePattern {
-    async fn write(&mut self, ticks: &[u8]) -> Result<(), PatternUnderrun> {
+    async fn room(&mut self) {
         if self.written.borrow().len() >= self.room {
             // The ring is full: wait as the hardware would (longer than the test runs).
             Timer::after(Duration::from_secs(3600)).await;
         }
+    }
+
+    fn write(&mut self, ticks: &[u8]) -> Result<u32, PatternUnderrun> {
         self.written.borrow_mut().push(ticks.to_vec());
-        Ok(())
+        Ok(0)
+    }
+
+    fn force(&mut self, _: u8, _: u8) -> u32 {
+        0
     }
 }
 

@@ -324,7 +324,9 @@ async fn board_checks(report: &mut Report, spawner: Spawner, board: B, io: remod
     report.check("PHY: link up (Ethernet cable to a switch)", passed(link_up(net.stack).await));
     let (spi, ntc) = io.analog.start();
     report.check("AD7124-8: reset, id and set-up over SPI1", passed(ad7124(spi, ntc).await));
-    report.check("capture and outputs: DO0 -> DI0 jumper, 1000 pulses counted", passed(loopback(io.digital).await));
+    let (train, latency) = loopback(io.digital).await;
+    report.check("capture and outputs: DO0 -> DI0 jumper, 1000 pulses counted", passed(train));
+    report.check("DO0 write to pin within 1 ms: 100 writes, DI0 follows through the jumper", passed(latency));
 }
 
 #[cfg(not(feature = "board-qemu"))]
@@ -339,9 +341,14 @@ async fn ad7124(
 
 /// DO0 plays a train of exactly 1000 pulses (0.5 ms high, 0.5 ms low) through the timer-DMA
 /// output pattern; the jumper brings it to DI0, captured by timer-DMA at 50 kHz and counted by
-/// the DI engine: 1000 rising edges, no samples lost.
+/// the DI engine: 1000 rising edges, no samples lost. Then (issue #23) DO0 in normal mode is
+/// written 100 times, on and off, 15 ms apart: each write must reach the pattern within 1 ms by
+/// the module's own measure (the output task's delay plus the ticks from the DMA's position,
+/// read from NDTR, to the first rewritten: 40326), and DI0 must follow through the jumper.
 #[cfg(not(feature = "board-qemu"))]
-async fn loopback(digital: remodaq_board_stm32::digital::DigitalPeripherals) -> Result<(), &'static str> {
+async fn loopback(
+    digital: remodaq_board_stm32::digital::DigitalPeripherals,
+) -> (Result<(), &'static str>, Result<(), &'static str>) {
     use core::cell::RefCell;
 
     use embassy_futures::select::select;
@@ -361,22 +368,51 @@ async fn loopback(digital: remodaq_board_stm32::digital::DigitalPeripherals) -> 
     io::with(cell, |s| s.di.set_run(0, true));
     let (capture, pattern) = digital.start();
     let run = io::run(capture, pattern, cell, || {});
+    let mut counted = 0;
+    let mut latency = Ok(());
     let test = async {
         Timer::after_millis(100).await;
-        io::with(cell, |s| s.pulse.set_do(0, true));
+        io::with(cell, |s| {
+            s.pulse.set_do(0, true);
+            s.outputs_commanded();
+        });
         // 1000 pulses of 1 ms, and the output ring's lead.
         Timer::after_millis(1300).await;
+        counted = io::with(cell, |s| s.di.counter_value(0));
+        io::with(cell, |s| {
+            s.pulse.set_mode(0, DoMode::Normal);
+            s.di.set_mode(0, DiMode::Normal);
+            s.outputs_commanded();
+        });
+        Timer::after_millis(20).await;
+        let mut worst = 0;
+        for i in 0..100 {
+            let on = i % 2 == 0;
+            io::with(cell, |s| {
+                s.pulse.set_do(0, on);
+                s.outputs_commanded();
+            });
+            Timer::after_millis(15).await;
+            worst = worst.max(DIAGNOSTICS.read(remodaq_shared::diagnostics::Diag::OutputLatency, 0));
+            if io::with(cell, |s| s.di.state() & 1 == 1) != on {
+                latency = Err("DI0 did not follow DO0 within 15 ms (is the jumper in place?)");
+            }
+        }
+        say!("on-target: DO0 write to the pattern, worst of 100 writes {} µs", worst);
+        if latency.is_ok() && worst > 1000 {
+            latency = Err("a DO0 write took more than 1 ms to reach the pattern");
+        }
     };
     select(run, test).await;
-    let counted = io::with(cell, |s| s.di.counter_value(0));
     say!("on-target: DI0 counted {} rising edges", counted);
-    if DIAGNOSTICS.status() & status::FRONT_END_FAULT != 0 {
-        return Err("input samples were lost");
-    }
-    if counted != 1000 {
-        return Err("DI0 did not count the 1000 pulses of DO0 (is the jumper in place?)");
-    }
-    Ok(())
+    let train = if DIAGNOSTICS.status() & status::FRONT_END_FAULT != 0 {
+        Err("input samples were lost")
+    } else if counted != 1000 {
+        Err("DI0 did not count the 1000 pulses of DO0 (is the jumper in place?)")
+    } else {
+        Ok(())
+    };
+    (train, latency)
 }
 
 fn exit(ok: bool) -> ! {

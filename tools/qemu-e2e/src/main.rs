@@ -57,16 +57,49 @@ struct Ports {
     flood: Vec<u16>,
 }
 
+/// Ports are chosen from a range of this many, one range per run (see [`port_range`]).
+const PORT_RANGE: u16 = 4000;
+/// The next port of this run's range to try (an offset in it).
+static NEXT_PORT: std::sync::atomic::AtomicU16 = std::sync::atomic::AtomicU16::new(0);
+/// The first port of this run's range.
+static PORT_BASE: std::sync::atomic::AtomicU16 = std::sync::atomic::AtomicU16::new(28_000);
+
+/// Chooses this run's port range from what it runs: each model its own, below Linux's ephemeral
+/// ports (32768-60999). The test command runs both models at once: ports chosen by asking the
+/// kernel for free ones (port 0) and released until QEMU binds them could be handed to the
+/// other run meanwhile, for its QEMU or a client connection.
+fn port_range(what: &str) {
+    let base = match what {
+        "8318" => 20_000,
+        "8350" => 24_000,
+        _ => 28_000,
+    };
+    PORT_BASE.store(base, std::sync::atomic::Ordering::Relaxed);
+}
+
+/// The next port of this run's range that is free now on the loopback (TCP, or UDP), never
+/// one this run chose before (until the range wraps).
+fn free_port(udp: bool) -> Result<u16, String> {
+    use std::sync::atomic::Ordering::Relaxed;
+    for _ in 0..PORT_RANGE {
+        let port = PORT_BASE.load(Relaxed) + NEXT_PORT.fetch_add(1, Relaxed) % PORT_RANGE;
+        let free = if udp {
+            std::net::UdpSocket::bind(("127.0.0.1", port)).is_ok()
+        } else {
+            TcpListener::bind(("127.0.0.1", port)).is_ok()
+        };
+        if free {
+            return Ok(port);
+        }
+    }
+    Err("no free local port in this run's range".into())
+}
+
 impl Ports {
-    /// Free local ports for all of them.
+    /// Free local ports for all of them, from this run's range.
     fn free() -> Result<Self, String> {
-        let udp =
-            std::net::UdpSocket::bind("127.0.0.1:0").and_then(|s| s.local_addr()).map_err(|e| e.to_string())?.port();
-        // Held together while chosen, so that they differ.
-        let held = (0..FLOOD + 2).map(|_| TcpListener::bind("127.0.0.1:0")).collect::<Result<Vec<_>, _>>();
-        let tcp = held
-            .and_then(|held| held.iter().map(|l| l.local_addr().map(|a| a.port())).collect::<Result<Vec<_>, _>>())
-            .map_err(|e| e.to_string())?;
+        let udp = free_port(true)?;
+        let tcp = (0..FLOOD + 2).map(|_| free_port(false)).collect::<Result<Vec<_>, _>>()?;
         Ok(Self { modbus: tcp[0], udp, update: tcp[1], flood: tcp[2..].to_vec() })
     }
 
@@ -177,7 +210,7 @@ struct Report {
 fn checks_of(model: u16) -> u32 {
     match model {
         0x8318 => 11,
-        0x8350 => 21,
+        0x8350 => 22,
         _ => 0,
     }
 }
@@ -688,6 +721,10 @@ async fn run(model: &str, image: &str) -> Report {
     // after the newcomer's answer: let them drain before the next check.
     sleep(Duration::from_secs(3)).await;
     if name == 0x8350 {
+        report.check(
+            "DO write reaches the output pattern within 1 ms (median and 95 % of 200 writes, the module's own measure)",
+            output_latency_check(addr, model, 200).await,
+        );
         let watchdog = host_watchdog(addr).await;
         if let Ok(t) = &watchdog {
             println!(
@@ -709,6 +746,46 @@ async fn run(model: &str, image: &str) -> Report {
         broken_front_end(&mut report, image).await;
     }
     report
+}
+
+/// The goal of issue #23 for an output command, write to pin: 1 ms.
+const OUTPUT_LATENCY_GOAL_US: u16 = 1000;
+
+/// `writes` DO0 writes (05), alternately on and off, each followed after 15 ms (more than the
+/// 12.8 ms a refill can take) by a read of the module's own measure of that write's latency
+/// (40326); the median, the 95th percentile and the worst, µs.
+async fn output_latency(addr: SocketAddr, writes: u32) -> Result<(u16, u16, u16), String> {
+    let mut ctx = connect(addr).await?;
+    let mut seen = Vec::new();
+    for i in 0..writes {
+        timeout(STEP, ctx.write_single_coil(BIT_DO, i % 2 == 0))
+            .await
+            .map_err(|_| "no answer in time".to_string())?
+            .map_err(|e| e.to_string())?
+            .map_err(|e| format!("DO0 write: exception {e:?}"))?;
+        sleep(Duration::from_millis(15)).await;
+        seen.push(diag_reg(&mut ctx, diag::Diag::OutputLatency).await?);
+    }
+    seen.sort_unstable();
+    let at = |part: usize| seen.get(seen.len() * part / 100).copied();
+    let (Some(median), Some(p95), Some(&worst)) = (at(50), at(95), seen.last()) else {
+        return Err("no writes".into());
+    };
+    Ok((median, p95, worst))
+}
+
+/// [`output_latency`] as a check: the median and 95 % of the writes within the goal. The worst
+/// is shown, not held: QEMU's guest shares this PC's cores, and a QEMU thread put aside by the
+/// OS for a few ms is not the module's design.
+async fn output_latency_check(addr: SocketAddr, model: &str, writes: u32) -> Result<(), String> {
+    let (median, p95, worst) = output_latency(addr, writes).await?;
+    println!(
+        "qemu-{model}: DO write to the output pattern, {writes} writes: median {median} µs, 95 % {p95} µs, worst {worst} µs"
+    );
+    if median > OUTPUT_LATENCY_GOAL_US || p95 > OUTPUT_LATENCY_GOAL_US {
+        return Err(format!("median {median} µs, 95 % {p95} µs: above {OUTPUT_LATENCY_GOAL_US} µs"));
+    }
+    Ok(())
 }
 
 /// A diagnostics register.
@@ -1271,6 +1348,7 @@ async fn during_update(addr: SocketAddr, update: SocketAddr, file: &[u8]) -> Res
 
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().collect();
+    port_range(args.get(1).map_or("", String::as_str));
     if args.get(1).map(String::as_str) == Some("newcomer") {
         let (Some(image), Some(Ok(runs))) = (args.get(2), args.get(3).map(|n| n.parse::<u32>())) else {
             eprintln!("usage: qemu-e2e newcomer IMAGE RUNS");
@@ -1290,6 +1368,41 @@ fn main() -> ExitCode {
             .count() as u32;
         println!("newcomer: {} passed, {failed} failed", runs - failed);
         return if failed == 0 { ExitCode::SUCCESS } else { ExitCode::FAILURE };
+    }
+    if args.get(1).map(String::as_str) == Some("output-latency") {
+        // Against a running module (the host simulator) at ADDR:PORT, or an 8350 image under QEMU.
+        let (Some(target), Some(Ok(writes))) = (args.get(2), args.get(3).map(|n| n.parse::<u32>())) else {
+            eprintln!("usage: qemu-e2e output-latency ADDR:PORT|IMAGE WRITES");
+            return ExitCode::from(2);
+        };
+        let Ok(runtime) = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build() else {
+            return ExitCode::from(1);
+        };
+        let measured = runtime.block_on(async {
+            match target.parse::<SocketAddr>() {
+                Ok(addr) => output_latency(addr, writes).await,
+                Err(_) => {
+                    let ports = Ports::free()?;
+                    let qemu = start_qemu(target, &ports)?;
+                    drop(wait_ready(ports.modbus()).await?);
+                    let measured = output_latency(ports.modbus(), writes).await;
+                    drop(qemu);
+                    measured
+                }
+            }
+        });
+        return match measured {
+            Ok((median, p95, worst)) => {
+                println!(
+                    "DO write to the output pattern, {writes} writes: median {median} µs, 95 % {p95} µs, worst {worst} µs"
+                );
+                ExitCode::SUCCESS
+            }
+            Err(e) => {
+                eprintln!("{e}");
+                ExitCode::FAILURE
+            }
+        };
     }
     if args.get(1).map(String::as_str) == Some("latency") {
         let Ok(runtime) = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build() else {
