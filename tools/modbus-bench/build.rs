@@ -31,6 +31,8 @@ fn main() {
         .include(&src)
         .define("HAVE_CONFIG_H", None)
         .opt_level(3)
+        // As the Rust side (the profile's debug info does not keep frame pointers there).
+        .force_frame_pointer(false)
         .warnings(false)
         .compile("modbus_bench_c");
 }

@@ -50,6 +50,10 @@ impl Io {
         };
         io.configure(settings);
         io.pulse.hold(settings.power_on);
+        // The power-on levels are in the first ticks computed: nothing to write into a pattern
+        // (and no client command to measure).
+        io.pulse.take_commanded();
+        io.commanded_at = None;
         io
     }
 
@@ -242,12 +246,15 @@ pub async fn run<R: RawMutex>(
             }
         }
         loop {
-            match select(outputs.room(), commanded(cell)).await {
-                Either::First(()) => {
+            // A command first: the engine must not compute past it before its outputs are
+            // forced (a short train it stopped and another started could otherwise end inside
+            // the engine and look steady).
+            match select(commanded(cell), outputs.room()).await {
+                Either::Second(()) => {
                     compute(cell, &mut ticks);
                     queue(&mut outputs, &ticks);
                 }
-                Either::Second(at) => {
+                Either::First(at) => {
                     // The commanded outputs that hold a level: a train a command started begins
                     // at the next refill, exact; one it stopped ends here.
                     let (mask, levels) = with(cell, |s| {

@@ -188,8 +188,13 @@ impl PulseEngine {
     /// Writes output `n`'s DO bit: a level in normal mode; start (if not running) or stop in
     /// pulse mode. A held level ends.
     pub fn set_do(&mut self, n: usize, on: bool) {
-        self.commanded |= 1 << (n % CHANNELS);
         let out = &mut self.outputs[n % CHANNELS];
+        // Commanded (to be written into the ticks already queued): a level, or a train that
+        // runs and is stopped. Not a train started (it begins with the next refill, exact), nor
+        // a 0 written to a train the engine has finished computing (its last ticks still play).
+        if out.held.is_some() || out.mode == DoMode::Normal || (out.running && !on) {
+            self.commanded |= 1 << (n % CHANNELS);
+        }
         out.held = None;
         match out.mode {
             DoMode::Normal => out.level = on,

@@ -229,6 +229,32 @@ fn finite_train_tick_by_tick() {
     assert_eq!(train(&mut e, 0, 5), ".....");
 }
 
+/// Issue #23: the outputs a command changed are written into the ticks already queued, a few
+/// ticks ahead of the pin; a train must never be cut that way unless a command stops it.
+#[test]
+fn only_levels_and_stopped_trains_are_commanded() {
+    let mut e = pulse_engine(PulseConfig { high: 3, low: 2, count: 2 });
+    e.take_commanded();
+    e.set_do(0, true);
+    assert_eq!(e.take_commanded(), 0, "a train started begins with the next refill: nothing to rewrite");
+    assert_eq!(train(&mut e, 0, 10), "###..###..");
+    // The engine has computed the whole train; its last ticks may still be queued.
+    e.set_do(0, false);
+    assert_eq!(e.take_commanded(), 0, "a 0 written to a finished train leaves its queued ticks alone");
+    e.set_do(0, true);
+    assert_eq!(train(&mut e, 0, 2), "##");
+    e.set_do(0, false);
+    assert_eq!(e.take_commanded(), 1, "a running train stopped: rewritten from the next ticks");
+    assert_eq!(e.steady(), (0b11_1111, 0), "every output holds a level, all off");
+    e.set_do(1, true);
+    assert_eq!(e.take_commanded(), 0b10, "a normal-mode level");
+    e.set_do(0, true);
+    assert_eq!(e.steady(), (0b11_1110, 0b10), "a running train is not steady");
+    e.hold(0b100);
+    assert_eq!(e.take_commanded(), 0b11_1111, "a hold: every output");
+    assert_eq!(e.steady(), (0b11_1111, 0b100));
+}
+
 #[test]
 fn five_khz_and_continuous_until_stopped() {
     let mut e = pulse_engine(PulseConfig { high: 1, low: 1, count: 0 });
