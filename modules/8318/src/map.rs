@@ -37,12 +37,6 @@ impl<'a, F: NorFlash> Map8318<'a, F> {
     }
 }
 
-/// A run of registers held in one array.
-enum Run<'a> {
-    Values(&'a [u16]),
-    Statuses(&'a [crate::acquisition::ChannelStatus]),
-}
-
 /// The settings after a validated write of `values` at `start`.
 fn written(settings: &mut Settings, start: u16, values: &WriteValues<'_>) {
     for (i, v) in values.iter().enumerate() {
@@ -80,29 +74,19 @@ impl<F: NorFlash> RegisterMap for Map8318<'_, F> {
 
     /// The values and the statuses are copied in one go; other runs register by register.
     fn read_registers(&mut self, start: u16, out: &mut [u8]) {
-        let first = usize::from(start);
-        let words = out.len() / 2;
-        let status = usize::from(REG_STATUS);
-        let within = |base: usize, len: usize| first.checked_sub(base).filter(|i| i + words <= len);
-        let run = if let Some(i) = within(usize::from(REG_VALUE), CHANNELS) {
-            self.snapshot.values.get(i..i + words).map(Run::Values)
-        } else if let Some(i) = within(status, CHANNELS) {
-            self.snapshot.status.get(i..i + words).map(Run::Statuses)
+        let (first, words) = (usize::from(start), out.len() / 2);
+        let within = |base: u16| first.checked_sub(usize::from(base)).filter(|i| i + words <= CHANNELS);
+        let chunks = out.chunks_exact_mut(2);
+        if let Some(i) = within(REG_VALUE) {
+            for (word, v) in chunks.zip(&self.snapshot.values[i..]) {
+                word.copy_from_slice(&v.to_be_bytes());
+            }
+        } else if let Some(i) = within(REG_STATUS) {
+            for (word, s) in chunks.zip(&self.snapshot.status[i..]) {
+                word.copy_from_slice(&(*s as u16).to_be_bytes());
+            }
         } else {
-            None
-        };
-        match run {
-            Some(Run::Values(values)) => {
-                for (word, v) in out.chunks_exact_mut(2).zip(values) {
-                    word.copy_from_slice(&v.to_be_bytes());
-                }
-            }
-            Some(Run::Statuses(statuses)) => {
-                for (word, s) in out.chunks_exact_mut(2).zip(statuses) {
-                    word.copy_from_slice(&(*s as u16).to_be_bytes());
-                }
-            }
-            None => read_registers_each(self, start, out),
+            read_registers_each(self, start, out);
         }
     }
 

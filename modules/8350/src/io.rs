@@ -275,7 +275,7 @@ pub async fn run<R: RawMutex>(
 
 /// Whether output commands are written into the queued pattern ([`OutputPattern::force`]);
 /// off with the feature `refill-only` (the behaviour before issue #23, for comparisons): they
-/// then reach the outputs with the next refill, 6.4 to 12.8 ms later.
+/// then reach the outputs with a chunk computed after them, 12.8 to 19.2 ms later.
 const FORCE: bool = !cfg!(feature = "refill-only");
 
 /// Computes the next chunk of ticks; the time of the first command they are the first to carry
@@ -324,7 +324,7 @@ async fn commanded<R: RawMutex>(cell: &IoCell<R>) -> Instant {
 /// Counts the latency of an output command given at `at`, whose levels play `ahead` ticks
 /// after the one playing now (diagnostics 40326-40327).
 fn output_latency(at: Instant, ahead: u32) {
-    let us = at.elapsed().as_micros() + u64::from(ahead) * 1_000_000 / u64::from(pulse::TICK_HZ);
+    let us = at.elapsed().as_micros() + u64::from(ahead) * TICK_US;
     DIAGNOSTICS.output_latency(us);
 }
 

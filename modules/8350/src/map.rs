@@ -59,11 +59,6 @@ pub struct Map8350<'a, F: NorFlash, R: RawMutex> {
     io: &'a IoCell<R>,
 }
 
-/// The DOs as a word, DO0 in bit 0.
-fn do_word(io: &mut crate::io::Io) -> u16 {
-    (0..pulse::CHANNELS).filter(|n| io.pulse.do_bit(*n)).fold(0, |acc, n| acc | 1 << n)
-}
-
 /// Exception 04 for a write that would move an output while the host watchdog is tripped.
 const TRIPPED: Exception = Exception::ServerDeviceFailure;
 
@@ -163,10 +158,7 @@ impl<'a, F: NorFlash, R: RawMutex> Map8350<'a, F, R> {
             }
             for (point, on) in points() {
                 match (point, on) {
-                    (Some(Point::Do(n)), _) => {
-                        s.pulse.set_do(usize::from(n), on);
-                        s.outputs_commanded();
-                    }
+                    (Some(Point::Do(n)), _) => s.pulse.set_do(usize::from(n), on),
                     (Some(Point::CounterRun(n)), run) => s.di.set_run(usize::from(n), run),
                     (Some(Point::CounterClear(n)), true) => s.di.clear_counter(usize::from(n)),
                     (Some(Point::Overflow(n)), false) => s.di.clear_overflow(usize::from(n)),
@@ -175,6 +167,7 @@ impl<'a, F: NorFlash, R: RawMutex> Map8350<'a, F, R> {
                     _ => {}
                 }
             }
+            s.outputs_commanded();
             Ok(())
         })
     }
@@ -196,7 +189,7 @@ impl<'a, F: NorFlash, R: RawMutex> Map8350<'a, F, R> {
             Point::DiMode(n) => settings.di_modes[usize::from(n)] as u16,
             Point::DoMode(n) => settings.do_modes[usize::from(n)] as u16,
             Point::AllDi => s.di.state(),
-            Point::AllDo => do_word(s),
+            Point::AllDo => s.pulse.do_bits(),
             Point::Name => MODULE_NAME,
             Point::Version => FIRMWARE_VERSION,
             // "Samples lost since the last read of this register": cleared by the read.
@@ -255,7 +248,7 @@ impl<F: NorFlash, R: RawMutex> RegisterMap for Map8350<'_, F, R> {
         let word = if let Some(i) = within(BIT_DI, DI_CHANNELS) {
             io::with(self.io, |s| s.di.state()) >> i
         } else if let Some(i) = within(BIT_DO, DO_CHANNELS) {
-            io::with(self.io, do_word) >> i
+            io::with(self.io, |s| s.pulse.do_bits()) >> i
         } else {
             return read_bits_each(self, start, count, out);
         };

@@ -185,6 +185,11 @@ impl PulseEngine {
         }
     }
 
+    /// The DO bits of every output (bit n = DOn), as [`PulseEngine::do_bit`] reads them.
+    pub fn do_bits(&self) -> u16 {
+        (0..CHANNELS).filter(|n| self.do_bit(*n)).fold(0, |acc, n| acc | 1 << n)
+    }
+
     /// Writes output `n`'s DO bit: a level in normal mode; start (if not running) or stop in
     /// pulse mode. A held level ends.
     pub fn set_do(&mut self, n: usize, on: bool) {

@@ -1346,6 +1346,11 @@ async fn during_update(addr: SocketAddr, update: SocketAddr, file: &[u8]) -> Res
     Ok(())
 }
 
+/// The runtime every mode runs on: two worker threads.
+fn runtime() -> Option<tokio::runtime::Runtime> {
+    tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().ok()
+}
+
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().collect();
     port_range(args.get(1).map_or("", String::as_str));
@@ -1354,9 +1359,7 @@ fn main() -> ExitCode {
             eprintln!("usage: qemu-e2e newcomer IMAGE RUNS");
             return ExitCode::from(2);
         };
-        let Ok(runtime) = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build() else {
-            return ExitCode::from(1);
-        };
+        let Some(runtime) = runtime() else { return ExitCode::from(1) };
         let failed = (0..runs)
             .filter(|run| {
                 let result = runtime.block_on(latency(image));
@@ -1375,9 +1378,7 @@ fn main() -> ExitCode {
             eprintln!("usage: qemu-e2e output-latency ADDR:PORT|IMAGE WRITES");
             return ExitCode::from(2);
         };
-        let Ok(runtime) = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build() else {
-            return ExitCode::from(1);
-        };
+        let Some(runtime) = runtime() else { return ExitCode::from(1) };
         let measured = runtime.block_on(async {
             match target.parse::<SocketAddr>() {
                 Ok(addr) => output_latency(addr, writes).await,
@@ -1405,9 +1406,7 @@ fn main() -> ExitCode {
         };
     }
     if args.get(1).map(String::as_str) == Some("latency") {
-        let Ok(runtime) = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build() else {
-            return ExitCode::from(1);
-        };
+        let Some(runtime) = runtime() else { return ExitCode::from(1) };
         for image in &args[2..] {
             if let Err(e) = runtime.block_on(latency(image)) {
                 println!("  {e}");
@@ -1419,9 +1418,7 @@ fn main() -> ExitCode {
         eprintln!("usage: qemu-e2e 8318|8350 IMAGE");
         return ExitCode::from(2);
     };
-    let Ok(runtime) = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build() else {
-        return ExitCode::from(1);
-    };
+    let Some(runtime) = runtime() else { return ExitCode::from(1) };
     let mut report = runtime.block_on(run(model, image));
     report.finish(checks_of(u16::from_str_radix(model, 16).unwrap_or(0)));
     println!("qemu-{}: {} passed, {} failed", report.model, report.passed, report.failed);
