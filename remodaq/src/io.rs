@@ -1,20 +1,18 @@
 //! Reading, watching and configuring a module's I/O over Modbus/TCP (tokio-modbus).
 
-use std::net::{SocketAddr, ToSocketAddrs};
+use std::net::SocketAddr;
 use std::time::Duration;
 
 use clap::{Subcommand, ValueEnum};
 use remodaq_protocol::m8318::{
-    self, ChannelStatus, InputType, Kind, REG_CJC_OFFSET, REG_ENABLE_MASK, REG_INPUT_TYPE, REG_OPEN_VALUE, REG_STATUS,
+    self, InputType, REG_CJC_OFFSET, REG_ENABLE_MASK, REG_INPUT_TYPE, REG_OPEN_VALUE,
 };
 use remodaq_protocol::m8350::{self, wd_mode, DiMode as Mode, Point, PulseField, Word};
-use remodaq_protocol::{diag, identity, words_low_first};
-use serde::Serialize;
-use tokio::time::timeout as within;
-use tokio_modbus::client::{tcp, Client, Context};
-use tokio_modbus::{ExceptionCode, Request, Response};
+use remodaq_protocol::words_low_first;
 
-use crate::Error;
+use remodaq_client::modbus::Module;
+use remodaq_client::reading::{bit, read_analog, read_digital, reg, Analog, Diagnostics, Digital, DI_MODES};
+use remodaq_client::Error;
 
 /// An I/O setting (`remodaq config MODULE ...`).
 #[derive(Subcommand)]
@@ -133,221 +131,6 @@ pub enum OnOff {
     Off,
 }
 
-const DI_MODES: [&str; 5] = ["normal", "counter", "latch-rising", "latch-falling", "frequency"];
-
-/// The 4X address of an 8350 register point.
-fn reg(point: Point) -> u16 {
-    point.addr().1
-}
-
-/// The 0X address of an 8350 bit point.
-fn bit(point: Point) -> u16 {
-    point.addr().1
-}
-
-fn exception(e: ExceptionCode) -> Error {
-    let meaning = match e {
-        ExceptionCode::IllegalFunction => {
-            "01 illegal function: the module does not support this request, or does not let this PC write (see `remodaq access`)"
-        }
-        ExceptionCode::IllegalDataAddress => "02 illegal data address: not mapped for this access on this module",
-        ExceptionCode::IllegalDataValue => "03 illegal data value: the module does not accept this value",
-        ExceptionCode::ServerDeviceFailure => {
-            "04 server device failure: the setting could not be stored, or the outputs are held in the safe state (host watchdog tripped: `config MODULE watchdog clear`)"
-        }
-        _ => "unexpected exception",
-    };
-    Error::Exception(format!("the module answered exception {meaning}"))
-}
-
-/// A module's Modbus/TCP connection.
-struct Module {
-    ctx: Context,
-    addr: SocketAddr,
-    timeout: Duration,
-    model: u16,
-}
-
-fn resolve(module: &str) -> Result<SocketAddr, Error> {
-    let with_port =
-        if module.contains(':') { module.to_string() } else { format!("{module}:{}", remodaq_protocol::MODBUS_PORT) };
-    with_port
-        .to_socket_addrs()
-        .map_err(|e| Error::Other(format!("`{module}`: {e}")))?
-        .next()
-        .ok_or_else(|| Error::Other(format!("`{module}`: no address")))
-}
-
-impl Module {
-    async fn connect(module: &str, timeout: Duration) -> Result<Self, Error> {
-        let addr = resolve(module)?;
-        let ctx = within(timeout, tcp::connect(addr))
-            .await
-            .map_err(|_| Error::Timeout(format!("no connection to {addr} within {:.1} s", timeout.as_secs_f64())))?
-            .map_err(|e| Error::Other(format!("cannot connect to {addr}: {e}")))?;
-        let mut m = Self { ctx, addr, timeout, model: 0 };
-        m.model = m.reg(identity::REG_NAME).await?;
-        if m.model != m8318::MODULE_NAME && m.model != m8350::MODULE_NAME {
-            return Err(Error::Other(format!("{addr} is not a RemoDAQ-8318 or -8350 (40211 reads {:04X})", m.model)));
-        }
-        Ok(m)
-    }
-
-    fn late(&self) -> Error {
-        Error::Timeout(format!("{} did not answer within {:.1} s", self.addr, self.timeout.as_secs_f64()))
-    }
-
-    /// The outcome of one request: no answer in time, a reply that does not fit it (another
-    /// transaction or function, undecodable, the connection dropped), an exception, or the
-    /// value.
-    fn outcome<T>(&self, answer: Result<tokio_modbus::Result<T>, tokio::time::error::Elapsed>) -> Result<T, Error> {
-        let reply = answer.map_err(|_| self.late())?;
-        match reply {
-            Ok(result) => result.map_err(exception),
-            Err(tokio_modbus::Error::Protocol(e)) => Err(Error::Reply(format!("{}: {e}", self.addr))),
-            Err(tokio_modbus::Error::Transport(e)) if e.kind() == std::io::ErrorKind::InvalidData => {
-                Err(Error::Reply(format!("{}: not a Modbus/TCP reply ({e})", self.addr)))
-            }
-            Err(tokio_modbus::Error::Transport(e)) => Err(Error::Other(format!("{}: {e}", self.addr))),
-        }
-    }
-
-    /// One request through tokio-modbus's checked `call` (it rejects another transaction or
-    /// function); the caller checks that the response fits the request.
-    async fn call(&mut self, request: Request<'_>) -> Result<Response, Error> {
-        let answer = within(self.timeout, self.ctx.call(request)).await;
-        self.outcome(answer)
-    }
-
-    fn misfit(&self, what: String) -> Error {
-        Error::Reply(format!("{}: {what}", self.addr))
-    }
-
-    async fn regs(&mut self, addr: u16, n: u16) -> Result<Vec<u16>, Error> {
-        match self.call(Request::ReadHoldingRegisters(addr, n)).await? {
-            Response::ReadHoldingRegisters(words) if words.len() == usize::from(n) => Ok(words),
-            Response::ReadHoldingRegisters(words) => {
-                Err(self.misfit(format!("{} registers in the reply to a read of {n}", words.len())))
-            }
-            other => Err(self.misfit(format!("{other:?} in reply to a read of registers"))),
-        }
-    }
-
-    async fn reg(&mut self, addr: u16) -> Result<u16, Error> {
-        Ok(self.regs(addr, 1).await?[0])
-    }
-
-    async fn bits(&mut self, addr: u16, n: u16) -> Result<Vec<bool>, Error> {
-        match self.call(Request::ReadCoils(addr, n)).await? {
-            // Bits come in whole bytes: the reply carries up to 7 padding bits.
-            Response::ReadCoils(mut bits) if bits.len() >= usize::from(n) && bits.len() < usize::from(n) + 8 => {
-                bits.truncate(usize::from(n));
-                Ok(bits)
-            }
-            Response::ReadCoils(bits) => Err(self.misfit(format!("{} bits in the reply to a read of {n}", bits.len()))),
-            other => Err(self.misfit(format!("{other:?} in reply to a read of bits"))),
-        }
-    }
-
-    async fn write_regs(&mut self, addr: u16, values: &[u16]) -> Result<(), Error> {
-        let n = values.len() as u16;
-        match self.call(Request::WriteMultipleRegisters(addr, values.into())).await? {
-            Response::WriteMultipleRegisters(a, q) if (a, q) == (addr, n) => Ok(()),
-            other => Err(self.misfit(format!("{other:?} in reply to a write of {n} registers at {addr:#06x}"))),
-        }
-    }
-
-    async fn write_bit(&mut self, addr: u16, on: bool) -> Result<(), Error> {
-        match self.call(Request::WriteSingleCoil(addr, on)).await? {
-            Response::WriteSingleCoil(a, v) if (a, v) == (addr, on) => Ok(()),
-            other => Err(self.misfit(format!("{other:?} in reply to a write of bit {addr:#06x}"))),
-        }
-    }
-
-    fn expect(&self, model: u16) -> Result<(), Error> {
-        if self.model == model {
-            Ok(())
-        } else {
-            Err(Error::Other(format!(
-                "this setting is for a RemoDAQ-{model:04X}; {} is a RemoDAQ-{:04X}",
-                self.addr, self.model
-            )))
-        }
-    }
-}
-
-/// One reading of an 8318.
-#[derive(Serialize)]
-struct Analog {
-    model: &'static str,
-    input_type: String,
-    type_code: String,
-    unit: &'static str,
-    cold_junction_c: Option<f64>,
-    cjc_offset_c: f64,
-    /// What an open input reads: "upscale" (FFFFh) or "downscale" (0000h).
-    open_value: &'static str,
-    channels: Vec<AnalogChannel>,
-    diagnostics: Diagnostics,
-    /// Whether the module's write allow-list restricts writes (`null`: unknown).
-    writes_restricted: Option<bool>,
-}
-
-/// The diagnostics registers (extensions §1).
-#[derive(Serialize)]
-struct Diagnostics {
-    /// Module status: the names of the bits set.
-    status: Vec<&'static str>,
-    status_raw: u16,
-    uptime_s: u32,
-    reset_cause: &'static str,
-    connections: u16,
-    requests: u32,
-    exceptions: u16,
-    security: SecurityEvents,
-}
-
-/// The security event registers (docs/diagnostics.md).
-#[derive(Serialize)]
-struct SecurityEvents {
-    factory_password: bool,
-    auth_failures: u16,
-    last_failed_source: Option<std::net::Ipv4Addr>,
-    budget_refusals: u16,
-    access_refusals: u16,
-    update_refusals: u16,
-    update_key: String,
-}
-
-async fn read_diagnostics(m: &mut Module) -> Result<Diagnostics, Error> {
-    let base = diag::REG_MODULE_STATUS;
-    let r = m.regs(base, diag::REG_UPDATE_REFUSALS - base + 1).await?;
-    let key = m.regs(diag::REG_UPDATE_KEY, 4).await?;
-    let at = |reg: u16| r[usize::from(reg - base)];
-    let status = at(diag::REG_MODULE_STATUS);
-    let [a, b] = at(diag::REG_LAST_FAILED_SOURCE).to_be_bytes();
-    let [c, d] = at(diag::REG_LAST_FAILED_SOURCE + 1).to_be_bytes();
-    let source = std::net::Ipv4Addr::new(a, b, c, d);
-    Ok(Diagnostics {
-        status: diag::status::NAMES.iter().filter(|(bit, _)| status & bit != 0).map(|(_, name)| *name).collect(),
-        status_raw: status,
-        uptime_s: remodaq_protocol::u32_low_first(at(diag::REG_UPTIME), at(diag::REG_UPTIME + 1)),
-        reset_cause: diag::reset_cause::name(at(diag::REG_RESET_CAUSE)),
-        connections: at(diag::REG_CONNECTIONS),
-        requests: remodaq_protocol::u32_low_first(at(diag::REG_REQUESTS), at(diag::REG_REQUESTS + 1)),
-        exceptions: at(diag::REG_EXCEPTIONS),
-        security: SecurityEvents {
-            factory_password: at(diag::REG_SECURITY) & diag::security::FACTORY_PASSWORD != 0,
-            auth_failures: at(diag::REG_AUTH_FAILURES),
-            last_failed_source: (!source.is_unspecified()).then_some(source),
-            budget_refusals: at(diag::REG_BUDGET_REFUSALS),
-            access_refusals: at(diag::REG_ACCESS_REFUSALS),
-            update_refusals: at(diag::REG_UPDATE_REFUSALS),
-            update_key: key.iter().map(|w| format!("{w:04x}")).collect(),
-        },
-    })
-}
-
 fn print_diagnostics(d: &Diagnostics) {
     let status = if d.status.is_empty() { "ok".to_string() } else { d.status.join(", ") };
     println!(
@@ -366,165 +149,10 @@ fn print_diagnostics(d: &Diagnostics) {
     }
 }
 
-#[derive(Serialize)]
-struct AnalogChannel {
-    channel: usize,
-    enabled: bool,
-    raw: u16,
-    value: Option<f64>,
-    status: &'static str,
-}
-
-fn type_name(t: &InputType) -> (String, &'static str, f64) {
-    match t.kind {
-        Kind::Thermocouple(tc) => (format!("thermocouple {}", tc.letter()), "°C", 1.0),
-        Kind::Current => ("current ±20 mA".into(), "mA", 1.0),
-        Kind::Voltage if t.hi >= 1000.0 => (format!("voltage ±{} V", t.hi / 1000.0), "V", 1000.0),
-        Kind::Voltage => (format!("voltage ±{} mV", t.hi), "mV", 1.0),
-    }
-}
-
-async fn read_analog(m: &mut Module) -> Result<Analog, Error> {
-    // Channels 0-7 and the cold junction: 40001-40009 in one request.
-    let values = m.regs(m8318::REG_VALUE, m8318::Reg::Cjc.addr() - m8318::REG_VALUE + 1).await?;
-    let code = m.reg(REG_INPUT_TYPE).await?;
-    let offset = m.reg(REG_CJC_OFFSET).await? as i16;
-    let enabled = m.reg(REG_ENABLE_MASK).await?;
-    // 40225-40233: channel statuses and the open-input value.
-    let status = m.regs(REG_STATUS, REG_OPEN_VALUE - REG_STATUS + 1).await?;
-    let input =
-        InputType::from_code(code as u8).ok_or_else(|| Error::Other(format!("unknown input type {code:02X}")))?;
-    let (name, unit, divisor) = type_name(&input);
-    let channels = (0..m8318::CHANNELS)
-        .map(|ch| {
-            let raw = values[ch];
-            let on = enabled & (1 << ch) != 0;
-            let state = ChannelStatus::from_register(status[ch]);
-            let value =
-                (state == Some(ChannelStatus::Ok)).then(|| (input.value(raw) / divisor * 1000.0).round() / 1000.0);
-            AnalogChannel { channel: ch, enabled: on, raw, value, status: state.map_or("unknown", ChannelStatus::name) }
-        })
-        .collect();
-    Ok(Analog {
-        model: m8318::MODEL,
-        input_type: name,
-        type_code: format!("{code:02X}"),
-        unit,
-        // 7FFFh: the cold junction could not be read.
-        cold_junction_c: match values[usize::from(m8318::Reg::Cjc.addr() - m8318::REG_VALUE)] {
-            0x7FFF => None,
-            raw => Some(f64::from(raw as i16) / 100.0),
-        },
-        cjc_offset_c: f64::from(offset) / 100.0,
-        open_value: if status[m8318::CHANNELS] == 1 { "downscale" } else { "upscale" },
-        channels,
-        diagnostics: read_diagnostics(m).await?,
-        writes_restricted: None,
-    })
-}
-
-/// One reading of an 8350.
-#[derive(Serialize)]
-struct Digital {
-    model: &'static str,
-    inputs: Vec<Input>,
-    outputs: Vec<Output>,
-    watchdog: Watchdog,
-    diagnostics: Diagnostics,
-    /// Whether the module's write allow-list restricts writes (`null`: unknown).
-    writes_restricted: Option<bool>,
-}
-
-/// The host watchdog (extensions §3).
-#[derive(Serialize)]
-struct Watchdog {
-    /// Timeout, s; 0: off.
-    timeout_s: f64,
-    writes_only: bool,
-    auto_clear: bool,
-    /// The outputs are held in the safe state.
-    tripped: bool,
-    /// Safe levels, bit n = DOn.
-    safe: u16,
-    /// Power-on levels, bit n = DOn.
-    power_on: u16,
-}
-
-#[derive(Serialize)]
-struct Input {
-    channel: usize,
-    state: bool,
-    mode: &'static str,
-    /// Counter value, or frequency (Hz) in frequency mode.
-    value: u32,
-    counter_running: bool,
-    overflow: bool,
-    latch: bool,
-}
-
-#[derive(Serialize)]
-struct Output {
-    channel: usize,
-    state: bool,
-    mode: &'static str,
-    low_ms: f64,
-    high_ms: f64,
-    count: u32,
-}
-
-fn pairs(words: &[u16]) -> Vec<u32> {
-    words.chunks_exact(2).map(|p| remodaq_protocol::u32_low_first(p[0], p[1])).collect()
-}
-
-async fn read_digital(m: &mut Module) -> Result<Digital, Error> {
-    const DI: u16 = m8350::DI_CHANNELS as u16;
-    const DO: u16 = m8350::DO_CHANNELS as u16;
-    let states = m.reg(reg(Point::AllDi)).await?;
-    let counters = pairs(&m.regs(reg(Point::Counter(0, Word::Low)), 2 * DI).await?);
-    let pulses = pairs(&m.regs(reg(Point::Pulse(PulseField::Low, 0, Word::Low)), 6 * DO).await?);
-    let di_modes = m.regs(reg(Point::DiMode(0)), DI).await?;
-    let do_modes = m.regs(reg(Point::DoMode(0)), DO).await?;
-    let dos = m.bits(bit(Point::Do(0)), DO).await?;
-    // Reading the overflow and latch flags clears them (the module's documented behaviour).
-    let flags = m.bits(bit(Point::CounterRun(0)), 4 * DI).await?;
-    let inputs = (0..m8350::DI_CHANNELS)
-        .map(|n| Input {
-            channel: n,
-            state: states & (1 << n) != 0,
-            mode: DI_MODES.get(usize::from(di_modes[n])).copied().unwrap_or("unknown"),
-            value: counters[n],
-            counter_running: flags[4 * n],
-            overflow: flags[4 * n + 2],
-            latch: flags[4 * n + 3],
-        })
-        .collect();
-    let outputs = (0..m8350::DO_CHANNELS)
-        .map(|n| Output {
-            channel: n,
-            state: dos[n],
-            mode: if do_modes[n] == 1 { "pulse" } else { "normal" },
-            low_ms: f64::from(pulses[n]) / 10.0,
-            high_ms: f64::from(pulses[6 + n]) / 10.0,
-            count: pulses[12 + n],
-        })
-        .collect();
-    let w = m.regs(m8350::REG_WD_TIMEOUT, m8350::REG_POWER_ON - m8350::REG_WD_TIMEOUT + 1).await?;
-    let watchdog = Watchdog {
-        timeout_s: f64::from(w[0]) / 10.0,
-        safe: w[1],
-        writes_only: w[2] & wd_mode::WRITES_ONLY != 0,
-        auto_clear: w[2] & wd_mode::AUTO_CLEAR != 0,
-        tripped: w[3] & 1 != 0,
-        power_on: w[4],
-    };
-    let diagnostics = read_diagnostics(m).await?;
-    Ok(Digital { model: m8350::MODEL, inputs, outputs, watchdog, diagnostics, writes_restricted: None })
-}
-
 /// Asks the module's discovery service whether its writes are restricted (`None`: no answer).
 async fn writes_restricted(addr: SocketAddr, timeout: Duration, at: &DiscoveryAt) -> Option<bool> {
     let to = at.discovery.unwrap_or(SocketAddr::new(addr.ip(), remodaq_protocol::discovery::PORT));
-    let found = crate::lan::find(to, None, timeout.min(Duration::from_millis(500))).await.ok()?;
+    let found = remodaq_client::lan::find(to, None, timeout.min(Duration::from_millis(500))).await.ok()?;
     // The module that serves this Modbus port (several simulated modules may share a PC).
     found.iter().find(|f| f.modbus_port == addr.port())?.writes_restricted
 }
@@ -621,13 +249,6 @@ async fn read_once(m: &mut Module, at: &DiscoveryAt, json: bool) -> Result<(), E
         }
     }
     Ok(())
-}
-
-/// The module name and firmware version registers of a module, and its address.
-pub async fn identity(module: &str, timeout: Duration) -> Result<(SocketAddr, u16, u16), Error> {
-    let mut m = Module::connect(module, timeout).await?;
-    let version = m.reg(identity::REG_VERSION).await?;
-    Ok((m.addr, m.model, version))
 }
 
 /// `remodaq read`.

@@ -1,11 +1,12 @@
 //! `remodaq`: find RemoDAQ-8300 modules on the LAN, change their network settings, restart
 //! and identify them, and read, watch and configure their I/O over Modbus/TCP.
 
-mod ifaces;
 mod io;
 mod lan;
 mod sign;
 mod update;
+
+use remodaq_client::Error;
 
 use std::net::{Ipv4Addr, SocketAddr};
 use std::process::ExitCode;
@@ -184,7 +185,7 @@ enum AccessCommand {
         #[command(flatten)]
         password: Auth,
         /// The networks.
-        #[arg(required = true, num_args = 1..=4, value_parser = lan::parse_cidr)]
+        #[arg(required = true, num_args = 1..=4, value_parser = remodaq_client::lan::parse_cidr)]
         networks: Vec<remodaq_protocol::access::Network>,
     },
     /// Empty the allow-list: every client may write again (the factory setting).
@@ -207,7 +208,7 @@ fn hex16(s: &str) -> Result<u16, String> {
 struct Target {
     /// The module's MAC address (as `remodaq search` shows it).
     #[arg(long)]
-    mac: lan::Mac,
+    mac: remodaq_client::lan::Mac,
     /// Where to send: the broadcast address by default (reaches modules on any subnet of the
     /// LAN), or the module's own address.
     #[arg(long, default_value = "255.255.255.255:8300")]
@@ -267,44 +268,6 @@ fn new_password(given: Option<String>) -> Result<String, Error> {
     Ok(new)
 }
 
-/// What went wrong, with the exit code it gives.
-#[derive(Debug)]
-pub enum Error {
-    /// No answer in time (exit 3).
-    Timeout(String),
-    /// The module answered a Modbus exception (exit 4).
-    Exception(String),
-    /// Wrong password or rate limited (exit 5).
-    Refused(String),
-    /// The peer's reply does not fit the request: short, long, another function or
-    /// transaction, or not Modbus at all (exit 6). Not a RemoDAQ module, or a broken one.
-    Reply(String),
-    /// Anything else: connection, bad argument, unexpected answer (exit 1).
-    Other(String),
-}
-
-impl Error {
-    fn code(&self) -> u8 {
-        match self {
-            Error::Other(_) => 1,
-            Error::Timeout(_) => 3,
-            Error::Exception(_) => 4,
-            Error::Refused(_) => 5,
-            Error::Reply(_) => 6,
-        }
-    }
-}
-
-impl std::fmt::Display for Error {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Error::Timeout(m) => write!(f, "timeout: {m}"),
-            Error::Reply(m) => write!(f, "bad reply: {m}"),
-            Error::Exception(m) | Error::Refused(m) | Error::Other(m) => f.write_str(m),
-        }
-    }
-}
-
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let runtime = match tokio::runtime::Builder::new_current_thread().enable_all().build() {
@@ -330,20 +293,20 @@ async fn run(cli: Cli) -> Result<(), Error> {
     match cli.command {
         Command::Search { to } => lan::search(to, only, timeout, json).await,
         Command::Net { command: NetCommand::Set { target, password, ip, mask, gateway, port } } => {
-            let change = lan::NetChange { ip, mask, gateway, port };
+            let change = remodaq_client::lan::NetChange { ip, mask, gateway, port };
             lan::set_network(target.to, only, target.mac, &password.get()?, change, timeout, json).await
         }
         Command::Restart { target, password } => {
             let password = password.get()?;
-            lan::command(target.to, only, target.mac, Some(&password), lan::Command::Restart, timeout, json).await
+            lan::command(target.to, only, target.mac, Some(&password), remodaq_client::lan::Command::Restart, timeout, json).await
         }
         Command::Identify { target } => {
-            lan::command(target.to, only, target.mac, None, lan::Command::Identify, timeout, json).await
+            lan::command(target.to, only, target.mac, None, remodaq_client::lan::Command::Identify, timeout, json).await
         }
         Command::Password { target, password, new } => {
             let password = password.get()?;
             let new = new_password(new)?;
-            lan::command(target.to, only, target.mac, Some(&password), lan::Command::SetPassword(&new), timeout, json)
+            lan::command(target.to, only, target.mac, Some(&password), remodaq_client::lan::Command::SetPassword(&new), timeout, json)
                 .await
         }
         Command::Read { module, discovery } => io::read(&module, discovery, timeout, json).await,
@@ -353,14 +316,14 @@ async fn run(cli: Cli) -> Result<(), Error> {
         }
         Command::Access { command } => {
             let (target, password, cmd) = match &command {
-                AccessCommand::Show { target, password } => (target, password, lan::Command::GetAccess),
+                AccessCommand::Show { target, password } => (target, password, remodaq_client::lan::Command::GetAccess),
                 AccessCommand::Set { target, password, networks } => {
                     let list = remodaq_protocol::access::AllowList::of(networks)
                         .ok_or_else(|| Error::Other("at most 4 networks".into()))?;
-                    (target, password, lan::Command::SetAccess(list))
+                    (target, password, remodaq_client::lan::Command::SetAccess(list))
                 }
                 AccessCommand::Clear { target, password } => {
-                    (target, password, lan::Command::SetAccess(remodaq_protocol::access::AllowList::EMPTY))
+                    (target, password, remodaq_client::lan::Command::SetAccess(remodaq_protocol::access::AllowList::EMPTY))
                 }
             };
             let password = password.get()?;
