@@ -7,6 +7,7 @@ pub mod ifaces;
 pub mod lan;
 pub mod modbus;
 pub mod reading;
+pub mod settings;
 pub mod update;
 
 pub use error::Error;

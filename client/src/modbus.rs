@@ -145,11 +145,9 @@ impl Module {
     }
 }
 
-
 /// The module name and firmware version registers of a module, and its address.
 pub async fn identity(module: &str, timeout: Duration) -> Result<(SocketAddr, u16, u16), Error> {
     let mut m = Module::connect(module, timeout).await?;
     let version = m.reg(identity::REG_VERSION).await?;
     Ok((m.addr, m.model, version))
 }
-

@@ -2,11 +2,11 @@
 //! and the diagnostics both have (extensions §1), as the CLI prints them and the utility shows
 //! them.
 
+use remodaq_protocol::diag;
 use remodaq_protocol::m8318::{
     self, ChannelStatus, InputType, Kind, REG_CJC_OFFSET, REG_ENABLE_MASK, REG_INPUT_TYPE, REG_OPEN_VALUE, REG_STATUS,
 };
 use remodaq_protocol::m8350::{self, wd_mode, Point, PulseField, Word};
-use remodaq_protocol::diag;
 use serde::Serialize;
 
 use crate::modbus::Module;
@@ -250,4 +250,3 @@ pub async fn read_digital(m: &mut Module) -> Result<Digital, Error> {
     let diagnostics = read_diagnostics(m).await?;
     Ok(Digital { model: m8350::MODEL, inputs, outputs, watchdog, diagnostics, writes_restricted: None })
 }
-

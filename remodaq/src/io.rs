@@ -4,14 +4,12 @@ use std::net::SocketAddr;
 use std::time::Duration;
 
 use clap::{Subcommand, ValueEnum};
-use remodaq_protocol::m8318::{
-    self, InputType, REG_CJC_OFFSET, REG_ENABLE_MASK, REG_INPUT_TYPE, REG_OPEN_VALUE,
-};
-use remodaq_protocol::m8350::{self, wd_mode, DiMode as Mode, Point, PulseField, Word};
-use remodaq_protocol::words_low_first;
+use remodaq_protocol::m8318::{self, InputType};
+use remodaq_protocol::m8350::{self, DiMode as Mode};
 
 use remodaq_client::modbus::Module;
-use remodaq_client::reading::{bit, read_analog, read_digital, reg, Analog, Diagnostics, Digital, DI_MODES};
+use remodaq_client::reading::{read_analog, read_digital, Analog, Diagnostics, Digital};
+use remodaq_client::settings::{self, CounterAction as Action, Write};
 use remodaq_client::Error;
 
 /// An I/O setting (`remodaq config MODULE ...`).
@@ -311,13 +309,6 @@ fn output_levels(s: &str) -> Result<u16, Error> {
     }
 }
 
-fn channel(n: u16, count: usize) -> Result<u8, Error> {
-    match u8::try_from(n) {
-        Ok(ch) if usize::from(n) < count => Ok(ch),
-        _ => Err(Error::Other(format!("channel {n} does not exist (0..{})", count - 1))),
-    }
-}
-
 fn ticks(ms: f64) -> Result<u32, Error> {
     let t = (ms * 10.0).round();
     if (1.0..=f64::from(u32::MAX)).contains(&t) {
@@ -329,146 +320,66 @@ fn ticks(ms: f64) -> Result<u32, Error> {
 
 /// `remodaq config`.
 pub async fn config(module: &str, setting: Setting, timeout: Duration, json: bool) -> Result<(), Error> {
-    let mut m = Module::connect(module, timeout).await?;
-    let done = match setting {
-        Setting::Type { code } => {
-            m.expect(m8318::MODULE_NAME)?;
-            let code = type_code(&code)?;
-            m.write_regs(REG_INPUT_TYPE, &[code]).await?;
-            format!("input type {code:02X}")
-        }
-        Setting::Enable { mask } => {
-            m.expect(m8318::MODULE_NAME)?;
-            let mask = parse_number(&mask)?;
-            if mask > 0xFF {
-                return Err(Error::Other("the enable mask has 8 bits (0x00 to 0xFF)".into()));
-            }
-            m.write_regs(REG_ENABLE_MASK, &[mask as u16]).await?;
-            format!("enabled channels {mask:#04x}")
-        }
+    let write = match setting {
+        Setting::Type { code } => Write::InputType(type_code(&code)?),
+        Setting::Enable { mask } => Write::Enable(
+            u16::try_from(parse_number(&mask)?)
+                .ok()
+                .filter(|&m| m <= 0xFF)
+                .ok_or_else(|| Error::Other("the enable mask has 8 bits (0x00 to 0xFF)".into()))?,
+        ),
         Setting::CjcOffset { celsius } => {
-            m.expect(m8318::MODULE_NAME)?;
             let hundredths = (celsius * 100.0).round();
-            let limit = f64::from(m8318::CJC_OFFSET_LIMIT);
-            if !(-limit..=limit).contains(&hundredths) {
+            if !hundredths.is_finite() || hundredths.abs() > f64::from(m8318::CJC_OFFSET_LIMIT) {
                 return Err(Error::Other("the CJC offset is -50.00 to 50.00 °C".into()));
             }
-            m.write_regs(REG_CJC_OFFSET, &[m8318::cjc_offset_to_register(hundredths as i16)]).await?;
-            format!("CJC offset {:+.2} °C", hundredths / 100.0)
+            Write::CjcOffset(hundredths as i32)
         }
-        Setting::OpenValue { value } => {
-            m.expect(m8318::MODULE_NAME)?;
-            let downscale = matches!(value, OpenValue::Downscale);
-            m.write_regs(REG_OPEN_VALUE, &[u16::from(downscale)]).await?;
-            format!("open inputs read {}", if downscale { "0000h (downscale)" } else { "FFFFh (upscale)" })
-        }
-        Setting::Watchdog { seconds, writes_only, auto_clear } => {
-            m.expect(m8350::MODULE_NAME)?;
-            match seconds.trim() {
-                "clear" => {
-                    m.write_regs(m8350::REG_WD_STATUS, &[0]).await?;
-                    "host watchdog cleared: outputs keep their safe levels until written".to_string()
+        Setting::OpenValue { value } => Write::OpenDownscale(matches!(value, OpenValue::Downscale)),
+        Setting::Watchdog { seconds, writes_only, auto_clear } => match seconds.trim() {
+            "clear" => Write::WatchdogClear,
+            t => {
+                let tenths = if t == "off" {
+                    0.0
+                } else {
+                    let s: f64 = t.parse().map_err(|_| Error::Other(format!("`{t}` is not seconds, off or clear")))?;
+                    (s * 10.0).round()
+                };
+                if !(0.0..=f64::from(m8350::WD_TIMEOUT_MAX)).contains(&tenths) || (t != "off" && tenths < 1.0) {
+                    return Err(Error::Other("the watchdog timeout is 0.1 to 600 s, or off".into()));
                 }
-                t => {
-                    let tenths = if t == "off" {
-                        0.0
-                    } else {
-                        let s: f64 =
-                            t.parse().map_err(|_| Error::Other(format!("`{t}` is not seconds, off or clear")))?;
-                        (s * 10.0).round()
-                    };
-                    if !(0.0..=f64::from(m8350::WD_TIMEOUT_MAX)).contains(&tenths) || (t != "off" && tenths < 1.0) {
-                        return Err(Error::Other("the watchdog timeout is 0.1 to 600 s, or off".into()));
-                    }
-                    let mode = if writes_only { wd_mode::WRITES_ONLY } else { 0 }
-                        | if auto_clear { wd_mode::AUTO_CLEAR } else { 0 };
-                    m.write_regs(m8350::REG_WD_MODE, &[mode]).await?;
-                    m.write_regs(m8350::REG_WD_TIMEOUT, &[tenths as u16]).await?;
-                    if tenths == 0.0 {
-                        "host watchdog off".to_string()
-                    } else {
-                        format!(
-                            "host watchdog {} s, fed by {}, cleared {}",
-                            tenths / 10.0,
-                            if writes_only { "writes" } else { "any request" },
-                            if auto_clear { "automatically" } else { "by `watchdog clear`" }
-                        )
-                    }
-                }
+                Write::Watchdog { tenths: tenths as u32, writes_only, auto_clear }
             }
+        },
+        Setting::Safe { levels } => Write::SafeLevels(output_levels(&levels)?),
+        Setting::PowerOn { levels } => Write::PowerOnLevels(output_levels(&levels)?),
+        Setting::DiMode { channel, mode } => Write::DiMode(channel, Mode::from(mode)),
+        Setting::DoMode { channel, mode } => Write::DoPulseMode(channel, matches!(mode, DoMode::Pulse)),
+        Setting::Pulse { channel, low_ms, high_ms, count } => {
+            Write::Pulse { channel, low: ticks(low_ms)?, high: ticks(high_ms)?, count }
         }
-        Setting::Safe { levels } => {
-            m.expect(m8350::MODULE_NAME)?;
-            let v = output_levels(&levels)?;
-            m.write_regs(m8350::REG_SAFE_VALUES, &[v]).await?;
-            format!("safe levels {v:06b} (DO5..DO0)")
-        }
-        Setting::PowerOn { levels } => {
-            m.expect(m8350::MODULE_NAME)?;
-            let v = output_levels(&levels)?;
-            m.write_regs(m8350::REG_POWER_ON, &[v]).await?;
-            format!("power-on levels {v:06b} (DO5..DO0)")
-        }
-        Setting::DiMode { channel: n, mode } => {
-            m.expect(m8350::MODULE_NAME)?;
-            let n = channel(n, m8350::DI_CHANNELS)?;
-            m.write_regs(reg(Point::DiMode(n)), &[Mode::from(mode) as u16]).await?;
-            format!("DI{n} mode {}", DI_MODES[mode as usize])
-        }
-        Setting::DoMode { channel: n, mode } => {
-            m.expect(m8350::MODULE_NAME)?;
-            let n = channel(n, m8350::DO_CHANNELS)?;
-            m.write_regs(reg(Point::DoMode(n)), &[mode as u16]).await?;
-            format!("DO{n} mode {}", if matches!(mode, DoMode::Pulse) { "pulse" } else { "normal" })
-        }
-        Setting::Pulse { channel: n, low_ms, high_ms, count } => {
-            m.expect(m8350::MODULE_NAME)?;
-            let n = channel(n, m8350::DO_CHANNELS)?;
-            let (low, high) = (ticks(low_ms)?, ticks(high_ms)?);
-            for (field, value) in [(PulseField::Low, low), (PulseField::High, high), (PulseField::Count, count)] {
-                m.write_regs(reg(Point::Pulse(field, n, Word::Low)), &words_low_first(value)).await?;
-            }
-            format!("DO{n} pulses: low {low_ms} ms, high {high_ms} ms, count {count}")
-        }
-        Setting::Extra { channel: n, pulses } => {
-            m.expect(m8350::MODULE_NAME)?;
-            let n = channel(n, m8350::DO_CHANNELS)?;
-            m.write_regs(reg(Point::Pulse(PulseField::Extra, n, Word::Low)), &words_low_first(pulses)).await?;
-            format!("DO{n}: {pulses} extra pulses")
-        }
-        Setting::Counter { channel: n, action } => {
-            m.expect(m8350::MODULE_NAME)?;
-            let n = channel(n, m8350::DI_CHANNELS)?;
+        Setting::Extra { channel, pulses } => Write::Extra(channel, pulses),
+        Setting::Counter { channel, action } => Write::Counter(
+            channel,
             match action {
-                CounterAction::Start => m.write_bit(bit(Point::CounterRun(n)), true).await?,
-                CounterAction::Stop => m.write_bit(bit(Point::CounterRun(n)), false).await?,
-                CounterAction::Clear => m.write_bit(bit(Point::CounterClear(n)), true).await?,
-            }
-            format!("DI{n} counter {}", ["started", "stopped", "cleared"][action as usize])
-        }
-        Setting::LatchClear { channel: n } => {
-            m.expect(m8350::MODULE_NAME)?;
-            let n = channel(n, m8350::DI_CHANNELS)?;
-            m.write_bit(bit(Point::Latch(n)), false).await?;
-            format!("DI{n} latch cleared")
-        }
+                CounterAction::Start => Action::Start,
+                CounterAction::Stop => Action::Stop,
+                CounterAction::Clear => Action::Clear,
+            },
+        ),
+        Setting::LatchClear { channel } => Write::LatchClear(channel),
+        Setting::Do { channel, state } => Write::Do(channel, matches!(state, OnOff::On)),
         Setting::Register { address, value } => {
             let a = parse_number(&address)?;
             let pdu = if (40001..=105536).contains(&a) { a - 40001 } else { a };
             let pdu = u16::try_from(pdu).map_err(|_| Error::Other(format!("`{address}` is not a register")))?;
             let v = u16::try_from(parse_number(&value)?)
                 .map_err(|_| Error::Other(format!("`{value}` does not fit 16 bits")))?;
-            m.write_regs(pdu, &[v]).await?;
-            format!("register {} ({pdu:#06x}) = {v:#06x}", u32::from(pdu) + 40001)
-        }
-        Setting::Do { channel: n, state } => {
-            m.expect(m8350::MODULE_NAME)?;
-            let n = channel(n, m8350::DO_CHANNELS)?;
-            let on = matches!(state, OnOff::On);
-            m.write_bit(bit(Point::Do(n)), on).await?;
-            format!("DO{n} {}", if on { "on" } else { "off" })
+            Write::Register(pdu, v)
         }
     };
+    let mut m = Module::connect(module, timeout).await?;
+    let done = settings::apply(&mut m, &write).await?;
     if json {
         println!("{}", serde_json::json!({ "module": m.addr.to_string(), "status": "ok", "message": done }));
     } else {

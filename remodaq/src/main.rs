@@ -298,7 +298,16 @@ async fn run(cli: Cli) -> Result<(), Error> {
         }
         Command::Restart { target, password } => {
             let password = password.get()?;
-            lan::command(target.to, only, target.mac, Some(&password), remodaq_client::lan::Command::Restart, timeout, json).await
+            lan::command(
+                target.to,
+                only,
+                target.mac,
+                Some(&password),
+                remodaq_client::lan::Command::Restart,
+                timeout,
+                json,
+            )
+            .await
         }
         Command::Identify { target } => {
             lan::command(target.to, only, target.mac, None, remodaq_client::lan::Command::Identify, timeout, json).await
@@ -306,8 +315,16 @@ async fn run(cli: Cli) -> Result<(), Error> {
         Command::Password { target, password, new } => {
             let password = password.get()?;
             let new = new_password(new)?;
-            lan::command(target.to, only, target.mac, Some(&password), remodaq_client::lan::Command::SetPassword(&new), timeout, json)
-                .await
+            lan::command(
+                target.to,
+                only,
+                target.mac,
+                Some(&password),
+                remodaq_client::lan::Command::SetPassword(&new),
+                timeout,
+                json,
+            )
+            .await
         }
         Command::Read { module, discovery } => io::read(&module, discovery, timeout, json).await,
         Command::Watch { module, discovery, interval, count } => {
@@ -322,9 +339,11 @@ async fn run(cli: Cli) -> Result<(), Error> {
                         .ok_or_else(|| Error::Other("at most 4 networks".into()))?;
                     (target, password, remodaq_client::lan::Command::SetAccess(list))
                 }
-                AccessCommand::Clear { target, password } => {
-                    (target, password, remodaq_client::lan::Command::SetAccess(remodaq_protocol::access::AllowList::EMPTY))
-                }
+                AccessCommand::Clear { target, password } => (
+                    target,
+                    password,
+                    remodaq_client::lan::Command::SetAccess(remodaq_protocol::access::AllowList::EMPTY),
+                ),
             };
             let password = password.get()?;
             lan::command(target.to, only, target.mac, Some(&password), cmd, timeout, json).await
