@@ -58,11 +58,14 @@ impl SimModule {
         Self::start_with(binary, flash, &["--listen", "127.0.0.1:0"])
     }
 
-    /// Starts `binary` with the flash image, an ephemeral loopback discovery port and `args`
-    /// (which should say where Modbus listens, e.g. `--listen 127.0.0.1:0`).
+    /// Starts `binary` with the flash image, an ephemeral loopback discovery port (unless
+    /// `args` name one with `--discovery`) and `args` (which should say where Modbus listens,
+    /// e.g. `--listen 127.0.0.1:0`).
     pub fn start_with(binary: &str, flash: &Path, args: &[&str]) -> Self {
+        let discovery: &[&str] = if args.contains(&"--discovery") { &[] } else { &["--discovery", "127.0.0.1:0"] };
         let mut child = command(Path::new(binary))
-            .args(["--discovery", "127.0.0.1:0", "--flash"])
+            .args(discovery)
+            .arg("--flash")
             .arg(flash)
             .args(args)
             .env("RUST_LOG", "info")

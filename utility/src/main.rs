@@ -1,0 +1,90 @@
+//! `remodaq-utility`: the RemoDAQ-8300 Utility window.
+//!
+//! `remodaq-utility [--search-at ADDR:PORT]... [--timeout S]`: by default a search goes to the
+//! broadcast address on every interface; `--search-at` sends it to modules' own discovery
+//! addresses instead (simulated modules on this PC).
+
+#![cfg_attr(windows, windows_subsystem = "windows")]
+
+use std::net::SocketAddr;
+use std::time::Duration;
+
+use remodaq_utility::{fonts, Options, Utility};
+
+fn options() -> Result<Options, String> {
+    let mut o = Options::default();
+    let mut at = Vec::new();
+    let mut args = std::env::args().skip(1);
+    while let Some(a) = args.next() {
+        let mut value = |what: &str| args.next().ok_or_else(|| format!("{a} needs {what}"));
+        match a.as_str() {
+            "--search-at" => {
+                let v = value("ADDR:PORT")?;
+                at.push(v.parse::<SocketAddr>().map_err(|_| format!("`{v}` is not ADDR:PORT"))?);
+            }
+            "--timeout" => {
+                let v = value("seconds")?;
+                let s: f64 = v.parse().map_err(|_| format!("`{v}` is not seconds"))?;
+                o.timeout = Duration::from_secs_f64(s.clamp(0.05, 60.0));
+            }
+            "--poll-all-ms" => {
+                let v = value("milliseconds")?;
+                let ms: u64 = v.parse().map_err(|_| format!("`{v}` is not milliseconds"))?;
+                o.slow_poll = Duration::from_millis(ms.max(50));
+            }
+            "--version" => return Err(format!("remodaq-utility {}", env!("CARGO_PKG_VERSION"))),
+            other => return Err(format!("unknown argument `{other}` (--search-at ADDR:PORT, --timeout S)")),
+        }
+    }
+    if !at.is_empty() {
+        o.search_at = at;
+    }
+    Ok(o)
+}
+
+/// A panic is a defect: it is written to a log next to the temp files and shown in a message
+/// box where one can be (the last resort, not the plan).
+fn panic_hook() {
+    let default = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let log = std::env::temp_dir().join("remodaq-utility-crash.log");
+        let text = format!("remodaq-utility {}: {info}\n", env!("CARGO_PKG_VERSION"));
+        let _ = std::fs::write(&log, &text);
+        eprintln!("{text}(written to {})", log.display());
+        default(info);
+    }));
+}
+
+fn main() -> std::process::ExitCode {
+    panic_hook();
+    let options = match options() {
+        Ok(o) => o,
+        Err(e) => {
+            eprintln!("{e}");
+            return std::process::ExitCode::from(2);
+        }
+    };
+    let native = eframe::NativeOptions {
+        viewport: eframe::egui::ViewportBuilder::default()
+            .with_title("RemoDAQ-8300 Utility")
+            .with_inner_size([1100.0, 720.0])
+            .with_min_inner_size([640.0, 420.0]),
+        renderer: eframe::Renderer::Glow,
+        ..Default::default()
+    };
+    let result = eframe::run_native(
+        "RemoDAQ-8300 Utility",
+        native,
+        Box::new(move |cc| {
+            fonts::install(&cc.egui_ctx);
+            Ok(Box::new(Utility::new(&cc.egui_ctx, options)?))
+        }),
+    );
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("remodaq-utility: {e}");
+            std::process::ExitCode::from(1)
+        }
+    }
+}

@@ -1,0 +1,322 @@
+//! The network side of the utility: one thread with a tokio runtime that searches, polls the
+//! modules and carries out the user's writes and commands. The window never waits on the
+//! network: it sends [`Job`]s and takes the [`Event`]s that are ready at each frame, and the
+//! worker asks for a frame when it has something new.
+
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::mpsc;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use remodaq_client::ifaces::Iface;
+use remodaq_client::lan::{self, Found, Mac, NetChange};
+use remodaq_client::modbus::Module;
+use remodaq_client::reading::{read_analog, read_digital, Analog, Digital};
+use remodaq_client::settings::{apply, Write};
+use remodaq_client::update::{self, Progress};
+use remodaq_client::Error;
+use remodaq_protocol::access::AllowList;
+use tokio::sync::mpsc::{unbounded_channel, UnboundedReceiver, UnboundedSender};
+use tokio::task::JoinHandle;
+
+/// A module found by a search, with where to reach it.
+#[derive(Clone, Debug)]
+pub struct Located {
+    pub found: Found,
+    pub mac: Mac,
+    /// Where its configuration commands go (where the search that found it went).
+    pub to: SocketAddr,
+    /// The PC's interface it answered on (`None`: a search sent to its own address).
+    pub iface: Option<Iface>,
+    /// Its Modbus/TCP address.
+    pub modbus: SocketAddr,
+}
+
+/// One reading of a module.
+#[derive(Clone, Debug)]
+pub enum Reading {
+    Analog(Analog),
+    Digital(Digital),
+}
+
+/// A configuration command (discovery protocol, with the password).
+#[derive(Clone, Debug)]
+pub enum Config {
+    SetNetwork(NetChange),
+    /// Restart, then search again until the module answers (by MAC).
+    Restart,
+    SetPassword(String),
+    GetAccess,
+    SetAccess(AllowList),
+}
+
+/// What the window asks for.
+pub enum Job {
+    /// Search at these addresses (the broadcast address goes out on every interface, or on
+    /// `only`).
+    Search { at: Vec<SocketAddr>, only: Option<String> },
+    /// Poll these modules, each at its interval (replaces the set polled before).
+    Poll(Vec<(Located, Duration)>),
+    /// A Modbus write.
+    Write { id: u64, modbus: SocketAddr, write: Write },
+    /// A configuration command.
+    Config { id: u64, module: Located, password: String, command: Config, search_at: Vec<SocketAddr> },
+    /// A firmware update.
+    Update { id: u64, modbus: SocketAddr, image: PathBuf, password: String },
+}
+
+/// What a finished job gives.
+#[derive(Clone, Debug)]
+pub enum Done {
+    /// What the module did, in words.
+    Said(String),
+    /// The allow-list read or stored.
+    Access(AllowList),
+    /// The module restarted and answered again: what is in force now.
+    Restarted(Option<Located>),
+    /// Firmware before and after.
+    Updated { before: u16, after: u16 },
+}
+
+/// What the worker tells the window.
+pub enum Event {
+    /// A search's result: the modules, and the interfaces searched.
+    Searched(Result<(Vec<Located>, Vec<Iface>), Error>),
+    /// A poll of the module with this MAC.
+    Reading { mac: Mac, at: Instant, reading: Result<Reading, Error> },
+    /// A job finished.
+    Done { id: u64, result: Result<Done, Error> },
+    /// How far an update got.
+    Progress { id: u64, progress: Progress },
+}
+
+/// The handle the window keeps.
+pub struct Worker {
+    jobs: UnboundedSender<Job>,
+    events: mpsc::Receiver<Event>,
+}
+
+type Wake = Arc<dyn Fn() + Send + Sync>;
+
+impl Worker {
+    /// Starts the worker thread; `wake` asks the window for a frame. `timeout` bounds every
+    /// exchange with a module.
+    pub fn start(wake: impl Fn() + Send + Sync + 'static, timeout: Duration) -> std::io::Result<Self> {
+        let (jobs, rx) = unbounded_channel();
+        let (tx, events) = mpsc::channel();
+        let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
+        let wake: Wake = Arc::new(wake);
+        std::thread::Builder::new()
+            .name("remodaq-network".into())
+            .spawn(move || runtime.block_on(serve(rx, Out { tx, wake }, timeout)))?;
+        Ok(Self { jobs, events })
+    }
+
+    /// Queues a job (never blocks).
+    pub fn send(&self, job: Job) {
+        // The worker only stops with the program.
+        let _ = self.jobs.send(job);
+    }
+
+    /// The events that are ready (never blocks).
+    pub fn ready(&self) -> Vec<Event> {
+        self.events.try_iter().collect()
+    }
+}
+
+#[derive(Clone)]
+struct Out {
+    tx: mpsc::Sender<Event>,
+    wake: Wake,
+}
+
+impl Out {
+    fn send(&self, e: Event) {
+        let _ = self.tx.send(e);
+        (self.wake)();
+    }
+}
+
+async fn serve(mut jobs: UnboundedReceiver<Job>, out: Out, timeout: Duration) {
+    let mut polls: HashMap<Mac, (SocketAddr, Duration, JoinHandle<()>)> = HashMap::new();
+    while let Some(job) = jobs.recv().await {
+        match job {
+            Job::Search { at, only } => {
+                let out = out.clone();
+                tokio::spawn(async move { out.send(Event::Searched(search(&at, only.as_deref(), timeout).await)) });
+            }
+            Job::Poll(list) => {
+                // Keep a running poll whose module and interval are the same (its connection
+                // with it).
+                let mut keep = HashMap::new();
+                for (module, every) in list {
+                    match polls.remove(&module.mac) {
+                        Some((addr, was, task)) if addr == module.modbus && was == every => {
+                            keep.insert(module.mac, (addr, was, task));
+                        }
+                        other => {
+                            if let Some((_, _, task)) = other {
+                                task.abort();
+                            }
+                            let task = tokio::spawn(poll(module.mac, module.modbus, every, timeout, out.clone()));
+                            keep.insert(module.mac, (module.modbus, every, task));
+                        }
+                    }
+                }
+                for (_, (_, _, task)) in polls.drain() {
+                    task.abort();
+                }
+                polls = keep;
+            }
+            Job::Write { id, modbus, write } => {
+                let out = out.clone();
+                tokio::spawn(async move {
+                    let result = async {
+                        let mut m = Module::connect(&modbus.to_string(), timeout).await?;
+                        apply(&mut m, &write).await.map(Done::Said)
+                    }
+                    .await;
+                    out.send(Event::Done { id, result });
+                });
+            }
+            Job::Config { id, module, password, command, search_at } => {
+                let out = out.clone();
+                tokio::spawn(async move {
+                    let result = configure(&module, &password, command, &search_at, timeout).await;
+                    out.send(Event::Done { id, result });
+                });
+            }
+            Job::Update { id, modbus, image, password } => {
+                let out = out.clone();
+                tokio::spawn(async move {
+                    let progress = out.clone();
+                    let result = update::update(
+                        &modbus.to_string(),
+                        &image,
+                        &password,
+                        remodaq_protocol::update::PORT,
+                        timeout,
+                        move |p| progress.send(Event::Progress { id, progress: p }),
+                    )
+                    .await
+                    .map(|u| Done::Updated { before: u.before, after: u.after });
+                    out.send(Event::Done { id, result });
+                });
+            }
+        }
+    }
+}
+
+/// Searches at every address in `at`; each module once (by MAC).
+pub async fn search(
+    at: &[SocketAddr],
+    only: Option<&str>,
+    timeout: Duration,
+) -> Result<(Vec<Located>, Vec<Iface>), Error> {
+    let mut found: Vec<Located> = Vec::new();
+    let mut interfaces = Vec::new();
+    let mut error = None;
+    for &to in at {
+        match lan::search_each(to, only, timeout, None).await {
+            Ok((by_interface, ifaces)) => {
+                for (answers, iface) in by_interface.into_iter().zip(ifaces.iter()) {
+                    for a in answers {
+                        if found.iter().any(|f| f.mac.0 == a.mac) {
+                            continue;
+                        }
+                        let ip = a.found.running.ip;
+                        let modbus = if to.ip().is_loopback() {
+                            // A simulated module on this PC: its Modbus server is on loopback.
+                            SocketAddr::new(to.ip(), a.found.modbus_port)
+                        } else {
+                            SocketAddr::new(ip.into(), a.found.modbus_port)
+                        };
+                        found.push(Located { mac: Mac(a.mac), found: a.found, to, iface: iface.clone(), modbus });
+                    }
+                }
+                interfaces.extend(ifaces.into_iter().flatten().filter(|i| !interfaces.contains(i)).collect::<Vec<_>>());
+            }
+            Err(e) => error = Some(e),
+        }
+    }
+    match error {
+        Some(e) if found.is_empty() && interfaces.is_empty() => Err(e),
+        _ => Ok((found, interfaces)),
+    }
+}
+
+/// Polls one module for ever: a reading every `every`, or the error (no answer) when it fails;
+/// the connection is made again after a failure.
+async fn poll(mac: Mac, addr: SocketAddr, every: Duration, timeout: Duration, out: Out) {
+    let mut module: Option<Module> = None;
+    let mut next = tokio::time::Instant::now();
+    loop {
+        let result = async {
+            if module.is_none() {
+                module = Some(Module::connect(&addr.to_string(), timeout).await?);
+            }
+            let Some(m) = module.as_mut() else { return Err(Error::Other("no connection".into())) };
+            if m.model == remodaq_protocol::m8318::MODULE_NAME {
+                read_analog(m).await.map(Reading::Analog)
+            } else {
+                read_digital(m).await.map(Reading::Digital)
+            }
+        }
+        .await;
+        if result.is_err() {
+            module = None;
+        }
+        out.send(Event::Reading { mac, at: Instant::now(), reading: result });
+        next += every;
+        let now = tokio::time::Instant::now();
+        if next < now {
+            next = now;
+        }
+        tokio::time::sleep_until(next).await;
+    }
+}
+
+/// Carries out a configuration command; a restart is followed by searches until the module
+/// answers again (at most 30 s).
+async fn configure(
+    module: &Located,
+    password: &str,
+    command: Config,
+    search_at: &[SocketAddr],
+    timeout: Duration,
+) -> Result<Done, Error> {
+    let only = module.iface.as_ref().map(|i| i.ip.to_string());
+    let cmd = match &command {
+        Config::SetNetwork(change) => {
+            lan::set_network(module.to, only.as_deref(), module.mac, password, *change, timeout).await?;
+            return Ok(Done::Said(lan::SET_NETWORK_DONE.into()));
+        }
+        Config::Restart => lan::Command::Restart,
+        Config::SetPassword(new) => lan::Command::SetPassword(new),
+        Config::GetAccess => lan::Command::GetAccess,
+        Config::SetAccess(list) => lan::Command::SetAccess(*list),
+    };
+    let said = cmd.done();
+    let outcome = lan::command(module.to, only.as_deref(), module.mac, Some(password), cmd, timeout).await?;
+    match command {
+        Config::Restart => {
+            // The module answers, then restarts: give it a moment, then search until it is back.
+            let started = Instant::now();
+            tokio::time::sleep(Duration::from_millis(500)).await;
+            while started.elapsed() < Duration::from_secs(30) {
+                let at: Vec<SocketAddr> = if search_at.is_empty() { vec![module.to] } else { search_at.to_vec() };
+                if let Ok((found, _)) = search(&at, only.as_deref(), timeout).await {
+                    if let Some(back) = found.into_iter().find(|f| f.mac == module.mac) {
+                        return Ok(Done::Restarted(Some(back)));
+                    }
+                }
+                tokio::time::sleep(Duration::from_millis(300)).await;
+            }
+            Ok(Done::Restarted(None))
+        }
+        Config::GetAccess | Config::SetAccess(_) => Ok(Done::Access(outcome.list.unwrap_or(AllowList::EMPTY))),
+        _ => Ok(Done::Said(said.into())),
+    }
+}
