@@ -297,6 +297,7 @@ async fn via(to: SocketAddr, mac: Mac, only: Option<&str>, timeout: Duration) ->
 
 /// The settings `remodaq net set` stores: all of them, from the command line (never taken from
 /// an unauthenticated search answer).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct NetChange {
     pub ip: Ipv4Addr,
     pub mask: Ipv4Addr,

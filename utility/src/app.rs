@@ -37,6 +37,9 @@ pub struct Options {
     pub slow_poll: Duration,
     /// Search once at start.
     pub search_at_start: bool,
+    /// Where to write, at most once a second, the frames drawn and the longest UI pass
+    /// (`REMODAQ_UTILITY_STATS`, for the responsiveness report).
+    pub stats: Option<PathBuf>,
 }
 
 impl Default for Options {
@@ -47,6 +50,7 @@ impl Default for Options {
             fast_poll: Duration::from_millis(100),
             slow_poll: Duration::from_secs(1),
             search_at_start: true,
+            stats: None,
         }
     }
 }
@@ -151,6 +155,7 @@ pub struct Utility {
     /// report).
     pub longest_frame: Duration,
     pub frames: u64,
+    stats_written: Option<Instant>,
 }
 
 fn tr(lang: Lang, en: &'static str) -> &'static str {
@@ -188,10 +193,44 @@ fn di_mode_of(name: &str) -> DiMode {
     }
 }
 
+/// The toolbar's search button: a magnifying glass (drawn: the fonts have no such glyph) and
+/// `text`; `label` is what assistive technologies (and the tests) know it by.
+fn search_button(ui: &mut Ui, text: &str, label: &str) -> egui::Response {
+    let galley = ui.painter().layout_no_wrap(
+        text.to_string(),
+        egui::TextStyle::Button.resolve(ui.style()),
+        ui.visuals().text_color(),
+    );
+    let pad = ui.spacing().button_padding;
+    let icon = 14.0;
+    let size = egui::vec2(pad.x * 2.0 + icon + 4.0 + galley.size().x, (pad.y * 2.0 + galley.size().y).max(icon + 4.0));
+    let (rect, response) = ui.allocate_exact_size(size, egui::Sense::click());
+    response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Button, true, label));
+    if ui.is_rect_visible(rect) {
+        let visuals = ui.style().interact(&response);
+        ui.painter().rect(
+            rect,
+            visuals.corner_radius,
+            visuals.weak_bg_fill,
+            visuals.bg_stroke,
+            egui::StrokeKind::Inside,
+        );
+        let stroke = egui::Stroke::new(1.6, visuals.fg_stroke.color);
+        let c = egui::pos2(rect.left() + pad.x + 5.5, rect.center().y - 1.5);
+        ui.painter().circle_stroke(c, 4.5, stroke);
+        ui.painter().line_segment([c + egui::vec2(3.2, 3.2), c + egui::vec2(7.0, 7.0)], stroke);
+        let at = egui::pos2(rect.left() + pad.x + icon + 4.0, rect.center().y - galley.size().y / 2.0);
+        ui.painter().galley(at, galley, visuals.text_color());
+    }
+    response
+}
+
 /// A text field with a visible label that is also its AccessKit label.
 fn field(ui: &mut Ui, label: &str, text: &mut String, problem: Option<&str>, width: f32) -> egui::Response {
     let l = ui.label(label);
-    let r = ui.add(egui::TextEdit::singleline(text).desired_width(width)).labelled_by(l.id);
+    let r = ui
+        .add(egui::TextEdit::singleline(text).desired_width(width).min_size(egui::vec2(width, 0.0)))
+        .labelled_by(l.id);
     if let Some(p) = problem {
         ui.label(RichText::new(p).color(Color32::from_rgb(0xd0, 0x30, 0x30)));
     }
@@ -240,6 +279,7 @@ impl Utility {
             csv_path: std::env::temp_dir().join("remodaq-trend.csv").to_string_lossy().into_owned(),
             longest_frame: Duration::ZERO,
             frames: 0,
+            stats_written: None,
         };
         u.remember_hosts();
         if u.options.search_at_start {
@@ -294,12 +334,7 @@ impl Utility {
         if let Some(m) = self.selected_module().cloned() {
             let s = m.found.stored;
             let gateway = if s.gateway.is_unspecified() { String::new() } else { s.gateway.to_string() };
-            self.net = NetForm {
-                ip: s.ip.to_string(),
-                mask: s.mask.to_string(),
-                gateway,
-                port: s.port.to_string(),
-            };
+            self.net = NetForm { ip: s.ip.to_string(), mask: s.mask.to_string(), gateway, port: s.port.to_string() };
         }
         self.repoll();
     }
@@ -310,9 +345,8 @@ impl Utility {
             .modules
             .iter()
             .map(|m| {
-                let every =
-                    if Some(m.mac) == self.selected { self.options.fast_poll } else { self.options.slow_poll };
-                (m.clone(), every)
+                let shown = Some(m.mac) == self.selected;
+                (m.clone(), if shown { self.options.fast_poll } else { self.options.slow_poll }, shown)
             })
             .collect();
         self.worker.send(Job::Poll(list));
@@ -354,8 +388,8 @@ impl Utility {
                     self.searching = false;
                     self.say(format!("{}: {e}", tr(self.lang, "The search failed")), true);
                 }
-                Event::Reading { mac, reading, .. } => {
-                    let t = self.now_s();
+                Event::Reading { mac, at, reading } => {
+                    let t = at.saturating_duration_since(self.started).as_secs_f64();
                     let name = self.modules.iter().find(|m| m.mac == mac).map(|m| m.found.name.clone());
                     let seen = self.seen.entry(mac).or_default();
                     match reading {
@@ -455,7 +489,7 @@ impl Utility {
                 None => ui.label(tr(self.lang, "Ready")),
             };
         });
-        egui::Panel::left("tree").resizable(true).default_size(260.0).show(ui, |ui| {
+        egui::Panel::left("tree").resizable(true).default_size(250.0).min_size(230.0).show(ui, |ui| {
             egui::ScrollArea::vertical().show(ui, |ui| self.tree(ui));
         });
         egui::CentralPanel::default_margins().show(ui, |ui| {
@@ -468,6 +502,15 @@ impl Utility {
         self.password_dialog(&ctx);
         self.frames += 1;
         self.longest_frame = self.longest_frame.max(began.elapsed());
+        if let Some(path) = &self.options.stats {
+            if self.stats_written.is_none_or(|t| t.elapsed() >= Duration::from_secs(1)) {
+                self.stats_written = Some(Instant::now());
+                let line =
+                    format!("frames {} longest_ui_ms {:.3}\n", self.frames, self.longest_frame.as_secs_f64() * 1e3);
+                // A report's aid: a failure to write it changes nothing in the window.
+                let _ = std::fs::write(path, line);
+            }
+        }
     }
 
     fn menu(&mut self, ui: &mut Ui) {
@@ -504,8 +547,14 @@ impl Utility {
     fn toolbar(&mut self, ui: &mut Ui) {
         let lang = self.lang;
         ui.horizontal(|ui| {
-            let label = if self.searching { tr(lang, "Searching…") } else { tr(lang, "🔍 Search") };
-            if ui.button(label).on_hover_text(tr(lang, "Search the LAN for modules")).clicked() {
+            if search_button(
+                ui,
+                tr(lang, if self.searching { "Searching…" } else { "Search" }),
+                tr(lang, "Search the LAN"),
+            )
+            .on_hover_text(tr(lang, "Search the LAN for modules"))
+            .clicked()
+            {
                 self.search();
             }
             ui.separator();
@@ -540,7 +589,10 @@ impl Utility {
         for m in &self.modules {
             let host = match &m.iface {
                 Some(i) => format!("Host ({})", i.ip),
-                None => format!("Host ({})", if m.to.ip().is_loopback() { "127.0.0.1".into() } else { m.to.ip().to_string() }),
+                None => format!(
+                    "Host ({})",
+                    if m.to.ip().is_loopback() { "127.0.0.1".into() } else { m.to.ip().to_string() }
+                ),
             };
             match groups.iter_mut().find(|(h, _)| *h == host) {
                 Some((_, list)) => list.push(m.clone()),
@@ -559,7 +611,8 @@ impl Utility {
             egui::CollapsingHeader::new(host).default_open(true).show(ui, |ui| {
                 for m in list {
                     let state = self.seen.get(&m.mac);
-                    let silent = state.is_some_and(|s| matches!(s.error, Some(Error::Timeout(_)) | Some(Error::Other(_))));
+                    let silent =
+                        state.is_some_and(|s| matches!(s.error, Some(Error::Timeout(_)) | Some(Error::Other(_))));
                     let mut text = format!("{} ({})", m.found.name, m.found.running.ip);
                     if m.modbus.ip().is_loopback() {
                         text = format!("{} ({}:{})", m.found.name, m.modbus.ip(), m.modbus.port());
@@ -602,7 +655,9 @@ impl Utility {
         ui.horizontal(|ui| {
             ui.heading(format!("{} — {}", m.found.name, m.mac));
             if let Some(e) = self.seen.get(&m.mac).and_then(|s| s.error.as_ref()) {
-                ui.label(RichText::new(format!("{}: {e}", tr(lang, class(e)))).color(Color32::from_rgb(0xd0, 0x30, 0x30)));
+                ui.label(
+                    RichText::new(format!("{}: {e}", tr(lang, class(e)))).color(Color32::from_rgb(0xd0, 0x30, 0x30)),
+                );
             }
         });
         ui.horizontal(|ui| {
@@ -697,7 +752,14 @@ impl Utility {
                 s.port
             ));
         }
-        ui.label(format!("MAC {} · {} {} · {} {} s", m.mac, tr(lang, "firmware"), m.found.firmware, tr(lang, "up"), m.found.uptime_s));
+        ui.label(format!(
+            "MAC {} · {} {} · {} {} s",
+            m.mac,
+            tr(lang, "firmware"),
+            m.found.firmware,
+            tr(lang, "up"),
+            m.found.uptime_s
+        ));
         if m.found.factory_password {
             ui.label(
                 RichText::new(tr(lang, "The factory password is in force: anyone on the LAN can change these settings. Set one in Security."))
@@ -719,7 +781,9 @@ impl Utility {
             ui.heading(tr(lang, "Configuration password"));
             ui.label(format!("{} ({})", ask.module.found.name, ask.module.mac));
             let l = ui.label(tr(lang, "Password"));
-            let r = ui.add(egui::TextEdit::singleline(&mut ask.password).password(true).desired_width(220.0)).labelled_by(l.id);
+            let r = ui
+                .add(egui::TextEdit::singleline(&mut ask.password).password(true).desired_width(220.0))
+                .labelled_by(l.id);
             if ask.focus {
                 r.request_focus();
                 ask.focus = false;
@@ -776,7 +840,10 @@ impl Utility {
         };
         let current = u16::from_str_radix(&a.type_code, 16).unwrap_or(0);
         let mut choice = *self.type_choice.get_or_insert(current);
-        let name = |code: u16| InputType::from_code(code as u8).map_or(format!("{code:02X}"), |t| format!("{code:02X} {}", type_name(&t).0));
+        let name = |code: u16| {
+            InputType::from_code(code as u8)
+                .map_or(format!("{code:02X}"), |t| format!("{code:02X} {}", type_name(&t).0))
+        };
         ui.horizontal(|ui| {
             let l = ui.label(tr(lang, "Input range"));
             egui::ComboBox::from_id_salt("input-type")
@@ -832,7 +899,9 @@ impl Utility {
             field(ui, tr(lang, "CJC offset (°C)"), &mut self.cjc_offset, None, 80.0);
             if ui.button(tr(lang, "Set offset")).clicked() {
                 match self.cjc_offset.trim().parse::<f64>() {
-                    Ok(c) if c.is_finite() && c.abs() <= 50.0 => self.write(Write::CjcOffset((c * 100.0).round() as i32)),
+                    Ok(c) if c.is_finite() && c.abs() <= 50.0 => {
+                        self.write(Write::CjcOffset((c * 100.0).round() as i32))
+                    }
                     _ => self.say(tr(lang, "The CJC offset is -50.00 to 50.00 °C"), true),
                 }
             }
@@ -946,13 +1015,16 @@ impl Utility {
                     *form = [format!("{}", o.low_ms), format!("{}", o.high_ms), o.count.to_string(), "0".into()];
                 }
                 for (k, what) in ["low", "high", "count", "extra"].iter().enumerate() {
-                    let r = ui.add(egui::TextEdit::singleline(&mut form[k]).desired_width(60.0));
+                    let r = ui.add(
+                        egui::TextEdit::singleline(&mut form[k]).desired_width(60.0).min_size(egui::vec2(60.0, 0.0)),
+                    );
                     r.widget_info(|| egui::WidgetInfo::labeled(egui::Role::TextInput, true, format!("DO{n} {what}")));
                 }
                 let parsed = pulse_values(form);
                 ui.horizontal(|ui| {
                     if ui.button(format!("Read DO{n}")).clicked() {
-                        self.pulse_form[n] = [format!("{}", o.low_ms), format!("{}", o.high_ms), o.count.to_string(), "0".into()];
+                        self.pulse_form[n] =
+                            [format!("{}", o.low_ms), format!("{}", o.high_ms), o.count.to_string(), "0".into()];
                     }
                     if ui.button(format!("Write DO{n}")).clicked() {
                         match parsed {
@@ -962,7 +1034,9 @@ impl Utility {
                                     self.write(Write::Extra(n as u16, extra));
                                 }
                             }
-                            None => self.say(tr(lang, "Pulse widths are 0.1 ms or more; counts are whole numbers"), true),
+                            None => {
+                                self.say(tr(lang, "Pulse widths are 0.1 ms or more; counts are whole numbers"), true)
+                            }
                         }
                     }
                 });
@@ -1045,7 +1119,8 @@ impl Utility {
         });
         let until = self.paused.unwrap_or_else(|| self.now_s());
         let picked: Vec<String> = self.picked.iter().cloned().collect();
-        let mut plot = egui_plot::Plot::new("trend").legend(egui_plot::Legend::default()).x_axis_label(tr(lang, "time (s)"));
+        let mut plot =
+            egui_plot::Plot::new("trend").legend(egui_plot::Legend::default()).x_axis_label(tr(lang, "time (s)"));
         if self.paused.is_none() {
             plot = plot.auto_bounds(egui::Vec2b::new(true, true));
         }
@@ -1162,7 +1237,8 @@ impl Utility {
         ui.label(format!("{}: {}", tr(lang, "Update key"), m.found.update_key));
         field(ui, tr(lang, "Image file"), &mut self.image_path, None, 360.0);
         let busy = self.progress.is_some();
-        if ui.add_enabled(!busy && !self.image_path.trim().is_empty(), egui::Button::new(tr(lang, "Update"))).clicked() {
+        if ui.add_enabled(!busy && !self.image_path.trim().is_empty(), egui::Button::new(tr(lang, "Update"))).clicked()
+        {
             let path = PathBuf::from(self.image_path.trim());
             match remodaq_client::update::read_image(&path) {
                 Ok((_, h)) if format!("{:04X}", h.model) != m.found.model => {
@@ -1174,7 +1250,11 @@ impl Utility {
         }
         if let Some((sent, total, verifying)) = self.progress {
             let f = if total == 0 { 0.0 } else { sent as f32 / total as f32 };
-            let text = if verifying { tr(lang, "verifying, then restarting…").to_string() } else { format!("{sent} / {total} B") };
+            let text = if verifying {
+                tr(lang, "verifying, then restarting…").to_string()
+            } else {
+                format!("{sent} / {total} B")
+            };
             ui.add(egui::ProgressBar::new(f).text(text));
         }
     }

@@ -39,6 +39,7 @@ fn options() -> Result<Options, String> {
     if !at.is_empty() {
         o.search_at = at;
     }
+    o.stats = std::env::var_os("REMODAQ_UTILITY_STATS").map(std::path::PathBuf::from);
     Ok(o)
 }
 

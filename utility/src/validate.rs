@@ -159,7 +159,10 @@ mod tests {
             problems("192.168.0.1", "255.255.255.0", "192.168.1.1", "8000").gateway,
             Some(Problem::GatewayOutsideSubnet)
         );
-        assert_eq!(problems("192.168.0.1", "255.255.255.0", "192.168.0.1", "8000").gateway, Some(Problem::GatewayIsModule));
+        assert_eq!(
+            problems("192.168.0.1", "255.255.255.0", "192.168.0.1", "8000").gateway,
+            Some(Problem::GatewayIsModule)
+        );
         assert_eq!(problems("192.168.0.1", "255.255.255.0", "", "0").port, Some(Problem::Port));
         assert_eq!(problems("192.168.0.1", "255.255.255.0", "", "65536").port, Some(Problem::Port));
         assert_eq!(problems("192.168.0.1", "255.255.255.0", "", "80a").port, Some(Problem::Port));

@@ -57,8 +57,11 @@ pub enum Job {
     /// Search at these addresses (the broadcast address goes out on every interface, or on
     /// `only`).
     Search { at: Vec<SocketAddr>, only: Option<String> },
-    /// Poll these modules, each at its interval (replaces the set polled before).
-    Poll(Vec<(Located, Duration)>),
+    /// Poll these modules, each at its interval (replaces the set polled before). A module
+    /// marked `true` wakes the window with each reading (the one shown); the others only when
+    /// they stop or start answering (the tree shows that), so that modules polled in the
+    /// background cost the window no frames.
+    Poll(Vec<(Located, Duration, bool)>),
     /// A Modbus write.
     Write { id: u64, modbus: SocketAddr, write: Write },
     /// A configuration command.
@@ -137,10 +140,15 @@ impl Out {
         let _ = self.tx.send(e);
         (self.wake)();
     }
+
+    /// Queues an event for the window's next frame without asking for one.
+    fn queue(&self, e: Event) {
+        let _ = self.tx.send(e);
+    }
 }
 
 async fn serve(mut jobs: UnboundedReceiver<Job>, out: Out, timeout: Duration) {
-    let mut polls: HashMap<Mac, (SocketAddr, Duration, JoinHandle<()>)> = HashMap::new();
+    let mut polls: HashMap<Mac, (SocketAddr, Duration, bool, JoinHandle<()>)> = HashMap::new();
     while let Some(job) = jobs.recv().await {
         match job {
             Job::Search { at, only } => {
@@ -151,21 +159,21 @@ async fn serve(mut jobs: UnboundedReceiver<Job>, out: Out, timeout: Duration) {
                 // Keep a running poll whose module and interval are the same (its connection
                 // with it).
                 let mut keep = HashMap::new();
-                for (module, every) in list {
+                for (module, every, wake) in list {
                     match polls.remove(&module.mac) {
-                        Some((addr, was, task)) if addr == module.modbus && was == every => {
-                            keep.insert(module.mac, (addr, was, task));
+                        Some((addr, was, woke, task)) if addr == module.modbus && was == every && woke == wake => {
+                            keep.insert(module.mac, (addr, was, woke, task));
                         }
                         other => {
-                            if let Some((_, _, task)) = other {
+                            if let Some((_, _, _, task)) = other {
                                 task.abort();
                             }
-                            let task = tokio::spawn(poll(module.mac, module.modbus, every, timeout, out.clone()));
-                            keep.insert(module.mac, (module.modbus, every, task));
+                            let task = tokio::spawn(poll(module.mac, module.modbus, every, wake, timeout, out.clone()));
+                            keep.insert(module.mac, (module.modbus, every, wake, task));
                         }
                     }
                 }
-                for (_, (_, _, task)) in polls.drain() {
+                for (_, (_, _, _, task)) in polls.drain() {
                     task.abort();
                 }
                 polls = keep;
@@ -248,9 +256,11 @@ pub async fn search(
 }
 
 /// Polls one module for ever: a reading every `every`, or the error (no answer) when it fails;
-/// the connection is made again after a failure.
-async fn poll(mac: Mac, addr: SocketAddr, every: Duration, timeout: Duration, out: Out) {
+/// the connection is made again after a failure. Each reading wakes the window when `wake`,
+/// else only a change between answering and not.
+async fn poll(mac: Mac, addr: SocketAddr, every: Duration, wake: bool, timeout: Duration, out: Out) {
     let mut module: Option<Module> = None;
+    let mut answered = None;
     let mut next = tokio::time::Instant::now();
     loop {
         let result = async {
@@ -268,7 +278,14 @@ async fn poll(mac: Mac, addr: SocketAddr, every: Duration, timeout: Duration, ou
         if result.is_err() {
             module = None;
         }
-        out.send(Event::Reading { mac, at: Instant::now(), reading: result });
+        let changed = answered != Some(result.is_ok());
+        answered = Some(result.is_ok());
+        let event = Event::Reading { mac, at: Instant::now(), reading: result };
+        if wake || changed {
+            out.send(event);
+        } else {
+            out.queue(event);
+        }
         next += every;
         let now = tokio::time::Instant::now();
         if next < now {

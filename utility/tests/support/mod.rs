@@ -1,7 +1,7 @@
 //! What the GUI scenarios and snapshots share: simulated modules, the utility in an
 //! egui_kittest harness, and the tests' own Modbus and discovery reads.
 
-#![allow(dead_code)]
+#![allow(dead_code, unused_imports)]
 
 use std::net::{SocketAddr, TcpListener, UdpSocket};
 use std::path::PathBuf;
@@ -12,7 +12,7 @@ pub use remodaq_protocol::identity::REG_NAME;
 pub use remodaq_protocol::{diag, m8318, m8350};
 
 use eframe::egui;
-use egui_kittest::kittest::Queryable;
+use egui_kittest::kittest::{NodeT, Queryable};
 use egui_kittest::Harness;
 use remodaq_board_host::testing::{program, SimModule};
 use remodaq_utility::{Options, Utility};
@@ -222,6 +222,13 @@ pub fn nist_k_temperature(mv: f64) -> f64 {
     t0 + (mv - e0) / (e1 - e0) * (t1 - t0)
 }
 
+/// What a node says: its label, or for a text its value (egui's labels carry their text as
+/// the value).
+fn text(n: &egui_kittest::Node<'_>) -> Option<String> {
+    let node = n.accesskit_node();
+    node.label().or_else(|| node.value())
+}
+
 /// The utility in a harness.
 pub struct Gui {
     pub harness: Harness<'static, Option<Utility>>,
@@ -240,16 +247,16 @@ impl Gui {
                 remodaq_utility::fonts::install(ctx);
             })
             .build_ui_state(
-            move |ui, state: &mut Option<Utility>| {
-                if state.is_none() {
-                    *state = Some(Utility::new(ui.ctx(), options.clone()).expect("the utility's worker"));
-                }
-                if let Some(app) = state.as_mut() {
-                    app.show(ui);
-                }
-            },
-            None,
-        );
+                move |ui, state: &mut Option<Utility>| {
+                    if state.is_none() {
+                        *state = Some(Utility::new(ui.ctx(), options.clone()).expect("the utility's worker"));
+                    }
+                    if let Some(app) = state.as_mut() {
+                        app.show(ui);
+                    }
+                },
+                None,
+            );
         Gui { harness }
     }
 
@@ -279,12 +286,12 @@ impl Gui {
 
     /// A node whose label is exactly `label`.
     pub fn has(&self, label: &str) -> bool {
-        self.harness.query_by_label(label).is_some()
+        self.harness.query_all_by_label(label).next().is_some()
     }
 
     /// A node whose label contains `part`.
     pub fn has_part(&self, part: &str) -> bool {
-        self.harness.query_by_label_contains(part).is_some()
+        self.harness.query_all_by_label_contains(part).next().is_some()
     }
 
     pub fn count_part(&self, part: &str) -> usize {
@@ -302,7 +309,9 @@ impl Gui {
             }
             if t.elapsed() > Duration::from_secs(20) {
                 let said = self.app().message().unwrap_or("nothing").to_string();
-                panic!("waited 20 s for {what}; the utility said: {said}");
+                let labels: Vec<String> =
+                    self.harness.query_all_by_label_contains("").filter_map(|n| text(&n)).take(300).collect();
+                panic!("waited 20 s for {what}; the utility said: {said}; it shows: {labels:?}");
             }
             std::thread::sleep(Duration::from_millis(20));
         }
@@ -320,6 +329,15 @@ impl Gui {
         self.frames(2);
     }
 
+    /// Opens the combo box labelled `combo` (AccessKit) and picks `option` with a pointer click,
+    /// as a user does (the popup closes on the click).
+    pub fn choose(&mut self, combo: &str, option: &str) {
+        self.click(combo);
+        self.wait("the option", |g| g.has(option));
+        self.harness.get_by_label(option).click();
+        self.frames(3);
+    }
+
     /// Sets the text of the field labelled `label` (AccessKit SetValue), then runs two frames.
     pub fn set_text(&mut self, label: &str, text: &str) {
         let t = Instant::now();
@@ -334,11 +352,18 @@ impl Gui {
 
     /// Searches and selects the module whose tree node names `name` on `port`.
     pub fn select_module(&mut self, name: &str, port: u16) {
-        self.click("🔍 Search");
+        self.click("Search the LAN");
         let node = format!("{name} (127.0.0.1:{port})");
         self.wait("the module in the tree", |g| g.has(&node));
         self.click(&node);
         self.wait("the module's tabs", |g| g.has("Network Settings"));
+    }
+
+    /// A label that starts with `prefix` and ends with `unit`.
+    pub fn has_value(&self, prefix: &str, unit: &str) -> bool {
+        self.harness
+            .query_all_by_label_contains(prefix)
+            .any(|n| text(&n).is_some_and(|l| l.starts_with(prefix) && l.ends_with(unit)))
     }
 
     /// The number in the label that starts with `prefix` and ends with `unit`.
@@ -346,9 +371,9 @@ impl Gui {
         let node = self
             .harness
             .query_all_by_label_contains(prefix)
-            .find(|n| n.label().is_some_and(|l| l.starts_with(prefix) && l.ends_with(unit)))
+            .find(|n| text(n).is_some_and(|l| l.starts_with(prefix) && l.ends_with(unit)))
             .unwrap_or_else(|| panic!("no label {prefix}… {unit}"));
-        let label = node.label().unwrap_or_default();
+        let label = text(&node).unwrap_or_default();
         label[prefix.len()..label.len() - unit.len()].trim().parse().unwrap_or_else(|_| panic!("not a number: {label}"))
     }
 }
