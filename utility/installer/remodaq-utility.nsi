@@ -4,9 +4,10 @@
 ;   makensis -DVERSION=0.1.0 -DEXE=path\to\remodaq-utility.exe -DOUTFILE=setup.exe remodaq-utility.nsi
 ; Silent install: setup.exe /S; silent uninstall: uninstall.exe /S.
 
-Unicode true
+; A 64-bit installer (the program is x86_64 only): it runs where the program runs, on Wine
+; without its 32-bit half too.
+Target amd64-unicode
 !include "MUI2.nsh"
-!include "x64.nsh"
 
 !ifndef VERSION
   !error "VERSION is required (-DVERSION=...)"
@@ -46,18 +47,6 @@ VIAddVersionKey "LegalCopyright" "MIT OR Apache-2.0"
 !insertmacro MUI_UNPAGE_INSTFILES
 !insertmacro MUI_LANGUAGE "English"
 !insertmacro MUI_LANGUAGE "SimpChinese"
-
-Function .onInit
-  ${If} ${RunningX64}
-    SetRegView 64
-  ${EndIf}
-FunctionEnd
-
-Function un.onInit
-  ${If} ${RunningX64}
-    SetRegView 64
-  ${EndIf}
-FunctionEnd
 
 Section "Install"
   SetShellVarContext all

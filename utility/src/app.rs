@@ -390,7 +390,7 @@ impl Utility {
                 }
                 Event::Reading { mac, at, reading } => {
                     let t = at.saturating_duration_since(self.started).as_secs_f64();
-                    let name = self.modules.iter().find(|m| m.mac == mac).map(|m| m.found.name.clone());
+                    let name = self.modules.iter().find(|m| m.mac == mac).map(module_label);
                     let seen = self.seen.entry(mac).or_default();
                     match reading {
                         Ok(r) => {
@@ -613,10 +613,7 @@ impl Utility {
                     let state = self.seen.get(&m.mac);
                     let silent =
                         state.is_some_and(|s| matches!(s.error, Some(Error::Timeout(_)) | Some(Error::Other(_))));
-                    let mut text = format!("{} ({})", m.found.name, m.found.running.ip);
-                    if m.modbus.ip().is_loopback() {
-                        text = format!("{} ({}:{})", m.found.name, m.modbus.ip(), m.modbus.port());
-                    }
+                    let mut text = module_label(&m);
                     if silent {
                         text.push_str(&format!(" — {}", tr(lang, "no answer")));
                     }
@@ -1257,6 +1254,16 @@ impl Utility {
             };
             ui.add(egui::ProgressBar::new(f).text(text));
         }
+    }
+}
+
+/// A module as the tree and the trend name it: `RemoDAQ-8318 (190.5.200.110)` as in the
+/// manuals, with the Modbus port for a module on this PC (simulated ones share an address).
+pub fn module_label(m: &Located) -> String {
+    if m.modbus.ip().is_loopback() {
+        format!("{} ({}:{})", m.found.name, m.modbus.ip(), m.modbus.port())
+    } else {
+        format!("{} ({})", m.found.name, m.found.running.ip)
     }
 }
 

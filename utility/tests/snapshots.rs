@@ -21,8 +21,10 @@ fn snapshots_of_the_main_views() {
         "cjc_celsius = 24.5\n[ch0]\nopen = true\n[ch1]\nmillivolts = 40.0\n[ch2]\nmillivolts = 1.0\n[ch3]\nmillivolts = 12.2\n",
     );
     let s8350 = Scenario::new("snap-8350", "[di1]\nlevel = true\n[di4]\nlevel = true\n");
-    let m8318 = Sim::start("8318", "snap", &["--scenario", s8318.path()]);
-    let m8350 = Sim::start("8350", "snap", &["--scenario", s8350.path()]);
+    // Fixed ports (the tree shows them), below Linux's ephemeral range (32768-) and above the
+    // QEMU tests' (20000-31999).
+    let m8318 = Sim::start_at("8318", "snap", 32318, 32319, &["--scenario", s8318.path()]);
+    let m8350 = Sim::start_at("8350", "snap", 32350, 32351, &["--scenario", s8350.path()]);
     let mut gui = Gui::sized(vec![m8318.discovery(), m8350.discovery()], eframe::egui::vec2(1100.0, 760.0));
 
     // The main window: the tree and a module's network settings.
@@ -64,13 +66,25 @@ fn snapshots_of_the_main_views() {
         gui.frames(1);
         std::thread::sleep(Duration::from_millis(20));
     }
-    let name = "RemoDAQ-8318 CH3 (°C)";
+    let name = &format!("RemoDAQ-8318 (127.0.0.1:{}) CH3 (°C)", m8318.port());
     gui.click(name);
     gui.frames(3);
     let points = &gui.app().trend.series[name];
     let span = points.back().map_or(0.0, |p| p[0]) - points.front().map_or(0.0, |p| p[0]);
     assert!(span >= 30.0, "the trend holds {span:.1} s");
     gui.harness.snapshot_options("trend", &options(20000));
+
+    // What the trend shows, exported: a time column and the picked series, 30 s and more.
+    let csv = temp("trend.csv");
+    gui.set_text("CSV file", csv.to_str().expect("utf-8"));
+    gui.click("Export CSV");
+    gui.wait("written", |g| g.has_part("Trend written to"));
+    let text = std::fs::read_to_string(&csv).expect("the CSV file");
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some(format!("time_s,\"{name}\"").as_str()));
+    let times: Vec<f64> = lines.filter_map(|l| l.split(',').next()?.parse().ok()).collect();
+    let (first, last) = (times.first().copied().unwrap_or(0.0), times.last().copied().unwrap_or(0.0));
+    assert!(last - first >= 30.0 && times.len() >= 300, "{} rows over {:.1} s", times.len(), last - first);
 
     // The main window in Chinese (the CJK font of the system).
     gui.click("Network Settings");

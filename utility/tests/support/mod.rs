@@ -83,6 +83,15 @@ impl Sim {
         Sim { module: SimModule::start_with(&firmware(model), &flash, &all) }
     }
 
+    /// A module on fixed ports (snapshots show them: the pictures must not change with them).
+    pub fn start_at(model: &str, test: &str, modbus: u16, discovery: u16, args: &[&str]) -> Self {
+        let (listen, discovery) = (format!("127.0.0.1:{modbus}"), format!("127.0.0.1:{discovery}"));
+        let mut all = vec!["--listen", &listen, "--discovery", &discovery];
+        all.extend_from_slice(args);
+        let flash = temp(&format!("{test}-{model}.flash"));
+        Sim { module: SimModule::start_with(&firmware(model), &flash, &all) }
+    }
+
     /// A module listening on the port of its settings (which a restart changes): first seeded
     /// with a free port (a run on an ephemeral port that stores it), then started on it.
     pub fn start_from_settings(model: &str, test: &str, scenario: &Scenario) -> Self {
