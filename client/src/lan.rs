@@ -424,6 +424,19 @@ pub fn login(password: &str, salt: &[u8; 16], iterations: u32) -> Result<([u8; 3
     Ok(auth::derive(password.as_bytes(), salt, iterations))
 }
 
+/// [`login`] on tokio's blocking threads: up to 10 million PBKDF2 iterations (a module, or a
+/// forged answer, chooses them) must not stall the other work of the runtime (a window's polls).
+pub async fn login_blocking(
+    password: &str,
+    salt: &[u8; 16],
+    iterations: u32,
+) -> Result<([u8; 32], auth::Credential), Error> {
+    let (password, salt) = (password.to_string(), *salt);
+    tokio::task::spawn_blocking(move || login(&password, &salt, iterations))
+        .await
+        .map_err(|e| Error::Other(format!("the key derivation failed: {e}")))?
+}
+
 /// Waits for the first datagram that `accept` takes.
 async fn receive<T>(
     socket: &UdpSocket,
@@ -479,7 +492,7 @@ async fn exchange(
             decode_challenge(d).filter(|c| c.id == id && c.mac == mac.0 && c.cnonce == cnonce)
         })
         .await?;
-        let (client_key, credential) = login(password, &challenge.salt, challenge.iterations)?;
+        let (client_key, credential) = login_blocking(password, &challenge.salt, challenge.iterations).await?;
         let command = match *cmd {
             Command::SetNetwork(net) => discovery::Command::SetNetwork(net),
             Command::Restart => discovery::Command::Restart,

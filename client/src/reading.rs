@@ -206,7 +206,10 @@ pub fn pairs(words: &[u16]) -> Vec<u32> {
     words.chunks_exact(2).map(|p| remodaq_protocol::u32_low_first(p[0], p[1])).collect()
 }
 
-pub async fn read_digital(m: &mut Module) -> Result<Digital, Error> {
+/// One reading of an 8350. With `flags`, the counters' run, overflow and latch flags too:
+/// reading the overflow and latch flags clears them in the module, so a reader that does not
+/// show them (a window's background poll) leaves them for the one that does.
+pub async fn read_digital(m: &mut Module, flags: bool) -> Result<Digital, Error> {
     const DI: u16 = m8350::DI_CHANNELS as u16;
     const DO: u16 = m8350::DO_CHANNELS as u16;
     let states = m.reg(reg(Point::AllDi)).await?;
@@ -216,7 +219,7 @@ pub async fn read_digital(m: &mut Module) -> Result<Digital, Error> {
     let do_modes = m.regs(reg(Point::DoMode(0)), DO).await?;
     let dos = m.bits(bit(Point::Do(0)), DO).await?;
     // Reading the overflow and latch flags clears them (the module's documented behaviour).
-    let flags = m.bits(bit(Point::CounterRun(0)), 4 * DI).await?;
+    let flags = if flags { m.bits(bit(Point::CounterRun(0)), 4 * DI).await? } else { vec![false; 4 * usize::from(DI)] };
     let inputs = (0..m8350::DI_CHANNELS)
         .map(|n| Input {
             channel: n,

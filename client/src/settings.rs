@@ -61,7 +61,7 @@ fn channel(n: u16, count: usize) -> Result<u8, Error> {
     u8::try_from(n)
         .ok()
         .filter(|&n| usize::from(n) < count)
-        .ok_or_else(|| Error::Other(format!("channel {n} does not exist: 0 to {}", count - 1)))
+        .ok_or_else(|| Error::Other(format!("channel {n} does not exist (0..{})", count - 1)))
 }
 
 impl Write {

@@ -94,8 +94,8 @@ pub enum Progress {
     Sent(u64, u64),
     /// All sent: the module verifies the signature.
     Verifying,
-    /// Verified and marked: the module restarts into this version.
-    Restarting(u16),
+    /// Verified and marked: the module (at this address) restarts into this version.
+    Restarting(SocketAddr, u16),
 }
 
 /// An update that went through.
@@ -150,7 +150,8 @@ pub async fn update(
             let mut greeting = [0u8; GREETING_LEN];
             read(&mut stream, &mut greeting, timeout, target).await?;
             let greeting = Greeting::decode(&greeting);
-            let (client_key, credential) = crate::lan::login(password, &greeting.salt, greeting.iterations)?;
+            let (client_key, credential) =
+                crate::lan::login_blocking(password, &greeting.salt, greeting.iterations).await?;
             let session = Session {
                 server_key: credential.server_key,
                 mac: greeting.mac,
@@ -183,7 +184,7 @@ pub async fn update(
         Status::Ok => {}
         other => return Err(refused(Some(other), target)),
     }
-    progress(Progress::Restarting(header.version));
+    progress(Progress::Restarting(addr, header.version));
     // The restart: the bootloader swaps the image in, then it must answer with its version.
     let started = Instant::now();
     let after = loop {

@@ -190,7 +190,7 @@ async fn read_once(m: &mut Module, at: &DiscoveryAt, json: bool) -> Result<(), E
             }
         }
     } else {
-        let (d, restricted) = tokio::join!(read_digital(m), restricted);
+        let (d, restricted) = tokio::join!(read_digital(m, true), restricted);
         let d = Digital { writes_restricted: restricted, ..d? };
         if json {
             println!("{}", serde_json::to_string(&d).unwrap_or_default());

@@ -21,26 +21,22 @@ pub async fn update(
         indicatif::ProgressStyle::with_template("{bar:40} {bytes}/{total_bytes} {bytes_per_sec} {msg}")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
-    let mut version = None;
-    let result = update::update(module, image, password, port, timeout, |p| match p {
+    let done = update::update(module, image, password, port, timeout, |p| match p {
         Progress::Sent(sent, total) => {
             bar.set_length(total);
             bar.set_position(sent);
         }
         Progress::Verifying => bar.set_message("verifying"),
-        Progress::Restarting(v) => {
+        Progress::Restarting(addr, version) => {
             bar.finish_and_clear();
-            version = Some(v);
+            if !json {
+                println!("{addr}: version {version:04X} verified and marked; the module restarts into it");
+            }
         }
     })
     .await;
     bar.finish_and_clear();
-    // Said once the module has it, whatever the restart then does.
-    if let (Some(v), false) = (version, json) {
-        let at = result.as_ref().map_or_else(|_| module.to_string(), |u| u.module.to_string());
-        println!("{at}: version {v:04X} verified and marked; the module restarts into it");
-    }
-    let done = result?;
+    let done = done?;
     let (addr, before, after) = (done.module, done.before, done.after);
     if json {
         let out = serde_json::json!({ "module": addr.to_string(), "before": format!("{before:04X}"), "after": format!("{after:04X}") });

@@ -22,6 +22,7 @@ use crate::i18n::Lang;
 use crate::trend::Trend;
 use crate::validate::{self, Problem};
 use crate::worker::{Config, Done, Event, Job, Located, Reading, Worker};
+use zeroize::Zeroizing;
 
 /// How the utility is started.
 #[derive(Clone, Debug)]
@@ -71,7 +72,7 @@ pub enum Tab {
 enum Purpose {
     SetNetwork(remodaq_client::lan::NetChange),
     Restart,
-    SetPassword(String),
+    SetPassword(Zeroizing<String>),
     GetAccess,
     SetAccess(AllowList),
     Update(PathBuf),
@@ -81,8 +82,23 @@ enum Purpose {
 struct Ask {
     purpose: Purpose,
     module: Located,
-    password: String,
+    password: Zeroizing<String>,
     focus: bool,
+    /// The text field's id: its own for each dialog, and its state (an undo history holding
+    /// the password) dropped when the dialog closes.
+    field: egui::Id,
+}
+
+/// What a successful write changes in what the window shows.
+#[derive(Clone, Copy, Debug)]
+enum AfterWrite {
+    LatchCleared(Mac, usize),
+    CounterCleared(Mac, usize),
+}
+
+/// Forgets a text field's state: its undo history would otherwise keep a password typed in it.
+fn forget_text(ctx: &egui::Context, id: egui::Id) {
+    egui::text_edit::TextEditState::default().store(ctx, id);
 }
 
 /// The latest of a module.
@@ -129,18 +145,26 @@ pub struct Utility {
     pending: HashMap<u64, String>,
     next_id: u64,
     message: Option<Message>,
+    /// The module whose forms are filled in (a new search keeps them).
+    shown_module: Option<Mac>,
     // 8318 panel.
     type_choice: Option<u16>,
     cjc_offset: String,
     // 8350 panel.
     all_mode: DiMode,
-    /// Latches seen set (reading a latch clears it in the module): shown until Clear.
-    latched: [bool; m8350::DI_CHANNELS],
+    /// Per 8350, the latches and counter overflows seen set (reading them clears them in the
+    /// module): shown until Clear.
+    latched: HashMap<Mac, [bool; m8350::DI_CHANNELS]>,
+    overflowed: HashMap<Mac, [bool; m8350::DI_CHANNELS]>,
+    /// What to do when a write succeeds (by job id).
+    after_write: HashMap<u64, AfterWrite>,
+    /// The time span the trend plot showed last (what Export CSV writes).
+    shown_span: Option<(f64, f64)>,
     pulse_form: [[String; 4]; m8350::DO_CHANNELS],
     watchdog_form: String,
     // Security tab.
-    new_password: String,
-    new_password_again: String,
+    new_password: Zeroizing<String>,
+    new_password_again: Zeroizing<String>,
     allow_text: String,
     // Firmware tab.
     image_path: String,
@@ -261,14 +285,18 @@ impl Utility {
             pending: HashMap::new(),
             next_id: 1,
             message: None,
+            shown_module: None,
             type_choice: None,
             cjc_offset: String::new(),
             all_mode: DiMode::Normal,
-            latched: [false; m8350::DI_CHANNELS],
+            latched: HashMap::new(),
+            overflowed: HashMap::new(),
+            after_write: HashMap::new(),
+            shown_span: None,
             pulse_form: Default::default(),
             watchdog_form: String::new(),
-            new_password: String::new(),
-            new_password_again: String::new(),
+            new_password: Zeroizing::default(),
+            new_password_again: Zeroizing::default(),
             allow_text: String::new(),
             image_path: String::new(),
             progress: None,
@@ -328,9 +356,12 @@ impl Utility {
     pub fn select(&mut self, mac: Option<Mac>) {
         self.selected = mac;
         self.host_selected = mac.is_none();
-        self.latched = [false; m8350::DI_CHANNELS];
-        self.type_choice = None;
-        self.pulse_form = Default::default();
+        if self.net.port.is_empty() || mac != self.shown_module {
+            self.type_choice = None;
+            self.pulse_form = Default::default();
+            self.cjc_offset.clear();
+        }
+        self.shown_module = mac;
         if let Some(m) = self.selected_module().cloned() {
             let s = m.found.stored;
             let gateway = if s.gateway.is_unspecified() { String::new() } else { s.gateway.to_string() };
@@ -353,9 +384,17 @@ impl Utility {
     }
 
     fn write(&mut self, write: Write) {
+        self.write_then(write, None);
+    }
+
+    /// Queues a write to the module shown; `then` changes what is shown once it succeeded.
+    fn write_then(&mut self, write: Write, then: Option<AfterWrite>) {
         let Some(m) = self.selected_module() else { return };
         let modbus = m.modbus;
         let id = self.id(format!("{write:?}"));
+        if let Some(then) = then {
+            self.after_write.insert(id, then);
+        }
         self.worker.send(Job::Write { id, modbus, write });
     }
 
@@ -394,11 +433,12 @@ impl Utility {
                     let seen = self.seen.entry(mac).or_default();
                     match reading {
                         Ok(r) => {
-                            if Some(mac) == self.selected {
-                                if let Reading::Digital(d) = &r {
-                                    for i in &d.inputs {
-                                        self.latched[i.channel] |= i.latch;
-                                    }
+                            if let Reading::Digital(d) = &r {
+                                let latched = self.latched.entry(mac).or_default();
+                                let overflowed = self.overflowed.entry(mac).or_default();
+                                for i in d.inputs.iter().filter(|i| i.channel < m8350::DI_CHANNELS) {
+                                    latched[i.channel] |= i.latch;
+                                    overflowed[i.channel] |= i.overflow;
                                 }
                             }
                             if let Some(name) = name {
@@ -413,7 +453,7 @@ impl Utility {
                 Event::Progress { progress, .. } => {
                     self.progress = Some(match progress {
                         Progress::Sent(a, b) => (a, b, false),
-                        Progress::Verifying | Progress::Restarting(_) => {
+                        Progress::Verifying | Progress::Restarting(..) => {
                             let total = self.progress.map_or(1, |p| p.1);
                             (total, total, true)
                         }
@@ -421,6 +461,19 @@ impl Utility {
                 }
                 Event::Done { id, result } => {
                     let what = self.pending.remove(&id).unwrap_or_default();
+                    match (self.after_write.remove(&id), &result) {
+                        (Some(AfterWrite::LatchCleared(mac, n)), Ok(_)) => {
+                            if let Some(l) = self.latched.get_mut(&mac).and_then(|l| l.get_mut(n)) {
+                                *l = false;
+                            }
+                        }
+                        (Some(AfterWrite::CounterCleared(mac, n)), Ok(_)) => {
+                            if let Some(o) = self.overflowed.get_mut(&mac).and_then(|o| o.get_mut(n)) {
+                                *o = false;
+                            }
+                        }
+                        _ => {}
+                    }
                     match result {
                         Ok(Done::Said(s)) => self.say(s, false),
                         Ok(Done::Access(list)) => {
@@ -766,7 +819,9 @@ impl Utility {
     }
 
     fn ask(&mut self, purpose: Purpose, m: &Located) {
-        self.ask = Some(Ask { purpose, module: m.clone(), password: String::new(), focus: true });
+        let field = egui::Id::unique(("password", self.next_id));
+        self.next_id += 1;
+        self.ask = Some(Ask { purpose, module: m.clone(), password: Zeroizing::default(), focus: true, field });
     }
 
     fn password_dialog(&mut self, ctx: &egui::Context) {
@@ -779,7 +834,7 @@ impl Utility {
             ui.label(format!("{} ({})", ask.module.found.name, ask.module.mac));
             let l = ui.label(tr(lang, "Password"));
             let r = ui
-                .add(egui::TextEdit::singleline(&mut ask.password).password(true).desired_width(220.0))
+                .add(egui::TextEdit::singleline(&mut *ask.password).id(ask.field).password(true).desired_width(220.0))
                 .labelled_by(l.id);
             if ask.focus {
                 r.request_focus();
@@ -793,11 +848,12 @@ impl Utility {
                 cancel = ui.button(tr(lang, "Cancel")).clicked() || ui.input(|i| i.key_pressed(egui::Key::Escape));
             });
         });
-        if cancel {
-            self.ask = None;
-        } else if ok {
+        if cancel || ok {
             if let Some(ask) = self.ask.take() {
-                self.submit(ask);
+                forget_text(ctx, ask.field);
+                if ok {
+                    self.submit(ask);
+                }
             }
         }
     }
@@ -805,6 +861,7 @@ impl Utility {
     fn submit(&mut self, ask: Ask) {
         let Ask { purpose, module, password, .. } = ask;
         let search_at = self.options.search_at.clone();
+        let only = self.only.clone();
         let command = match purpose {
             Purpose::Update(image) => {
                 let id = self.id("update");
@@ -822,7 +879,7 @@ impl Utility {
             self.say(tr(self.lang, "Restarting; searching again…"), false);
         }
         let id = self.id("config");
-        self.worker.send(Job::Config { id, module, password, command, search_at });
+        self.worker.send(Job::Config { id, module, password, command, search_at, only });
     }
 
     fn reading(&self, m: &Located) -> Option<&Reading> {
@@ -937,12 +994,15 @@ impl Utility {
                 self.write(Write::DiModeAll(self.all_mode));
             }
         });
+        let mac = m.mac;
+        let latched = self.latched.get(&mac).copied().unwrap_or_default();
+        let overflowed = self.overflowed.get(&mac).copied().unwrap_or_default();
         egui::Grid::new("di").num_columns(6).striped(true).show(ui, |ui| {
             for h in ["DI", "Mode", "Counter / frequency", "", "Latch", ""] {
                 ui.label(tr(lang, h));
             }
             ui.end_row();
-            for i in &d.inputs {
+            for i in d.inputs.iter().filter(|i| i.channel < m8350::DI_CHANNELS) {
                 let n = i.channel;
                 let lamp = if i.state { Color32::from_rgb(0x20, 0xc0, 0x40) } else { Color32::DARK_GRAY };
                 ui.label(RichText::new(format!("● DI{n} {}", if i.state { "ON" } else { "OFF" })).color(lamp));
@@ -962,7 +1022,7 @@ impl Utility {
                 }
                 let value = match mode {
                     DiMode::Frequency => format!("DI{n} {} Hz", i.value),
-                    _ => format!("DI{n} {}{}", i.value, if i.overflow { " (overflow)" } else { "" }),
+                    _ => format!("DI{n} {}{}", i.value, if overflowed[n] { " (overflow)" } else { "" }),
                 };
                 ui.label(value);
                 ui.horizontal(|ui| {
@@ -973,19 +1033,20 @@ impl Utility {
                         self.write(Write::Counter(n as u16, CounterAction::Stop));
                     }
                     if ui.button(format!("Clear counter DI{n}")).clicked() {
-                        self.write(Write::Counter(n as u16, CounterAction::Clear));
+                        let then = Some(AfterWrite::CounterCleared(mac, n));
+                        self.write_then(Write::Counter(n as u16, CounterAction::Clear), then);
                     }
                     ui.label(if i.counter_running { tr(lang, "running") } else { tr(lang, "stopped") });
                 });
-                let latch = match (self.latched[n], mode) {
+                let latch = match (latched[n], mode) {
                     (true, DiMode::LatchFalling) => "H-L ON",
                     (true, _) => "L-H ON",
                     (false, _) => "—",
                 };
                 ui.label(format!("DI{n} latch {latch}"));
+                // Shown until the module has taken the clear (a refused write keeps it).
                 if ui.button(format!("Clear latch DI{n}")).clicked() {
-                    self.latched[n] = false;
-                    self.write(Write::LatchClear(n as u16));
+                    self.write_then(Write::LatchClear(n as u16), Some(AfterWrite::LatchCleared(mac, n)));
                 }
                 ui.end_row();
             }
@@ -1121,7 +1182,7 @@ impl Utility {
         if self.paused.is_none() {
             plot = plot.auto_bounds(egui::Vec2b::new(true, true));
         }
-        plot.show(ui, |p| {
+        let shown = plot.show(ui, |p| {
             for name in &picked {
                 if let Some(s) = self.trend.series.get(name) {
                     let points: Vec<[f64; 2]> = s.iter().copied().filter(|q| q[0] <= until).collect();
@@ -1129,16 +1190,19 @@ impl Utility {
                 }
             }
         });
+        let bounds = shown.transform.bounds();
+        self.shown_span = Some((bounds.min()[0], bounds.max()[0].min(until)));
     }
 
-    /// Writes the picked series (all when none is picked) to the CSV file.
+    /// Writes what the plot shows (the picked series, all when none is picked, over the time
+    /// span in view, up to the pause) to the CSV file.
     pub fn export_csv(&mut self) {
         let names: Vec<String> = if self.picked.is_empty() {
             self.trend.series.keys().cloned().collect()
         } else {
             self.picked.iter().cloned().collect()
         };
-        let csv = self.trend.csv(&names);
+        let csv = self.trend.csv(&names, self.shown_span);
         match std::fs::write(&self.csv_path, csv) {
             Ok(()) => self.say(format!("{} {}", tr(self.lang, "Trend written to"), self.csv_path), false),
             Err(e) => self.say(format!("{} {}: {e}", tr(self.lang, "Cannot write"), self.csv_path), true),
@@ -1189,9 +1253,10 @@ impl Utility {
         let lang = self.lang;
         ui.heading(tr(lang, "Password"));
         let l = ui.label(tr(lang, "New password"));
-        ui.add(egui::TextEdit::singleline(&mut self.new_password).password(true)).labelled_by(l.id);
+        let (new_id, again_id) = (egui::Id::unique("new-password"), egui::Id::unique("new-password-again"));
+        ui.add(egui::TextEdit::singleline(&mut *self.new_password).id(new_id).password(true)).labelled_by(l.id);
         let l = ui.label(tr(lang, "New password again"));
-        ui.add(egui::TextEdit::singleline(&mut self.new_password_again).password(true)).labelled_by(l.id);
+        ui.add(egui::TextEdit::singleline(&mut *self.new_password_again).id(again_id).password(true)).labelled_by(l.id);
         let long_enough = self.new_password.chars().count() >= remodaq_protocol::auth::MIN_PASSWORD_LEN;
         let same = self.new_password == self.new_password_again;
         if !self.new_password.is_empty() && !long_enough {
@@ -1201,7 +1266,9 @@ impl Utility {
         }
         if ui.add_enabled(long_enough && same, egui::Button::new(tr(lang, "Change password"))).clicked() {
             let new = std::mem::take(&mut self.new_password);
-            self.new_password_again.clear();
+            self.new_password_again = Zeroizing::default();
+            forget_text(ui.ctx(), new_id);
+            forget_text(ui.ctx(), again_id);
             self.ask(Purpose::SetPassword(new), m);
         }
         ui.separator();

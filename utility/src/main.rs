@@ -24,7 +24,8 @@ fn options() -> Result<Options, String> {
             }
             "--timeout" => {
                 let v = value("seconds")?;
-                let s: f64 = v.parse().map_err(|_| format!("`{v}` is not seconds"))?;
+                let s: f64 =
+                    v.parse().ok().filter(|s: &f64| s.is_finite()).ok_or_else(|| format!("`{v}` is not seconds"))?;
                 o.timeout = Duration::from_secs_f64(s.clamp(0.05, 60.0));
             }
             "--poll-all-ms" => {

@@ -26,11 +26,13 @@ impl Trend {
     }
 
     /// The series `names` as CSV: a time column and one column per series, one row per time
-    /// any of them has a point (empty cells where a series has none).
-    pub fn csv(&self, names: &[String]) -> String {
+    /// any of them has a point (empty cells where a series has none); only the points within
+    /// `span` (seconds, both ends included) when given.
+    pub fn csv(&self, names: &[String], span: Option<(f64, f64)>) -> String {
         let mut rows: BTreeMap<u64, Vec<Option<f64>>> = BTreeMap::new();
+        let within = |t: f64| span.is_none_or(|(a, b)| (a..=b).contains(&t));
         for (i, name) in names.iter().enumerate() {
-            for p in self.series.get(name).into_iter().flatten() {
+            for p in self.series.get(name).into_iter().flatten().filter(|p| within(p[0])) {
                 // Milliseconds as the key: points of one poll share their time.
                 let row = rows.entry((p[0] * 1000.0).round() as u64).or_insert_with(|| vec![None; names.len()]);
                 row[i] = Some(p[1]);
@@ -72,7 +74,9 @@ mod tests {
         t.push("a", 1.0, 10.0);
         t.push("b", 1.0, 20.5);
         t.push("a", 2.0, 11.0);
-        let csv = t.csv(&["a".into(), "b".into()]);
+        let csv = t.csv(&["a".into(), "b".into()], None);
         assert_eq!(csv, "time_s,\"a\",\"b\"\r\n1.000,10,20.5\r\n2.000,11,\r\n");
+        let csv = t.csv(&["a".into(), "b".into()], Some((1.5, 3.0)));
+        assert_eq!(csv, "time_s,\"a\",\"b\"\r\n2.000,11,\r\n", "only the span in view");
     }
 }

@@ -20,6 +20,7 @@ use remodaq_client::Error;
 use remodaq_protocol::access::AllowList;
 use tokio::sync::mpsc::{unbounded_channel, UnboundedReceiver, UnboundedSender};
 use tokio::task::JoinHandle;
+use zeroize::Zeroizing;
 
 /// A module found by a search, with where to reach it.
 #[derive(Clone, Debug)]
@@ -47,7 +48,7 @@ pub enum Config {
     SetNetwork(NetChange),
     /// Restart, then search again until the module answers (by MAC).
     Restart,
-    SetPassword(String),
+    SetPassword(Zeroizing<String>),
     GetAccess,
     SetAccess(AllowList),
 }
@@ -64,10 +65,18 @@ pub enum Job {
     Poll(Vec<(Located, Duration, bool)>),
     /// A Modbus write.
     Write { id: u64, modbus: SocketAddr, write: Write },
-    /// A configuration command.
-    Config { id: u64, module: Located, password: String, command: Config, search_at: Vec<SocketAddr> },
+    /// A configuration command; `only`: the interface the user chose to search on (`None`:
+    /// all, and a MAC that answers on more than one is refused, as the CLI does).
+    Config {
+        id: u64,
+        module: Located,
+        password: Zeroizing<String>,
+        command: Config,
+        search_at: Vec<SocketAddr>,
+        only: Option<String>,
+    },
     /// A firmware update.
-    Update { id: u64, modbus: SocketAddr, image: PathBuf, password: String },
+    Update { id: u64, modbus: SocketAddr, image: PathBuf, password: Zeroizing<String> },
 }
 
 /// What a finished job gives.
@@ -148,6 +157,20 @@ impl Out {
 }
 
 async fn serve(mut jobs: UnboundedReceiver<Job>, out: Out, timeout: Duration) {
+    // Writes one after the other, in the order the user made them (a pulse train before its
+    // extra pulses), each on a connection of its own.
+    let (writes, mut queue) = unbounded_channel::<(u64, SocketAddr, Write)>();
+    let writer = out.clone();
+    tokio::spawn(async move {
+        while let Some((id, modbus, write)) = queue.recv().await {
+            let result = async {
+                let mut m = Module::connect(&modbus.to_string(), timeout).await?;
+                apply(&mut m, &write).await.map(Done::Said)
+            }
+            .await;
+            writer.send(Event::Done { id, result });
+        }
+    });
     let mut polls: HashMap<Mac, (SocketAddr, Duration, bool, JoinHandle<()>)> = HashMap::new();
     while let Some(job) = jobs.recv().await {
         match job {
@@ -179,20 +202,12 @@ async fn serve(mut jobs: UnboundedReceiver<Job>, out: Out, timeout: Duration) {
                 polls = keep;
             }
             Job::Write { id, modbus, write } => {
-                let out = out.clone();
-                tokio::spawn(async move {
-                    let result = async {
-                        let mut m = Module::connect(&modbus.to_string(), timeout).await?;
-                        apply(&mut m, &write).await.map(Done::Said)
-                    }
-                    .await;
-                    out.send(Event::Done { id, result });
-                });
+                let _ = writes.send((id, modbus, write));
             }
-            Job::Config { id, module, password, command, search_at } => {
+            Job::Config { id, module, password, command, search_at, only } => {
                 let out = out.clone();
                 tokio::spawn(async move {
-                    let result = configure(&module, &password, command, &search_at, timeout).await;
+                    let result = configure(&module, &password, command, &search_at, only.as_deref(), timeout).await;
                     out.send(Event::Done { id, result });
                 });
             }
@@ -271,7 +286,8 @@ async fn poll(mac: Mac, addr: SocketAddr, every: Duration, wake: bool, timeout: 
             if m.model == remodaq_protocol::m8318::MODULE_NAME {
                 read_analog(m).await.map(Reading::Analog)
             } else {
-                read_digital(m).await.map(Reading::Digital)
+                // The latch and overflow flags only for the module shown (reading clears them).
+                read_digital(m, wake).await.map(Reading::Digital)
             }
         }
         .await;
@@ -302,12 +318,12 @@ async fn configure(
     password: &str,
     command: Config,
     search_at: &[SocketAddr],
+    only: Option<&str>,
     timeout: Duration,
 ) -> Result<Done, Error> {
-    let only = module.iface.as_ref().map(|i| i.ip.to_string());
     let cmd = match &command {
         Config::SetNetwork(change) => {
-            lan::set_network(module.to, only.as_deref(), module.mac, password, *change, timeout).await?;
+            lan::set_network(module.to, only, module.mac, password, *change, timeout).await?;
             return Ok(Done::Said(lan::SET_NETWORK_DONE.into()));
         }
         Config::Restart => lan::Command::Restart,
@@ -316,16 +332,18 @@ async fn configure(
         Config::SetAccess(list) => lan::Command::SetAccess(*list),
     };
     let said = cmd.done();
-    let outcome = lan::command(module.to, only.as_deref(), module.mac, Some(password), cmd, timeout).await?;
+    let outcome = lan::command(module.to, only, module.mac, Some(password), cmd, timeout).await?;
     match command {
         Config::Restart => {
-            // The module answers, then restarts: give it a moment, then search until it is back.
+            // The module answers, then restarts: search until it answers again, restarted (its
+            // uptime no longer than the time since the command: not the old run's last answer).
             let started = Instant::now();
             tokio::time::sleep(Duration::from_millis(500)).await;
             while started.elapsed() < Duration::from_secs(30) {
                 let at: Vec<SocketAddr> = if search_at.is_empty() { vec![module.to] } else { search_at.to_vec() };
-                if let Ok((found, _)) = search(&at, only.as_deref(), timeout).await {
-                    if let Some(back) = found.into_iter().find(|f| f.mac == module.mac) {
+                if let Ok((found, _)) = search(&at, only, timeout).await {
+                    let restarted = |f: &Located| f64::from(f.found.uptime_s) <= started.elapsed().as_secs_f64() + 1.0;
+                    if let Some(back) = found.into_iter().find(|f| f.mac == module.mac && restarted(f)) {
                         return Ok(Done::Restarted(Some(back)));
                     }
                 }

@@ -84,6 +84,19 @@ fn s3_setting_restart_and_the_new_port() {
     for (n, on) in dos.iter().enumerate() {
         assert!(gui.has(&format!("DO{n} {}", if *on { "ON" } else { "OFF" })), "DO{n} as Modbus reads it: {on}");
     }
+    // The pulse fields against 40025.. (low), 40037.. (high), 40049.. (count): 0.1 ms units.
+    for n in 0..6u8 {
+        for (field, what, scale) in [
+            (m8350::PulseField::Low, "low", 10.0),
+            (m8350::PulseField::High, "high", 10.0),
+            (m8350::PulseField::Count, "count", 1.0),
+        ] {
+            let w = holding(m8350.addr(), m8350::Point::Pulse(field, n, m8350::Word::Low).addr().1, 2);
+            let expected = f64::from(u32::from(w[0]) | u32::from(w[1]) << 16) / scale;
+            let shown: f64 = gui.field_value(&format!("DO{n} {what}")).parse().expect("a number");
+            assert_eq!(shown, expected, "DO{n} {what}");
+        }
+    }
     gui.click("Diagnostics");
     let cause = holding(m8350.addr(), diag::REG_RESET_CAUSE, 1)[0];
     assert_eq!(cause, diag::reset_cause::SOFTWARE, "a software restart");
@@ -168,13 +181,15 @@ fn s6_latch_until_clear() {
     assert!(!coils(m8350.addr(), m8350::Point::Latch(3).addr().1, 1)[0]);
 }
 
-/// 7. A module that goes away mid-poll shows "no answer"; the UI keeps running and frames keep
-/// coming.
+/// 7. A module that goes away mid-poll shows "no answer"; the UI keeps running, no frame waits
+/// on the network, and the other module goes on being read.
 #[test]
 fn s7_module_gone_mid_poll() {
     let m8350 = Sim::start("8350", "s7", &[]);
+    let m8318 = Sim::start("8318", "s7", &[]);
+    let other = remodaq_client::lan::Mac(discover(m8318.discovery()).mac);
     let port = m8350.port();
-    let mut gui = Gui::new(vec![m8350.discovery()]);
+    let mut gui = Gui::new(vec![m8350.discovery(), m8318.discovery()]);
     gui.select_module("RemoDAQ-8350", port);
     gui.click("RemoDAQ-8350");
     gui.wait("the panel", |g| g.has("DO0 OFF"));
@@ -194,17 +209,23 @@ fn s7_module_gone_mid_poll() {
     // Frames keep coming while the worker retries the dead module.
     let more = Instant::now();
     let mut later = 0u32;
-    while more.elapsed() < Duration::from_secs(2) {
+    let uptime = |g: &Gui| match g.app().latest(other) {
+        Some(remodaq_utility::worker::Reading::Analog(a)) => a.diagnostics.uptime_s,
+        _ => 0,
+    };
+    let before = uptime(&gui);
+    while more.elapsed() < Duration::from_millis(3500) {
         let t = Instant::now();
         gui.frames(1);
         longest = longest.max(t.elapsed());
         later += 1;
         std::thread::sleep(Duration::from_millis(10));
     }
+    assert!(uptime(&gui) > before, "the 8318 is still read (uptime {before} s, then {} s)", uptime(&gui));
     assert!(gui.has(&format!("RemoDAQ-8350 (127.0.0.1:{port}) — no answer")), "the tree says it");
     let ui_longest = gui.app().longest_frame;
     eprintln!(
-        "utility-frames: \"no answer\" after {:.0} ms (timeout {} ms); {frames} frames before, {later} in the next 2 s; \
+        "utility-frames: \"no answer\" after {:.0} ms (timeout {} ms); {frames} frames before, {later} in the next 3.5 s; \
          longest frame step {:.2} ms, longest UI pass {:.2} ms",
         shown_after.as_secs_f64() * 1e3,
         TIMEOUT.as_millis(),
@@ -213,5 +234,4 @@ fn s7_module_gone_mid_poll() {
     );
     // A frame never waits on the network: far below the module timeout, whatever the machine.
     assert!(longest < TIMEOUT / 2, "a frame took {longest:?}");
-    assert!(later >= 20, "frames kept coming: {later} in 2 s");
 }

@@ -368,6 +368,11 @@ impl Gui {
         self.wait("the module's tabs", |g| g.has("Network Settings"));
     }
 
+    /// The text in the field labelled `label`.
+    pub fn field_value(&self, label: &str) -> String {
+        self.harness.get_by_label(label).value().unwrap_or_default()
+    }
+
     /// A label that starts with `prefix` and ends with `unit`.
     pub fn has_value(&self, prefix: &str, unit: &str) -> bool {
         self.harness
