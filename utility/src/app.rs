@@ -431,7 +431,7 @@ impl Utility {
                     let t = at.saturating_duration_since(self.started).as_secs_f64();
                     let name = self.modules.iter().find(|m| m.mac == mac).map(module_label);
                     let seen = self.seen.entry(mac).or_default();
-                    match reading {
+                    match *reading {
                         Ok(r) => {
                             if let Reading::Digital(d) = &r {
                                 let latched = self.latched.entry(mac).or_default();
@@ -490,9 +490,9 @@ impl Utility {
                             let mac = back.mac;
                             let r = back.found.running;
                             if let Some(m) = self.modules.iter_mut().find(|m| m.mac == mac) {
-                                *m = back;
+                                *m = *back;
                             } else {
-                                self.modules.push(back);
+                                self.modules.push(*back);
                             }
                             self.select(Some(mac));
                             self.say(
@@ -879,7 +879,7 @@ impl Utility {
             self.say(tr(self.lang, "Restarting; searching again…"), false);
         }
         let id = self.id("config");
-        self.worker.send(Job::Config { id, module, password, command, search_at, only });
+        self.worker.send(Job::Config { id, module: Box::new(module), password, command, search_at, only });
     }
 
     fn reading(&self, m: &Located) -> Option<&Reading> {

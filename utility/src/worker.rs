@@ -69,7 +69,7 @@ pub enum Job {
     /// all, and a MAC that answers on more than one is refused, as the CLI does).
     Config {
         id: u64,
-        module: Located,
+        module: Box<Located>,
         password: Zeroizing<String>,
         command: Config,
         search_at: Vec<SocketAddr>,
@@ -87,7 +87,7 @@ pub enum Done {
     /// The allow-list read or stored.
     Access(AllowList),
     /// The module restarted and answered again: what is in force now.
-    Restarted(Option<Located>),
+    Restarted(Option<Box<Located>>),
     /// Firmware before and after.
     Updated { before: u16, after: u16 },
 }
@@ -97,7 +97,7 @@ pub enum Event {
     /// A search's result: the modules, and the interfaces searched.
     Searched(Result<(Vec<Located>, Vec<Iface>), Error>),
     /// A poll of the module with this MAC.
-    Reading { mac: Mac, at: Instant, reading: Result<Reading, Error> },
+    Reading { mac: Mac, at: Instant, reading: Box<Result<Reading, Error>> },
     /// A job finished.
     Done { id: u64, result: Result<Done, Error> },
     /// How far an update got.
@@ -296,7 +296,7 @@ async fn poll(mac: Mac, addr: SocketAddr, every: Duration, wake: bool, timeout: 
         }
         let changed = answered != Some(result.is_ok());
         answered = Some(result.is_ok());
-        let event = Event::Reading { mac, at: Instant::now(), reading: result };
+        let event = Event::Reading { mac, at: Instant::now(), reading: Box::new(result) };
         if wake || changed {
             out.send(event);
         } else {
@@ -344,7 +344,7 @@ async fn configure(
                 if let Ok((found, _)) = search(&at, only, timeout).await {
                     let restarted = |f: &Located| f64::from(f.found.uptime_s) <= started.elapsed().as_secs_f64() + 1.0;
                     if let Some(back) = found.into_iter().find(|f| f.mac == module.mac && restarted(f)) {
-                        return Ok(Done::Restarted(Some(back)));
+                        return Ok(Done::Restarted(Some(Box::new(back))));
                     }
                 }
                 tokio::time::sleep(Duration::from_millis(300)).await;

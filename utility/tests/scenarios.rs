@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use support::*;
 
-/// 1. Search: both modules appear in the tree, under the host node.
+/// Scenario 1: Search: both modules appear in the tree, under the host node.
 #[test]
 fn s1_search_finds_both_modules() {
     let m8318 = Sim::start("8318", "s1", &[]);
@@ -26,7 +26,7 @@ fn s1_search_finds_both_modules() {
     assert_eq!(holding(m8350.addr(), REG_NAME, 1)[0], 0x8350);
 }
 
-/// 2. Select the 8350 and change its port: Setting with a wrong password shows the module's
+/// Scenario 2: Select the 8350 and change its port: Setting with a wrong password shows the module's
 /// answer, and nothing changes.
 #[test]
 fn s2_wrong_password_changes_nothing() {
@@ -50,7 +50,7 @@ fn s2_wrong_password_changes_nothing() {
     assert_eq!(found.stored_port, stored, "stored port unchanged");
 }
 
-/// 3. The right password, then ReStart: the utility searches again by itself, re-selects the
+/// Scenario 3: The right password, then ReStart: the utility searches again by itself, re-selects the
 /// module by MAC and shows the new port in force; the panel's values match a Modbus read.
 #[test]
 fn s3_setting_restart_and_the_new_port() {
@@ -103,7 +103,7 @@ fn s3_setting_restart_and_the_new_port() {
     gui.wait("the reset cause", |g| g.has("Reset cause: software restart"));
 }
 
-/// 4. Select the 8318, set type K and Setting: an open channel shows "open", and a 40 mV
+/// Scenario 4: Select the 8318, set type K and Setting: an open channel shows "open", and a 40 mV
 /// channel shows the NIST temperature.
 #[test]
 fn s4_type_k_open_and_nist() {
@@ -125,7 +125,7 @@ fn s4_type_k_open_and_nist() {
     assert!((shown - expected).abs() <= 0.1, "CH1 shows {shown} °C, NIST {expected:.2} °C");
 }
 
-/// 5. Toggle DO1 and write a pulse train: a Modbus read confirms both.
+/// Scenario 5: Toggle DO1 and write a pulse train: a Modbus read confirms both.
 #[test]
 fn s5_do_toggle_and_pulse_train() {
     let m8350 = Sim::start("8350", "s5", &[]);
@@ -150,7 +150,7 @@ fn s5_do_toggle_and_pulse_train() {
     assert_eq!(holding(m8350.addr(), count, 2), [100, 0]);
 }
 
-/// 6. Arm a latch, drive the input, and see `L-H ON` until Clear.
+/// Scenario 6: Arm a latch, drive the input, and see `L-H ON` until Clear.
 #[test]
 fn s6_latch_until_clear() {
     let scenario = Scenario::new("s6-8350", "[di3]\nlevel = false\n");
@@ -181,7 +181,7 @@ fn s6_latch_until_clear() {
     assert!(!coils(m8350.addr(), m8350::Point::Latch(3).addr().1, 1)[0]);
 }
 
-/// 7. A module that goes away mid-poll shows "no answer"; the UI keeps running, no frame waits
+/// Scenario 7: A module that goes away mid-poll shows "no answer"; the UI keeps running, no frame waits
 /// on the network, and the other module goes on being read.
 #[test]
 fn s7_module_gone_mid_poll() {
