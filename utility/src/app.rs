@@ -38,6 +38,8 @@ pub struct Options {
     pub slow_poll: Duration,
     /// Search once at start.
     pub search_at_start: bool,
+    /// The module to open once a search finds it (its Modbus address).
+    pub select: Option<SocketAddr>,
     /// Where to write, at most once a second, the frames drawn and the longest UI pass
     /// (`REMODAQ_UTILITY_STATS`, for the responsiveness report).
     pub stats: Option<PathBuf>,
@@ -52,6 +54,7 @@ impl Default for Options {
             slow_poll: Duration::from_secs(1),
             search_at_start: true,
             stats: None,
+            select: None,
         }
     }
 }
@@ -173,14 +176,27 @@ pub struct Utility {
     pub trend: Trend,
     picked: BTreeSet<String>,
     paused: Option<f64>,
+    /// The span of time the trend shows while it runs, s ([`SPANS`]).
+    span_s: f64,
+    /// Set by Pause: the plot keeps the view it had (until the user zooms, drags or fits).
+    freeze: bool,
     started: Instant,
     csv_path: String,
     /// The longest time one frame's UI took, and the frames drawn (for the responsiveness
     /// report).
     pub longest_frame: Duration,
+    /// The longest after the first [`WARM_UP`] frames (which build the font atlas and lay out
+    /// every view once).
+    pub longest_warm: Duration,
     pub frames: u64,
     stats_written: Option<Instant>,
 }
+
+/// The spans of time the running trend can show, s (the last minute to the ten minutes it keeps).
+pub const SPANS: [f64; 4] = [60.0, 120.0, 300.0, crate::trend::KEEP_S];
+
+/// Frames not counted in [`Utility::longest_warm`].
+pub const WARM_UP: u64 = 10;
 
 fn tr(lang: Lang, en: &'static str) -> &'static str {
     lang.t(en)
@@ -303,9 +319,12 @@ impl Utility {
             trend: Trend::default(),
             picked: BTreeSet::new(),
             paused: None,
+            span_s: SPANS[0],
+            freeze: false,
             started: Instant::now(),
             csv_path: std::env::temp_dir().join("remodaq-trend.csv").to_string_lossy().into_owned(),
             longest_frame: Duration::ZERO,
+            longest_warm: Duration::ZERO,
             frames: 0,
             stats_written: None,
         };
@@ -398,7 +417,8 @@ impl Utility {
         self.worker.send(Job::Write { id, modbus, write });
     }
 
-    fn now_s(&self) -> f64 {
+    /// Seconds since the utility started: the time axis of the trend.
+    pub fn now_s(&self) -> f64 {
         self.started.elapsed().as_secs_f64()
     }
 
@@ -417,7 +437,12 @@ impl Utility {
                     self.modules.sort_by_key(|m| (m.found.running.ip, m.found.running.port));
                     let n = self.modules.len();
                     self.say(format!("{}: {n}", tr(self.lang, "Modules found")), false);
-                    if self.selected.is_some_and(|mac| !self.modules.iter().any(|m| m.mac == mac)) {
+                    let wanted = self.options.select.take_if(|_| self.selected.is_none());
+                    if let Some(m) = wanted.and_then(|at| self.modules.iter().find(|m| m.modbus == at)) {
+                        let mac = m.mac;
+                        self.tab = Tab::Panel;
+                        self.select(Some(mac));
+                    } else if self.selected.is_some_and(|mac| !self.modules.iter().any(|m| m.mac == mac)) {
                         self.select(None);
                     } else {
                         self.select(self.selected);
@@ -554,12 +579,20 @@ impl Utility {
         });
         self.password_dialog(&ctx);
         self.frames += 1;
-        self.longest_frame = self.longest_frame.max(began.elapsed());
+        let took = began.elapsed();
+        self.longest_frame = self.longest_frame.max(took);
+        if self.frames > WARM_UP {
+            self.longest_warm = self.longest_warm.max(took);
+        }
         if let Some(path) = &self.options.stats {
             if self.stats_written.is_none_or(|t| t.elapsed() >= Duration::from_secs(1)) {
                 self.stats_written = Some(Instant::now());
-                let line =
-                    format!("frames {} longest_ui_ms {:.3}\n", self.frames, self.longest_frame.as_secs_f64() * 1e3);
+                let line = format!(
+                    "frames {} longest_ui_ms {:.3} longest_after_warm_up_ms {:.3}\n",
+                    self.frames,
+                    self.longest_frame.as_secs_f64() * 1e3,
+                    self.longest_warm.as_secs_f64() * 1e3
+                );
                 // A report's aid: a failure to write it changes nothing in the window.
                 let _ = std::fs::write(path, line);
             }
@@ -1169,23 +1202,46 @@ impl Utility {
             let label = if self.paused.is_some() { tr(lang, "Resume") } else { tr(lang, "Pause") };
             if ui.button(label).clicked() {
                 self.paused = if self.paused.is_some() { None } else { Some(self.now_s()) };
+                self.freeze = self.paused.is_some();
             }
+            let span = &mut self.span_s;
+            ui.label(tr(lang, "Span"));
+            egui::ComboBox::from_id_salt("trend-span")
+                .selected_text(format!("{} min", *span / 60.0))
+                .show_ui(ui, |ui| {
+                    for s in SPANS {
+                        ui.selectable_value(span, s, format!("{} min", s / 60.0));
+                    }
+                })
+                .response
+                .widget_info(|| egui::WidgetInfo::labeled(egui::Role::ComboBox, true, "Span"));
             field(ui, tr(lang, "CSV file"), &mut self.csv_path, None, 260.0);
             if ui.button(tr(lang, "Export CSV")).clicked() {
                 self.export_csv();
             }
         });
         let until = self.paused.unwrap_or_else(|| self.now_s());
+        let from = until - self.span_s;
+        let live = self.paused.is_none();
         let picked: Vec<String> = self.picked.iter().cloned().collect();
-        let mut plot =
+        let plot =
             egui_plot::Plot::new("trend").legend(egui_plot::Legend::default()).x_axis_label(tr(lang, "time (s)"));
-        if self.paused.is_none() {
-            plot = plot.auto_bounds(egui::Vec2b::new(true, true));
-        }
+        let freeze = &mut self.freeze;
         let shown = plot.show(ui, |p| {
+            if std::mem::take(freeze) {
+                p.set_auto_bounds(false);
+            }
+            if live {
+                // Running, the trend follows the last span with the values' range; paused, the
+                // user zooms and drags freely (a double click fits it all again).
+                p.set_auto_bounds(egui::Vec2b::new(false, true));
+                p.set_plot_bounds_x(from..=until);
+            }
             for name in &picked {
                 if let Some(s) = self.trend.series.get(name) {
-                    let points: Vec<[f64; 2]> = s.iter().copied().filter(|q| q[0] <= until).collect();
+                    // Running, the points in view; paused, all up to the pause.
+                    let first = if live { s.partition_point(|q| q[0] < from) } else { 0 };
+                    let points: Vec<[f64; 2]> = s.range(first..).copied().filter(|q| q[0] <= until).collect();
                     p.line(egui_plot::Line::new(name.clone(), egui_plot::PlotPoints::new(points)));
                 }
             }

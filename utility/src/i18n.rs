@@ -141,6 +141,7 @@ pub static ZH: &[(&str, &str)] = &[
     ("The watchdog timeout is 0.1 to 600 s, or 0 for off", "看门狗超时为 0.1 至 600 秒，或 0 关闭"),
     ("Resume", "继续"),
     ("Pause", "暂停"),
+    ("Span", "时间跨度"),
     ("CSV file", "CSV 文件"),
     ("Export CSV", "导出 CSV"),
     ("time (s)", "时间 (s)"),

@@ -1,8 +1,9 @@
 //! `remodaq-utility`: the RemoDAQ-8300 Utility window.
 //!
-//! `remodaq-utility [--search-at ADDR:PORT]... [--timeout S]`: by default a search goes to the
-//! broadcast address on every interface; `--search-at` sends it to modules' own discovery
-//! addresses instead (simulated modules on this PC).
+//! `remodaq-utility [--search-at ADDR:PORT]... [--timeout S] [--poll-all-ms MS] [--select ADDR:PORT]`:
+//! by default a search goes to the broadcast address on every interface; `--search-at` sends it
+//! to modules' own discovery addresses instead (simulated modules on this PC); `--select` opens
+//! the panel of the module whose Modbus address it names once the first search finds it.
 
 #![cfg_attr(windows, windows_subsystem = "windows")]
 
@@ -33,8 +34,14 @@ fn options() -> Result<Options, String> {
                 let ms: u64 = v.parse().map_err(|_| format!("`{v}` is not milliseconds"))?;
                 o.slow_poll = Duration::from_millis(ms.max(50));
             }
+            "--select" => {
+                let v = value("ADDR:PORT")?;
+                o.select = Some(v.parse::<SocketAddr>().map_err(|_| format!("`{v}` is not ADDR:PORT"))?);
+            }
             "--version" => return Err(format!("remodaq-utility {}", env!("CARGO_PKG_VERSION"))),
-            other => return Err(format!("unknown argument `{other}` (--search-at ADDR:PORT, --timeout S)")),
+            other => return Err(format!(
+                "unknown argument `{other}` (--search-at ADDR:PORT, --timeout S, --poll-all-ms MS, --select ADDR:PORT)"
+            )),
         }
     }
     if !at.is_empty() {
@@ -45,17 +52,39 @@ fn options() -> Result<Options, String> {
 }
 
 /// A panic is a defect: it is written to a log next to the temp files and shown in a message
-/// box where one can be (the last resort, not the plan).
+/// box on Windows (where the program has no console), on standard error elsewhere. The last
+/// resort, not the plan.
 fn panic_hook() {
     let default = std::panic::take_hook();
     std::panic::set_hook(Box::new(move |info| {
         let log = std::env::temp_dir().join("remodaq-utility-crash.log");
         let text = format!("remodaq-utility {}: {info}\n", env!("CARGO_PKG_VERSION"));
         let _ = std::fs::write(&log, &text);
-        eprintln!("{text}(written to {})", log.display());
+        let text = format!("{text}(written to {})", log.display());
+        eprintln!("{text}");
+        message_box(&text);
         default(info);
     }));
 }
+
+#[cfg(windows)]
+fn message_box(text: &str) {
+    #[link(name = "user32")]
+    extern "system" {
+        fn MessageBoxW(hwnd: *mut core::ffi::c_void, text: *const u16, caption: *const u16, kind: u32) -> i32;
+    }
+    let wide = |s: &str| s.encode_utf16().chain(Some(0)).collect::<Vec<u16>>();
+    let (text, caption) = (wide(text), wide("RemoDAQ-8300 Utility"));
+    const MB_ICONERROR: u32 = 0x10;
+    // SAFETY: both strings are NUL-terminated UTF-16 that live across the call; a null owner
+    // window is allowed (MessageBoxW, user32, Windows API documentation).
+    unsafe {
+        MessageBoxW(core::ptr::null_mut(), text.as_ptr(), caption.as_ptr(), MB_ICONERROR);
+    }
+}
+
+#[cfg(not(windows))]
+fn message_box(_text: &str) {}
 
 fn main() -> std::process::ExitCode {
     panic_hook();

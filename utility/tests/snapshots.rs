@@ -5,7 +5,7 @@
 
 mod support;
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use egui_kittest::SnapshotOptions;
 use support::*;
@@ -48,26 +48,37 @@ fn snapshots_of_the_main_views() {
     gui.frames_for(Duration::from_millis(500));
     gui.harness.snapshot_options("panel_8350", &options(2500));
 
-    // A trend of more than 30 s: the 8318's CH3 follows a slow wave written to its scenario.
+    // A trend of more than 30 s: the 8318's CH3 follows a slow wave written to its scenario,
+    // one step a second on the utility's own clock (the trend's time axis), so that the curve,
+    // the grid and the values' range fall at the same places in every run. The wave starts at a
+    // multiple of 10 s with 25 s or more of steady value before it, and the trend is paused
+    // 40 s later, showing its last minute (which starts after the series' first point).
     gui.click(&format!("RemoDAQ-8318 (127.0.0.1:{})", m8318.port()));
     gui.click("Trends");
-    let t = Instant::now();
-    let mut k = 0u32;
-    while t.elapsed() < Duration::from_secs(33) {
-        let x = t.elapsed().as_secs_f64();
-        if f64::from(k) <= x {
+    let name = &format!("RemoDAQ-8318 (127.0.0.1:{}) CH3 (°C)", m8318.port());
+    gui.click(name);
+    let start = ((gui.app().now_s() + 25.0) / 10.0).ceil() * 10.0;
+    let end = start + 40.0;
+    let mut written = f64::NEG_INFINITY;
+    loop {
+        let now = gui.app().now_s();
+        if now >= end {
+            break;
+        }
+        let step = now.floor();
+        if step > written {
+            written = step;
             // Type K at 25 °C terminals: 5-15 mV is about 150-390 °C.
-            let mv = 10.0 + 5.0 * (x * std::f64::consts::TAU / 20.0).sin();
+            let mv =
+                if step < start { 12.2 } else { 10.0 + 5.0 * ((step - start) * std::f64::consts::TAU / 20.0).sin() };
             s8318.write(&format!(
                 "cjc_celsius = 24.5\n[ch0]\nopen = true\n[ch1]\nmillivolts = 40.0\n[ch2]\nmillivolts = 1.0\n[ch3]\nmillivolts = {mv:.3}\n"
             ));
-            k += 1;
         }
         gui.frames(1);
         std::thread::sleep(Duration::from_millis(20));
     }
-    let name = &format!("RemoDAQ-8318 (127.0.0.1:{}) CH3 (°C)", m8318.port());
-    gui.click(name);
+    gui.click("Pause");
     gui.frames(3);
     let points = &gui.app().trend.series[name];
     let span = points.back().map_or(0.0, |p| p[0]) - points.front().map_or(0.0, |p| p[0]);
