@@ -188,6 +188,13 @@ pub struct Utility {
     /// The longest after the first [`WARM_UP`] frames (which build the font atlas and lay out
     /// every view once).
     pub longest_warm: Duration,
+    /// The longest whole frame after the warm-up as the window's integration measures it
+    /// (the UI, tessellation and painting, without the wait for the screen), s.
+    pub longest_painted: f32,
+    /// Frames after the warm-up longer than 16 ms (a 60 Hz screen's frame), and their sum of
+    /// frame times (for the mean).
+    pub slow_frames: u64,
+    pub painted_sum: f64,
     pub frames: u64,
     stats_written: Option<Instant>,
 }
@@ -325,6 +332,9 @@ impl Utility {
             csv_path: std::env::temp_dir().join("remodaq-trend.csv").to_string_lossy().into_owned(),
             longest_frame: Duration::ZERO,
             longest_warm: Duration::ZERO,
+            longest_painted: 0.0,
+            slow_frames: 0,
+            painted_sum: 0.0,
             frames: 0,
             stats_written: None,
         };
@@ -588,10 +598,13 @@ impl Utility {
             if self.stats_written.is_none_or(|t| t.elapsed() >= Duration::from_secs(1)) {
                 self.stats_written = Some(Instant::now());
                 let line = format!(
-                    "frames {} longest_ui_ms {:.3} longest_after_warm_up_ms {:.3}\n",
+                    "frames {} longest_ui_ms {:.3} longest_after_warm_up_ms {:.3} longest_frame_after_warm_up_ms {:.3} slower_than_16ms {} mean_frame_ms {:.3}\n",
                     self.frames,
                     self.longest_frame.as_secs_f64() * 1e3,
-                    self.longest_warm.as_secs_f64() * 1e3
+                    self.longest_warm.as_secs_f64() * 1e3,
+                    self.longest_painted * 1e3,
+                    self.slow_frames,
+                    self.painted_sum * 1e3 / self.frames.saturating_sub(WARM_UP + 1).max(1) as f64
                 );
                 // A report's aid: a failure to write it changes nothing in the window.
                 let _ = std::fs::write(path, line);
@@ -1460,7 +1473,13 @@ impl Utility {
 }
 
 impl eframe::App for Utility {
-    fn ui(&mut self, ui: &mut Ui, _frame: &mut eframe::Frame) {
+    fn ui(&mut self, ui: &mut Ui, frame: &mut eframe::Frame) {
+        // The previous frame's whole time (eframe measures it; none on the first frame).
+        if let Some(s) = frame.info().cpu_usage.filter(|_| self.frames > WARM_UP) {
+            self.longest_painted = self.longest_painted.max(s);
+            self.slow_frames += u64::from(s > 0.016);
+            self.painted_sum += f64::from(s);
+        }
         self.show(ui);
     }
 }
