@@ -39,9 +39,11 @@ fn options() -> Result<Options, String> {
                 o.select = Some(v.parse::<SocketAddr>().map_err(|_| format!("`{v}` is not ADDR:PORT"))?);
             }
             "--version" => return Err(format!("remodaq-utility {}", env!("CARGO_PKG_VERSION"))),
-            other => return Err(format!(
+            other => {
+                return Err(format!(
                 "unknown argument `{other}` (--search-at ADDR:PORT, --timeout S, --poll-all-ms MS, --select ADDR:PORT)"
-            )),
+            ))
+            }
         }
     }
     if !at.is_empty() {
