@@ -182,28 +182,67 @@ pub struct Utility {
     freeze: bool,
     started: Instant,
     csv_path: String,
-    /// The longest time one frame's UI took, and the frames drawn (for the responsiveness
-    /// report).
-    pub longest_frame: Duration,
-    /// The longest after the first [`WARM_UP`] frames (which build the font atlas and lay out
-    /// every view once).
-    pub longest_warm: Duration,
-    /// The longest whole frame after the warm-up as the window's integration measures it
-    /// (the UI, tessellation and painting, without the wait for the screen), s.
-    pub longest_painted: f32,
-    /// Frames after the warm-up longer than 16 ms (a 60 Hz screen's frame), and their sum of
-    /// frame times (for the mean).
-    pub slow_frames: u64,
-    pub painted_sum: f64,
-    pub frames: u64,
+    /// Frame statistics for the responsiveness report.
+    pub stats: FrameStats,
     stats_written: Option<Instant>,
 }
 
 /// The spans of time the running trend can show, s (the last minute to the ten minutes it keeps).
 pub const SPANS: [f64; 4] = [60.0, 120.0, 300.0, crate::trend::KEEP_S];
 
-/// Frames not counted in [`Utility::longest_warm`].
+/// Frames not counted in the statistics after the warm-up (they build the font atlas and lay
+/// out every view once).
 pub const WARM_UP: u64 = 10;
+
+/// The frames drawn, the longest UI pass (all the app does in a frame), and after the first
+/// [`WARM_UP`] frames the longest UI pass and the whole frames as the window's integration
+/// measures them (the UI, tessellation and painting, without the wait for the screen).
+#[derive(Default)]
+pub struct FrameStats {
+    pub frames: u64,
+    pub longest_ui: Duration,
+    pub longest_ui_warm: Duration,
+    /// Whole frames measured after the warm-up, the longest (s), those over 16 ms (a 60 Hz
+    /// screen's frame) and their sum (s).
+    whole: u64,
+    longest_whole: f32,
+    slow_whole: u64,
+    whole_sum: f64,
+}
+
+impl FrameStats {
+    /// One UI pass that took `took`.
+    fn ui_pass(&mut self, took: Duration) {
+        self.frames += 1;
+        self.longest_ui = self.longest_ui.max(took);
+        if self.frames > WARM_UP {
+            self.longest_ui_warm = self.longest_ui_warm.max(took);
+        }
+    }
+
+    /// The previous whole frame's time, s.
+    fn whole_frame(&mut self, s: f32) {
+        if self.frames > WARM_UP {
+            self.whole += 1;
+            self.longest_whole = self.longest_whole.max(s);
+            self.slow_whole += u64::from(s > 0.016);
+            self.whole_sum += f64::from(s);
+        }
+    }
+
+    /// The line `scripts/utility-report` reads.
+    fn line(&self) -> String {
+        format!(
+            "frames {} longest_ui_ms {:.3} longest_after_warm_up_ms {:.3} longest_frame_after_warm_up_ms {:.3} slower_than_16ms {} mean_frame_ms {:.3}\n",
+            self.frames,
+            self.longest_ui.as_secs_f64() * 1e3,
+            self.longest_ui_warm.as_secs_f64() * 1e3,
+            self.longest_whole * 1e3,
+            self.slow_whole,
+            self.whole_sum * 1e3 / self.whole.max(1) as f64
+        )
+    }
+}
 
 fn tr(lang: Lang, en: &'static str) -> &'static str {
     lang.t(en)
@@ -330,12 +369,7 @@ impl Utility {
             freeze: false,
             started: Instant::now(),
             csv_path: std::env::temp_dir().join("remodaq-trend.csv").to_string_lossy().into_owned(),
-            longest_frame: Duration::ZERO,
-            longest_warm: Duration::ZERO,
-            longest_painted: 0.0,
-            slow_frames: 0,
-            painted_sum: 0.0,
-            frames: 0,
+            stats: FrameStats::default(),
             stats_written: None,
         };
         u.remember_hosts();
@@ -588,24 +622,11 @@ impl Utility {
             }
         });
         self.password_dialog(&ctx);
-        self.frames += 1;
-        let took = began.elapsed();
-        self.longest_frame = self.longest_frame.max(took);
-        if self.frames > WARM_UP {
-            self.longest_warm = self.longest_warm.max(took);
-        }
+        self.stats.ui_pass(began.elapsed());
         if let Some(path) = &self.options.stats {
             if self.stats_written.is_none_or(|t| t.elapsed() >= Duration::from_secs(1)) {
                 self.stats_written = Some(Instant::now());
-                let line = format!(
-                    "frames {} longest_ui_ms {:.3} longest_after_warm_up_ms {:.3} longest_frame_after_warm_up_ms {:.3} slower_than_16ms {} mean_frame_ms {:.3}\n",
-                    self.frames,
-                    self.longest_frame.as_secs_f64() * 1e3,
-                    self.longest_warm.as_secs_f64() * 1e3,
-                    self.longest_painted * 1e3,
-                    self.slow_frames,
-                    self.painted_sum * 1e3 / self.frames.saturating_sub(WARM_UP + 1).max(1) as f64
-                );
+                let line = self.stats.line();
                 // A report's aid: a failure to write it changes nothing in the window.
                 let _ = std::fs::write(path, line);
             }
@@ -1475,10 +1496,8 @@ impl Utility {
 impl eframe::App for Utility {
     fn ui(&mut self, ui: &mut Ui, frame: &mut eframe::Frame) {
         // The previous frame's whole time (eframe measures it; none on the first frame).
-        if let Some(s) = frame.info().cpu_usage.filter(|_| self.frames > WARM_UP) {
-            self.longest_painted = self.longest_painted.max(s);
-            self.slow_frames += u64::from(s > 0.016);
-            self.painted_sum += f64::from(s);
+        if let Some(s) = frame.info().cpu_usage {
+            self.stats.whole_frame(s);
         }
         self.show(ui);
     }

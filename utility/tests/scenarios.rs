@@ -223,7 +223,7 @@ fn s7_module_gone_mid_poll() {
     }
     assert!(uptime(&gui) > before, "the 8318 is still read (uptime {before} s, then {} s)", uptime(&gui));
     assert!(gui.has(&format!("RemoDAQ-8350 (127.0.0.1:{port}) — no answer")), "the tree says it");
-    let ui_longest = gui.app().longest_frame;
+    let ui_longest = gui.app().stats.longest_ui;
     eprintln!(
         "utility-frames: \"no answer\" after {:.0} ms (timeout {} ms); {frames} frames before, {later} in the next 3.5 s; \
          longest frame step {:.2} ms, longest UI pass {:.2} ms",
