@@ -3,7 +3,9 @@
 // the host board on a PC; on `thumbv7em-none-eabihf` the STM32 board (default feature
 // `board-stm32`) or the QEMU board (`--no-default-features --features board-qemu`). Everything
 // else is the one start-up path of `remodaq_shared::board`. Embassy tasks cannot be generic, so
-// the three below are declared here, each a line calling the running module.
+// the three below are declared here, each a line calling the running module; the module's
+// application task is declared by the image crate (`application`, spawned by its
+// `spawn_application`), on the main executor (the 8318) or the board's realtime one (the 8350).
 
 #[cfg(all(target_os = "none", feature = "board-stm32", feature = "board-qemu"))]
 compile_error!("choose one board: `board-stm32` (default) or `--no-default-features --features board-qemu`");
@@ -52,14 +54,9 @@ async fn update(app: &'static Running) -> ! {
     app.serve_update().await
 }
 
-#[embassy_executor::task]
-async fn application(app: &'static Running, io: Io) -> ! {
-    app.run(io).await
-}
-
 async fn start(spawner: Spawner) {
     let (app, io) = remodaq_shared::board::start(spawner, &STATICS).await;
-    app.spawn(spawner, io, modbus, discovery, update, application);
+    app.spawn(spawner, io, modbus, discovery, update, spawn_application);
 }
 
 #[cfg(not(all(target_os = "none", feature = "board-qemu")))]

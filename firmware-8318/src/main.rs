@@ -8,3 +8,14 @@
 type Module = remodaq_8318::M8318;
 
 include!("../../boards/image.rs");
+
+/// The 8318's acquisition, on the main executor: it takes the register map's lock (the settings
+/// in force, the values it publishes).
+#[embassy_executor::task]
+async fn application(app: &'static Running, io: Io) -> ! {
+    app.run(io).await
+}
+
+fn spawn_application(spawner: Spawner, app: &'static Running, io: Io) {
+    remodaq_shared::board::spawn(spawner, application(app, io), "app");
+}

@@ -8,3 +8,17 @@
 type Module = remodaq_8350::M8350;
 
 include!("../../boards/image.rs");
+
+/// The 8350's I/O loop (input capture drained every 2 ms, output pattern refilled every 6.4 ms),
+/// on the board's realtime executor: it preempts the Modbus, discovery and update tasks, so an
+/// update's signature check cannot make the outputs run dry (docs/design.md, "Two executors").
+#[embassy_executor::task]
+async fn application(state: &'static <Module as remodaq_shared::board::Module>::State, io: Io) -> ! {
+    use remodaq_shared::board::{Board as _, RunsRealtime as _};
+    Module::run_realtime(io, state, Board::app_alive).await
+}
+
+fn spawn_application(spawner: Spawner, app: &'static Running, io: Io) {
+    use remodaq_shared::board::Board as _;
+    remodaq_shared::board::spawn_send(Board::realtime(spawner), application(app.state(), io), "app");
+}

@@ -9,7 +9,7 @@
 //! reset, identity, register map, network. The image crate only names the pair and declares
 //! the tasks (Embassy tasks cannot be generic), each a line calling [`App`].
 
-use embassy_executor::{SpawnError, SpawnToken, Spawner};
+use embassy_executor::{SendSpawner, SpawnError, SpawnToken, Spawner};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::mutex::Mutex;
 use embedded_storage_async::nor_flash::NorFlash;
@@ -73,6 +73,12 @@ pub trait Board: Sized + 'static {
     fn start_network(self, spawner: Spawner, stored: NetConfig) -> (Self::Net, NetConfig);
     /// The application completed a cycle (feeds the watchdog where the board has one).
     fn app_alive();
+    /// The board's realtime executor, for a module's time-critical I/O loop ([`RunsRealtime`]):
+    /// it preempts every task of the main executor (`spawner`'s), so a long computation there
+    /// (an update's ed25519 check, a login's key agreement: several milliseconds on the
+    /// Cortex-M4) cannot delay it. An interrupt-driven executor on the STM32 and QEMU boards;
+    /// on the host, whose tasks run on threads of a PC, `spawner`'s own. Called once, at start.
+    fn realtime(spawner: Spawner) -> SendSpawner;
 }
 
 /// A board's network: serves one Modbus/TCP connection slot, and the discovery protocol with
@@ -151,6 +157,16 @@ pub trait Runs<Io>: Module {
         map: &'static Shared<Self::Map<F>>,
         alive: impl FnMut(),
     ) -> !;
+}
+
+/// A module's time-critical I/O loop over the I/O resources `Io` of a board: it needs only the
+/// live state (no register map, no lock a thread-mode task may hold), so it runs on the board's
+/// realtime executor ([`Board::realtime`]). The 8350's: its output pattern is refilled every
+/// 6.4 ms and its input capture drained every 2 ms.
+#[allow(async_fn_in_trait)]
+pub trait RunsRealtime<Io>: Module {
+    /// Runs the module's I/O forever; `alive` after each completed cycle.
+    async fn run_realtime(io: Io, state: &'static Self::State, alive: fn()) -> !;
 }
 
 /// The I/O a board gives module `M` (a board implements it for each module it can run).
@@ -280,28 +296,43 @@ impl<B: Board, M: Module> App<B, M> {
         M::run(io, self.state, &self.map, B::app_alive).await
     }
 
+    /// The live state the register map and the application share.
+    pub fn state(&self) -> &'static M::State {
+        self.state
+    }
+
     /// Spawns the module's tasks: `modbus` once per connection slot, `discovery`, `update`,
-    /// and `app` with the I/O. A task that cannot be spawned is logged, not a panic.
-    pub fn spawn<Io, S1, S2, S3, S4>(
+    /// then `app` with the I/O (which spawns the module's application where it runs: the
+    /// main executor, or the board's realtime one). A task that cannot be spawned is logged,
+    /// not a panic.
+    pub fn spawn<Io, S1, S2, S4>(
         &'static self,
         spawner: Spawner,
         io: Io,
         modbus: impl Fn(&'static Self, usize) -> Result<SpawnToken<S1>, SpawnError>,
         discovery: impl FnOnce(&'static Self) -> Result<SpawnToken<S2>, SpawnError>,
         update: impl FnOnce(&'static Self) -> Result<SpawnToken<S4>, SpawnError>,
-        app: impl FnOnce(&'static Self, Io) -> Result<SpawnToken<S3>, SpawnError>,
+        app: impl FnOnce(Spawner, &'static Self, Io),
     ) {
         for slot in 0..SOCKETS {
             spawn(spawner, modbus(self, slot), "modbus");
         }
         spawn(spawner, discovery(self), "discovery");
         spawn(spawner, update(self), "update");
-        spawn(spawner, app(self, io), "app");
+        app(spawner, self, io);
     }
 }
 
 /// Spawns a task, logging (instead of panicking) if its pool is exhausted.
 pub fn spawn<S>(spawner: Spawner, token: Result<SpawnToken<S>, SpawnError>, name: &str) {
+    match token {
+        Ok(token) => spawner.spawn(token),
+        Err(_) => crate::error!("cannot start task {}", name),
+    }
+}
+
+/// [`spawn`] on another executor (the board's realtime one, [`Board::realtime`]).
+pub fn spawn_send<S: Send>(spawner: SendSpawner, token: Result<SpawnToken<S>, SpawnError>, name: &str) {
     match token {
         Ok(token) => spawner.spawn(token),
         Err(_) => crate::error!("cannot start task {}", name),

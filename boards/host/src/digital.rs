@@ -16,9 +16,9 @@ use crate::scenario::{parse_digital, Digital, Signal, Watched};
 use crate::{fail, HostBoard, Scenario};
 
 /// The simulated input capture: sample `index` of the scenario's signals.
-pub type Capture = SimulatedCapture<Box<dyn FnMut(u64) -> Option<u16>>>;
+pub type Capture = SimulatedCapture<Box<dyn FnMut(u64) -> Option<u16> + Send>>;
 /// The simulated output pattern: logs every change of the output levels.
-pub type Pattern = SimulatedPattern<Box<dyn FnMut(u64, &[u8])>>;
+pub type Pattern = SimulatedPattern<Box<dyn FnMut(u64, &[u8]) + Send>>;
 
 /// The output levels played, as changes: (tick, levels from that tick on). The pattern is
 /// queued ahead of its playing, and the capture reads samples up to the present, so a sample

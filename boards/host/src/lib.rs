@@ -16,7 +16,7 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 
 use clap::Parser;
-use embassy_executor::Spawner;
+use embassy_executor::{SendSpawner, Spawner};
 use embedded_storage_async::nor_flash::NorFlash;
 use remodaq_shared::board::{Board, Effects, ModbusSlots, Network, Shared};
 use remodaq_shared::discovery::Identity;
@@ -134,6 +134,11 @@ impl Board for HostBoard {
 
     /// The PC has no watchdog.
     fn app_alive() {}
+
+    /// The main executor's own: the simulator's tasks run on a PC's threads, not one core.
+    fn realtime(spawner: Spawner) -> SendSpawner {
+        spawner.make_send()
+    }
 
     /// Power-on, or a software restart when this process was started by a restart.
     fn boot_partitions(&mut self) -> Option<(Self::Dfu, Self::BootState)> {

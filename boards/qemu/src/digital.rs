@@ -4,8 +4,9 @@
 //! drains it late, as the DMA ring does), and the outputs played at its tick rate, through the
 //! same engines and I/O loop as on the STM32.
 
+use embassy_time::Instant;
 use remodaq_8350::di::SAMPLE_RATE_HZ;
-use remodaq_8350::io::{SimulatedCapture, SimulatedPattern, CAPTURE_RING};
+use remodaq_8350::io::{OutputPattern, PatternUnderrun, SimulatedCapture, SimulatedPattern, CAPTURE_RING};
 use remodaq_8350::M8350;
 use remodaq_shared::board::IoFor;
 
@@ -29,13 +30,38 @@ fn sample_at(index: u64) -> Option<u16> {
 
 fn played(_: u64, _: &[u8]) {}
 
+/// The simulated output ring, which says in QEMU's log when and how it ran dry, so a test can
+/// tell a stall of the PC (`time.rs` says those) from a late refill by the firmware.
+pub struct Pattern(SimulatedPattern<fn(u64, &[u8])>);
+
+impl OutputPattern for Pattern {
+    async fn room(&mut self) {
+        self.0.room().await;
+    }
+
+    fn write(&mut self, ticks: &[u8]) -> Result<u32, PatternUnderrun> {
+        let written = self.0.write(ticks);
+        if written.is_err() {
+            cortex_m_semihosting::hprintln!(
+                "qemu board: the output pattern ran dry, at {} us",
+                Instant::now().as_micros()
+            );
+        }
+        written
+    }
+
+    fn force(&mut self, mask: u8, levels: u8) -> u32 {
+        self.0.force(mask, levels)
+    }
+}
+
 impl IoFor<M8350> for QemuBoard {
-    type Io = (SimulatedCapture<fn(u64) -> Option<u16>>, SimulatedPattern<fn(u64, &[u8])>);
+    type Io = (SimulatedCapture<fn(u64) -> Option<u16>>, Pattern);
 
     fn io((): ()) -> Self::Io {
         (
             SimulatedCapture::with_ring(sample_at as fn(u64) -> Option<u16>, CAPTURE_RING),
-            SimulatedPattern::new(played as fn(u64, &[u8])),
+            Pattern(SimulatedPattern::new(played as fn(u64, &[u8]))),
         )
     }
 }

@@ -28,7 +28,7 @@ use core::sync::atomic::{AtomicBool, Ordering};
 
 use cortex_m::interrupt::InterruptNumber;
 use cortex_m::peripheral::NVIC;
-use embassy_executor::Spawner;
+use embassy_executor::{SendSpawner, Spawner};
 use embassy_net::{Ipv4Address, Ipv4Cidr, StackResources, StaticConfigV4};
 use remodaq_lan9118::{Lan9118, Registers};
 use remodaq_shared::backlog::{Backlogged, MODBUS_BACKLOG};
@@ -59,7 +59,7 @@ impl Registers for Mmio {
 }
 
 #[derive(Clone, Copy)]
-struct Irq(u16);
+pub(crate) struct Irq(pub(crate) u16);
 
 // SAFETY: the number is a valid external interrupt of this machine.
 unsafe impl InterruptNumber for Irq {
@@ -74,12 +74,14 @@ extern "C" fn lan9118_interrupt() {
 
 extern "C" fn unused_interrupt() {}
 
-/// The device interrupt vectors (cortex-m-rt `device` feature): the LAN9118 on IRQ 13.
+/// The device interrupt vectors (cortex-m-rt `device` feature): the LAN9118 on IRQ 13, the
+/// realtime executor on [`executor::REALTIME_IRQ`].
 #[unsafe(link_section = ".vector_table.interrupts")]
 #[unsafe(no_mangle)]
 static __INTERRUPTS: [extern "C" fn(); 32] = {
     let mut v: [extern "C" fn(); 32] = [unused_interrupt; 32];
     v[LAN9118_IRQ as usize] = lan9118_interrupt;
+    v[executor::REALTIME_IRQ as usize] = executor::realtime_interrupt;
     v
 };
 
@@ -241,6 +243,10 @@ impl Board for QemuBoard {
 
     /// No watchdog on this board.
     fn app_alive() {}
+
+    fn realtime(_: Spawner) -> SendSpawner {
+        executor::realtime()
+    }
 }
 
 /// Left in RAM by a restart, for the next start's reset cause.

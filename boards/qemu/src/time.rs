@@ -99,10 +99,25 @@ pub fn start(syst: &mut SYST) {
     syst.enable_counter();
 }
 
+/// A gap between two SysTicks longer than this is the machine stalled: SysTick preempts every
+/// task (only a critical section as long would delay it: the firmware's are bounded far below,
+/// docs/design.md), so a longer gap is QEMU's thread put aside by the PC, during which the
+/// guest's clock, the wall clock, ran on. 5 ms: less than the 8350 output ring's 6.4 ms slack.
+const STALL_US: u64 = 5_000;
+
+/// The time of the last SysTick, µs.
+static LAST_TICK_US: Mutex<Cell<u64>> = Mutex::new(Cell::new(0));
+
 #[exception]
 fn SysTick() {
     let now = DRIVER.now();
-    critical_section::with(|cs| {
+    let last = critical_section::with(|cs| {
         DRIVER.queue.borrow(cs).borrow_mut().next_expiration(now);
+        LAST_TICK_US.borrow(cs).replace(now)
     });
+    // Said in QEMU's log, so a test can tell a stall of the PC from a late task of the firmware
+    // (tools/qemu-e2e: the 8350's output ring during an update).
+    if last != 0 && now.saturating_sub(last) > STALL_US {
+        cortex_m_semihosting::hprintln!("qemu board: the machine stalled {} us, at {} us", now - last, now);
+    }
 }

@@ -89,6 +89,11 @@ pub struct Pattern {
     _timer: Timer<'static, TIM8>,
 }
 
+// SAFETY: `words` points into the 'static ring memory this pattern alone owns (the DMA reads
+// it, nothing else writes it); moving the pattern to the realtime executor's interrupt moves
+// that ownership with it.
+unsafe impl Send for Pattern {}
+
 /// The set/reset bits of the DOs in `mask` (bit n = DOn): both halves of each pin.
 fn bsrr_pins(mask: u8) -> u32 {
     DO_PINS.iter().enumerate().filter(|(n, _)| mask >> n & 1 == 1).fold(0, |word, (_, pin)| word | 0x1_0001 << pin)

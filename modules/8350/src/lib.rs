@@ -17,7 +17,7 @@ use core::cell::RefCell;
 
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embedded_storage_async::nor_flash::NorFlash;
-use remodaq_shared::board::{Module, Runs, Shared};
+use remodaq_shared::board::{Module, RunsRealtime};
 use remodaq_shared::module::Store;
 
 pub use remodaq_protocol::m8350::{MODEL, MODULE_NAME};
@@ -48,13 +48,8 @@ impl Module for M8350 {
     }
 }
 
-impl<I: io::InputCapture, O: io::OutputPattern> Runs<(I, O)> for M8350 {
-    async fn run<F: NorFlash + 'static>(
-        (inputs, outputs): (I, O),
-        state: &'static State,
-        _: &'static Shared<Self::Map<F>>,
-        alive: impl FnMut(),
-    ) -> ! {
+impl<I: io::InputCapture, O: io::OutputPattern> RunsRealtime<(I, O)> for M8350 {
+    async fn run_realtime((inputs, outputs): (I, O), state: &'static State, alive: fn()) -> ! {
         io::run(inputs, outputs, state, alive).await
     }
 }
