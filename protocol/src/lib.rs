@@ -18,6 +18,7 @@ pub mod m8318;
 pub mod m8350;
 pub mod net;
 pub mod update;
+pub mod web;
 
 /// The two Modbus data tables of the RemoDAQ modules. Codes 01/02/05/15 use `Bits` (0X),
 /// codes 03/04/06/16 use `Registers` (4X).

@@ -11,7 +11,8 @@ use embedded_storage_async::nor_flash::NorFlash;
 use crate::access::AllowList;
 use crate::module::{commit_change, CommonSettings, SettingsAccess, Store};
 use crate::net::NetConfig;
-use crate::password::{Check, Credential, AUTH, CREDENTIAL_LEN, KEY_LEN, NONCE_LEN};
+use crate::nonces::Nonces;
+use crate::password::{Check, Credential, AUTH, CREDENTIAL_LEN, KEY_LEN};
 use remodaq_protocol::auth::{fingerprint, seal, x25519, BASE_POINT};
 
 /// What a module says about itself.
@@ -43,19 +44,10 @@ pub enum Effect {
 /// Nonces handed out and not used yet.
 pub const NONCES: usize = 16;
 
-#[derive(Clone, Copy)]
-struct Nonce {
-    value: [u8; NONCE_LEN],
-    issued_ms: u64,
-    /// Who asked for it: only a command from there may use it (a forged source inside the
-    /// subnet never sees the unicast answer, so it cannot spend the budget with it).
-    to: [u8; 4],
-}
-
 /// The module side of the protocol.
 pub struct Service {
     identity: Identity,
-    nonces: [Option<Nonce>; NONCES],
+    nonces: Nonces<NONCES>,
     /// The module's X25519 key for sealing a new credential (secret, public): new at start-up
     /// and after each password change.
     agreement: Option<([u8; KEY_LEN], [u8; KEY_LEN])>,
@@ -64,7 +56,7 @@ pub struct Service {
 impl Service {
     /// The service of a module.
     pub fn new(identity: Identity) -> Self {
-        Self { identity, nonces: [None; NONCES], agreement: None }
+        Self { identity, nonces: Nonces::new(NONCE_LIFETIME_S * 1000), agreement: None }
     }
 
     /// The key-agreement key, made when first needed.
@@ -74,28 +66,6 @@ impl Service {
             AUTH.random(&now_ms.to_le_bytes(), &mut secret);
             (secret, x25519(&secret, &BASE_POINT))
         })
-    }
-
-    /// Hands out a nonce: the oldest one is forgotten when every place is taken.
-    fn issue(&mut self, from: [u8; 4], now_ms: u64) -> [u8; NONCE_LEN] {
-        let mut value = [0u8; NONCE_LEN];
-        let mut context = [0u8; 12];
-        context[..8].copy_from_slice(&now_ms.to_le_bytes());
-        context[8..].copy_from_slice(&from);
-        AUTH.random(&context, &mut value);
-        let slot = (0..NONCES).min_by_key(|&i| self.nonces[i].map_or(0, |n| n.issued_ms + 1)).unwrap_or(0);
-        self.nonces[slot] = Some(Nonce { value, issued_ms: now_ms, to: from });
-        value
-    }
-
-    /// Takes a nonce handed out to `from` less than [`NONCE_LIFETIME_S`] ago: it can never be
-    /// used again.
-    fn redeem(&mut self, value: &[u8; NONCE_LEN], from: [u8; 4], now_ms: u64) -> bool {
-        let live = |n: &Nonce| now_ms.saturating_sub(n.issued_ms) < NONCE_LIFETIME_S * 1000 && n.to == from;
-        match self.nonces.iter_mut().find(|n| n.is_some_and(|n| n.value == *value)) {
-            Some(slot) => slot.take().is_some_and(|n| live(&n)),
-            None => false,
-        }
     }
 
     /// Handles one datagram from `from` at `now_ms` (ms since start): the reply's length in
@@ -121,7 +91,7 @@ impl Service {
                 return result(out, op::IDENTIFY, id, me, Status::Ok, None).map(|n| (n, Effect::Identify));
             }
             Request::Challenge { mac, cnonce } if mac == me => {
-                let snonce = self.issue(from, now_ms);
+                let snonce = self.nonces.issue(from, now_ms);
                 let (_, public) = self.agreement(now_ms);
                 let c = Challenge {
                     id,
@@ -140,7 +110,7 @@ impl Service {
         };
         let opcode = command.opcode();
         let message = auth_message(datagram)?;
-        let status = if !self.redeem(&auth.snonce, from, now_ms) {
+        let status = if !self.nonces.redeem(&auth.snonce, from, now_ms) {
             Status::StaleNonce
         } else {
             match AUTH.check(&credential, &message, &auth.proof, from, now_ms) {

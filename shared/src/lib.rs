@@ -21,9 +21,11 @@ pub mod identity;
 pub mod modbus;
 pub mod module;
 pub mod net;
+pub mod nonces;
 pub mod password;
 pub mod ram_flash;
 pub mod settings;
 pub mod update;
+pub mod web;
 
 pub use remodaq_protocol as protocol;

@@ -1,0 +1,141 @@
+//! The web console's authentication (issue #25, docs/web.md): the challenge-response of
+//! [`crate::auth`] carried over HTTP, and a session key that signs every state-changing request.
+//! No bearer secret crosses the wire: neither the password, nor a key, nor a cookie.
+//!
+//! 1. The page asks for a challenge: the module's salt and iteration count, and a fresh
+//!    16-byte module nonce (`POST /api/v1/session/challenge`).
+//! 2. The page derives ClientKey from the password (PBKDF2-HMAC-SHA-256, as the utility does;
+//!    WebCrypto has both) and sends `ClientProof` over [`login_message`] with its own nonce
+//!    (`POST /api/v1/session`). The module checks the proof within the module-wide guessing
+//!    budget, recovers ClientKey, and answers with a session id and its
+//!    [`login_signature`] (the page knows the module, not a forger, answered).
+//! 3. Both sides derive the [`session_key`] from ClientKey and the two nonces. The page keeps
+//!    it in the tab's memory (never in a cookie or storage another origin could reach) and
+//!    signs each state-changing request with [`request_signature`]: an HMAC over the method,
+//!    the path with its query, a counter and the body. The module accepts a counter only if it
+//!    is above the last one it accepted in that session, so a recorded request cannot be
+//!    replayed, and an altered one does not verify.
+
+use crate::auth::{hmac, KEY_LEN, NONCE_LEN};
+
+/// Bytes of a session id.
+pub const SESSION_ID_LEN: usize = 8;
+
+/// The request header that names the session (16 hex digits).
+pub const HEADER_SESSION: &str = "X-RDAQ-Session";
+/// The request header with the request's counter (decimal, above the session's last one).
+pub const HEADER_COUNTER: &str = "X-RDAQ-Counter";
+/// The request header with [`request_signature`] (64 hex digits).
+pub const HEADER_SIGNATURE: &str = "X-RDAQ-Signature";
+
+/// The AuthMessage of a login, in parts: a label, the module's MAC (a proof made for one
+/// module is worth nothing on another), the module's nonce, the page's nonce.
+pub fn login_message<'a>(
+    mac: &'a [u8; 6],
+    module_nonce: &'a [u8; NONCE_LEN],
+    page_nonce: &'a [u8; NONCE_LEN],
+) -> [&'a [u8]; 4] {
+    [b"RDAQ web login", mac, module_nonce, page_nonce]
+}
+
+/// The module's signature of a successful login: HMAC(ServerKey, AuthMessage || session id).
+pub fn login_signature(
+    server_key: &[u8; KEY_LEN],
+    message: &[&[u8]; 4],
+    session: &[u8; SESSION_ID_LEN],
+) -> [u8; KEY_LEN] {
+    hmac(server_key, &[message[0], message[1], message[2], message[3], session])
+}
+
+/// The session's key: HMAC(ClientKey, "RDAQ web session" || module nonce || page nonce). Only
+/// the page (from the password) and the module (from the proof) know ClientKey.
+pub fn session_key(
+    client_key: &[u8; KEY_LEN],
+    module_nonce: &[u8; NONCE_LEN],
+    page_nonce: &[u8; NONCE_LEN],
+) -> [u8; KEY_LEN] {
+    hmac(client_key, &[b"RDAQ web session", module_nonce, page_nonce])
+}
+
+/// The signature of a state-changing request: HMAC(session key, "RDAQ web request\n" ||
+/// METHOD || "\n" || path || "\n" || counter in decimal || "\n" || body), where `path` is the
+/// request target as sent (path and query).
+pub fn request_signature(key: &[u8; KEY_LEN], method: &str, path: &str, counter: u64, body: &[u8]) -> [u8; KEY_LEN] {
+    let mut digits = [0u8; 20];
+    let counter = decimal(counter, &mut digits);
+    hmac(key, &[b"RDAQ web request\n", method.as_bytes(), b"\n", path.as_bytes(), b"\n", counter, b"\n", body])
+}
+
+/// `n` in decimal, in `buf`.
+fn decimal(mut n: u64, buf: &mut [u8; 20]) -> &[u8] {
+    let mut at = buf.len();
+    loop {
+        at -= 1;
+        buf[at] = b'0' + (n % 10) as u8;
+        n /= 10;
+        if n == 0 {
+            return &buf[at..];
+        }
+    }
+}
+
+/// Lowercase hex of `bytes` into `out` (twice as long); `None` if `out` is too short.
+pub fn hex<'a>(bytes: &[u8], out: &'a mut [u8]) -> Option<&'a str> {
+    const DIGITS: &[u8; 16] = b"0123456789abcdef";
+    let out = out.get_mut(..bytes.len() * 2)?;
+    for (pair, b) in out.chunks_exact_mut(2).zip(bytes) {
+        pair[0] = DIGITS[usize::from(b >> 4)];
+        pair[1] = DIGITS[usize::from(b & 15)];
+    }
+    core::str::from_utf8(out).ok()
+}
+
+/// The bytes of `text`, exactly `N` of them in hex (either case); `None` otherwise.
+pub fn unhex<const N: usize>(text: &str) -> Option<[u8; N]> {
+    let text = text.as_bytes();
+    if text.len() != 2 * N {
+        return None;
+    }
+    let nibble = |c: u8| (c as char).to_digit(16).map(|d| d as u8);
+    let mut out = [0u8; N];
+    for (o, pair) in out.iter_mut().zip(text.chunks_exact(2)) {
+        *o = nibble(pair[0])? << 4 | nibble(pair[1])?;
+    }
+    Some(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The canonical form, written out: its HMAC under the key 00 01 .. 1f was computed
+    /// independently with Python's `hmac` (`hmac.new(bytes(range(32)), b"RDAQ web
+    /// request\nPUT\n/api/v1/do/0?x=1\n42\n{\"on\":true}", "sha256").hexdigest()`).
+    #[test]
+    fn request_signature_is_the_documented_hmac() {
+        let key: [u8; 32] = core::array::from_fn(|i| i as u8);
+        let expected: [u8; 32] =
+            unhex("2fee5c3589aefbefbc31f7fc28dcdec936c9ff5754f1aae3ad59f4752de51e22").unwrap_or([0; 32]);
+        let got = request_signature(&key, "PUT", "/api/v1/do/0?x=1", 42, br#"{"on":true}"#);
+        assert_eq!(got, expected);
+        // Any part changed changes it.
+        assert_ne!(request_signature(&key, "POST", "/api/v1/do/0?x=1", 42, br#"{"on":true}"#), got);
+        assert_ne!(request_signature(&key, "PUT", "/api/v1/do/1?x=1", 42, br#"{"on":true}"#), got);
+        assert_ne!(request_signature(&key, "PUT", "/api/v1/do/0?x=1", 43, br#"{"on":true}"#), got);
+        assert_ne!(request_signature(&key, "PUT", "/api/v1/do/0?x=1", 42, br#"{"on":false}"#), got);
+    }
+
+    #[test]
+    fn decimal_and_hex() {
+        let mut buf = [0u8; 20];
+        assert_eq!(decimal(0, &mut buf), b"0");
+        assert_eq!(decimal(u64::MAX, &mut buf), b"18446744073709551615");
+        let mut out = [0u8; 8];
+        assert_eq!(hex(&[0x00, 0xab, 0x1f], &mut out), Some("00ab1f"));
+        assert_eq!(hex(&[0; 5], &mut out), None);
+        assert_eq!(unhex::<3>("00AB1f"), Some([0x00, 0xab, 0x1f]));
+        assert_eq!(unhex::<3>("00ab1"), None);
+        assert_eq!(unhex::<3>("00ab1g"), None);
+        assert_eq!(unhex::<1>("+f"), None);
+    }
+}
