@@ -125,6 +125,37 @@ mod tests {
         assert_ne!(request_signature(&key, "PUT", "/api/v1/do/0?x=1", 42, br#"{"on":false}"#), got);
     }
 
+    /// A whole login computed independently with Python's `hashlib` and `hmac` (docs/web.md's
+    /// recipe: password "correct horse battery", salt 00..0f, 4096 iterations, MAC
+    /// 02:00:00:83:50:01, module nonce a0..af, page nonce 10..1f, session id 01..08); the same
+    /// values check the page's JavaScript (`shared/web/test/auth.test.js`).
+    #[test]
+    fn a_login_computed_elsewhere_verifies() {
+        use crate::auth::{server_signature, verify_proof};
+        let stored: [u8; 32] =
+            unhex("0d2391706e1d354c401d3128e412f6d32992a0b82df02f232d9d3d4be5545653").unwrap_or([0; 32]);
+        let server: [u8; 32] =
+            unhex("f612eb7e77fbcef0ad0c1f5dae455790c814b1de2fa477e0e584090eb6da677d").unwrap_or([0; 32]);
+        let proof: [u8; 32] =
+            unhex("61ac8d6e4f6756c44e681d6e4ce8c999ae490853372bea16b87c795885457484").unwrap_or([0; 32]);
+        let mac = [0x02, 0, 0, 0x83, 0x50, 1];
+        let module_nonce: [u8; 16] = core::array::from_fn(|i| 0xA0 + i as u8);
+        let page_nonce: [u8; 16] = core::array::from_fn(|i| 0x10 + i as u8);
+        let message = login_message(&mac, &module_nonce, &page_nonce);
+        let client_key = verify_proof(&stored, &message, &proof).expect("the proof verifies");
+        assert_eq!(
+            session_key(&client_key, &module_nonce, &page_nonce),
+            unhex::<32>("0483f2f4f46283278fe99d3e2a5881141d117796b1d06a958ce5336bc0bb0d84").unwrap_or([0; 32])
+        );
+        let session = [1, 2, 3, 4, 5, 6, 7, 8];
+        let signature = login_signature(&server, &message, &session);
+        assert_eq!(
+            signature,
+            unhex::<32>("9dd2da6fad6dfda31c427b090e9dab6347de32a1948608f11eb3f2ca5db68fba").unwrap_or([0; 32])
+        );
+        assert_eq!(signature, server_signature(&server, &[message[0], message[1], message[2], message[3], &session]));
+    }
+
     #[test]
     fn decimal_and_hex() {
         let mut buf = [0u8; 20];
