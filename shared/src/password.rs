@@ -187,6 +187,12 @@ impl Authority {
         });
     }
 
+    /// Whether the board seeded the random numbers (the web console hands out no challenge
+    /// before: its nonces would be predictable).
+    pub fn is_seeded(&self) -> bool {
+        self.state.lock(|s| s.borrow().seeded)
+    }
+
     /// Forgets every failed proof (tests that share the module's static run one at a time).
     #[doc(hidden)]
     pub fn reset_budget_for_tests(&self) {

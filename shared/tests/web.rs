@@ -7,7 +7,9 @@ use std::sync::Mutex;
 use remodaq_protocol::auth::{client_proof, derive, server_signature, Credential, KEY_LEN, NONCE_LEN};
 use remodaq_protocol::web::{login_message, request_signature, session_key, SESSION_ID_LEN};
 use remodaq_shared::password::AUTH;
-use remodaq_shared::web::{Login, LoginError, Refusal, Sessions, Signed, CHALLENGE_MS, IDLE_MS, SESSIONS};
+use remodaq_shared::web::{
+    Login, LoginError, Refusal, Sessions, Signed, Verified, CHALLENGE_MS, IDLE_MS, MAX_AGE_MS, SESSIONS,
+};
 
 /// The module's guessing budget is one static: these tests take turns.
 static TURN: Mutex<()> = Mutex::new(());
@@ -32,7 +34,7 @@ fn log_in(
     from: [u8; 4],
     now_ms: u64,
 ) -> Result<([u8; SESSION_ID_LEN], [u8; KEY_LEN]), LoginError> {
-    let challenge = sessions.challenge(credential, from, now_ms);
+    let challenge = sessions.challenge(credential, from, now_ms).expect("seeded");
     let page_nonce = [0x5A; NONCE_LEN];
     let (client_key, page_credential) = derive(password, &challenge.salt, challenge.iterations);
     let message = login_message(&MAC, &challenge.nonce, &page_nonce);
@@ -76,33 +78,42 @@ fn a_signed_request_passes_once_and_nothing_else_does() {
     let (id, key) = log_in(&mut sessions, &credential, PASSWORD, PAGE, 0).expect("the right password logs in");
     let body = br#"{"on":true}"#;
     let request = signed(id, &key, "PUT", "/api/v1/do/0", 1, body);
-    assert_eq!(sessions.verify(&request, 10), Ok(()));
+    assert_eq!(sessions.verify(&request, &credential, 10), Ok(Verified { factory: false }));
     // Recorded and sent again: refused (its counter was taken).
-    assert_eq!(sessions.verify(&request, 20), Err(Refusal::Stale));
+    assert_eq!(sessions.verify(&request, &credential, 20), Err(Refusal::Stale));
     // A counter at or below the last one, even signed right: refused.
-    assert_eq!(sessions.verify(&signed(id, &key, "PUT", "/api/v1/do/0", 1, body), 30), Err(Refusal::Stale));
+    assert_eq!(
+        sessions.verify(&signed(id, &key, "PUT", "/api/v1/do/0", 1, body), &credential, 30),
+        Err(Refusal::Stale)
+    );
     // Altered: the body, the path or the method changed after signing.
     let mut altered = signed(id, &key, "PUT", "/api/v1/do/0", 2, body);
     altered.body = br#"{"on":false}"#;
-    assert_eq!(sessions.verify(&altered, 40), Err(Refusal::BadSignature));
+    assert_eq!(sessions.verify(&altered, &credential, 40), Err(Refusal::BadSignature));
     altered = signed(id, &key, "PUT", "/api/v1/do/0", 2, body);
     altered.target = "/api/v1/do/1";
-    assert_eq!(sessions.verify(&altered, 40), Err(Refusal::BadSignature));
+    assert_eq!(sessions.verify(&altered, &credential, 40), Err(Refusal::BadSignature));
     altered = signed(id, &key, "PUT", "/api/v1/do/0", 2, body);
     altered.method = "DELETE";
-    assert_eq!(sessions.verify(&altered, 40), Err(Refusal::BadSignature));
+    assert_eq!(sessions.verify(&altered, &credential, 40), Err(Refusal::BadSignature));
     // Signed with another key (a page that never logged in): refused.
     assert_eq!(
-        sessions.verify(&signed(id, &[1; KEY_LEN], "PUT", "/api/v1/do/0", 2, body), 40),
+        sessions.verify(&signed(id, &[1; KEY_LEN], "PUT", "/api/v1/do/0", 2, body), &credential, 40),
         Err(Refusal::BadSignature)
     );
     // No signature, or a session the module never gave.
     let mut unsigned = signed(id, &key, "PUT", "/api/v1/do/0", 2, body);
     unsigned.signature = None;
-    assert_eq!(sessions.verify(&unsigned, 40), Err(Refusal::Unsigned));
-    assert_eq!(sessions.verify(&signed([9; 8], &key, "PUT", "/api/v1/do/0", 2, body), 40), Err(Refusal::NoSession));
+    assert_eq!(sessions.verify(&unsigned, &credential, 40), Err(Refusal::Unsigned));
+    assert_eq!(
+        sessions.verify(&signed([9; 8], &key, "PUT", "/api/v1/do/0", 2, body), &credential, 40),
+        Err(Refusal::NoSession)
+    );
     // The next counter, signed right, passes; a failed attempt did not take it.
-    assert_eq!(sessions.verify(&signed(id, &key, "PUT", "/api/v1/do/0", 2, body), 50), Ok(()));
+    assert_eq!(
+        sessions.verify(&signed(id, &key, "PUT", "/api/v1/do/0", 2, body), &credential, 50),
+        Ok(Verified { factory: false })
+    );
 }
 
 #[test]
@@ -134,18 +145,18 @@ fn a_challenge_is_used_once_by_its_address_within_30_s() {
         }
     };
     // Recorded by a sniffer and sent again: the nonce is spent.
-    let nonce = sessions.challenge(&credential, PAGE, 0).nonce;
+    let nonce = sessions.challenge(&credential, PAGE, 0).expect("seeded").nonce;
     let login = login_for(nonce);
     assert!(sessions.login(&credential, &MAC, &login, PAGE, 10).is_ok());
     assert_eq!(sessions.login(&credential, &MAC, &login, PAGE, 20), Err(LoginError::Challenge));
     // Sent from another address than the one that asked.
-    let nonce = sessions.challenge(&credential, PAGE, 0).nonce;
+    let nonce = sessions.challenge(&credential, PAGE, 0).expect("seeded").nonce;
     assert_eq!(sessions.login(&credential, &MAC, &login_for(nonce), [192, 168, 0, 66], 10), Err(LoginError::Challenge));
     // Too late.
-    let nonce = sessions.challenge(&credential, PAGE, 0).nonce;
+    let nonce = sessions.challenge(&credential, PAGE, 0).expect("seeded").nonce;
     assert_eq!(sessions.login(&credential, &MAC, &login_for(nonce), PAGE, CHALLENGE_MS), Err(LoginError::Challenge));
     // Made for another module (its MAC is in the proof).
-    let nonce = sessions.challenge(&credential, PAGE, 0).nonce;
+    let nonce = sessions.challenge(&credential, PAGE, 0).expect("seeded").nonce;
     let (client_key, _) = derive(PASSWORD, &SALT, 4096);
     let other = [0x02, 0, 0, 0x83, 0x18, 9];
     let login = Login {
@@ -165,15 +176,93 @@ fn sessions_end_when_idle_and_at_most_two_live() {
     let (b, key_b) = log_in(&mut sessions, &credential, PASSWORD, PAGE, 1000).expect("login b");
     assert_eq!(sessions.live(1000), SESSIONS);
     // a is used, so b is now the one idle the longest: a third login ends b.
-    assert_eq!(sessions.verify(&signed(a, &key_a, "POST", "/x", 1, b""), 2000), Ok(()));
+    assert_eq!(
+        sessions.verify(&signed(a, &key_a, "POST", "/x", 1, b""), &credential, 2000),
+        Ok(Verified { factory: false })
+    );
     let (c, key_c) = log_in(&mut sessions, &credential, PASSWORD, PAGE, 3000).expect("login c");
     assert_eq!(sessions.live(3000), SESSIONS);
-    assert_eq!(sessions.verify(&signed(b, &key_b, "POST", "/x", 1, b""), 3000), Err(Refusal::NoSession));
+    assert_eq!(sessions.verify(&signed(b, &key_b, "POST", "/x", 1, b""), &credential, 3000), Err(Refusal::NoSession));
     // Idle for IDLE_MS: ended.
-    assert_eq!(sessions.verify(&signed(c, &key_c, "POST", "/x", 1, b""), 3000 + IDLE_MS - 1), Ok(()));
-    assert_eq!(sessions.verify(&signed(a, &key_a, "POST", "/x", 2, b""), 2000 + IDLE_MS), Err(Refusal::NoSession));
+    assert_eq!(
+        sessions.verify(&signed(c, &key_c, "POST", "/x", 1, b""), &credential, 3000 + IDLE_MS - 1),
+        Ok(Verified { factory: false })
+    );
+    assert_eq!(
+        sessions.verify(&signed(a, &key_a, "POST", "/x", 2, b""), &credential, 2000 + IDLE_MS),
+        Err(Refusal::NoSession)
+    );
     // Logged out.
     sessions.end(&c);
-    assert_eq!(sessions.verify(&signed(c, &key_c, "POST", "/x", 2, b""), 3000 + IDLE_MS), Err(Refusal::NoSession));
+    assert_eq!(
+        sessions.verify(&signed(c, &key_c, "POST", "/x", 2, b""), &credential, 3000 + IDLE_MS),
+        Err(Refusal::NoSession)
+    );
     assert_eq!(sessions.live(3000 + IDLE_MS), 0);
+}
+
+#[test]
+fn a_new_password_ends_every_session_and_none_lives_past_8_hours() {
+    let _turn = turn();
+    let credential = credential();
+    let mut sessions = Sessions::new();
+    let (id, key) = log_in(&mut sessions, &credential, PASSWORD, PAGE, 0).expect("login");
+    // Busy all along: still ended MAX_AGE_MS after the login.
+    let mut counter = 0;
+    let mut now = 0;
+    while now + IDLE_MS / 2 < MAX_AGE_MS {
+        now += IDLE_MS / 2;
+        counter += 1;
+        assert_eq!(
+            sessions.verify(&signed(id, &key, "POST", "/x", counter, b""), &credential, now),
+            Ok(Verified { factory: false })
+        );
+    }
+    assert_eq!(
+        sessions.verify(&signed(id, &key, "POST", "/x", counter + 1, b""), &credential, MAX_AGE_MS),
+        Err(Refusal::NoSession)
+    );
+    // Another password in force: the session opened with the old one ends.
+    let (id, key) = log_in(&mut sessions, &credential, PASSWORD, PAGE, 0).expect("login");
+    let changed = derive(b"another password", &SALT, 4096).1;
+    assert_eq!(sessions.verify(&signed(id, &key, "POST", "/x", 1, b""), &changed, 10), Err(Refusal::NoSession));
+    assert_eq!(sessions.verify(&signed(id, &key, "POST", "/x", 2, b""), &credential, 20), Err(Refusal::NoSession));
+}
+
+#[test]
+fn the_factory_password_is_marked_and_junk_in_the_signed_form_refused() {
+    let _turn = turn();
+    let factory = Credential::FACTORY;
+    let mut sessions = Sessions::new();
+    let (id, key) = log_in(&mut sessions, &factory, b"remodaq", PAGE, 0).expect("the factory password logs in");
+    assert_eq!(
+        sessions.verify(&signed(id, &key, "PUT", "/api/v1/coils/0", 1, b""), &factory, 1),
+        Ok(Verified { factory: true })
+    );
+    // A line feed or a space in the target, a lower-case method: refused before the signature.
+    for (method, target) in [("PUT", "/a\n5"), ("PUT", "/a b"), ("put", "/a"), ("", "/a")] {
+        let request = signed(id, &key, method, target, 2, b"");
+        assert_eq!(sessions.verify(&request, &factory, 2), Err(Refusal::Malformed), "{method:?} {target:?}");
+    }
+}
+
+#[test]
+fn a_challenge_read_on_the_wire_cannot_be_burnt_and_a_loop_pushes_out_only_its_own() {
+    let _turn = turn();
+    let credential = credential();
+    let mut sessions = Sessions::new();
+    let attacker = [192, 168, 0, 66];
+    let owner = sessions.challenge(&credential, PAGE, 0).expect("seeded").nonce;
+    // The attacker sends a junk login with the owner's nonce, and asks for challenges in a loop.
+    let junk = Login { module_nonce: owner, page_nonce: [0; NONCE_LEN], proof: [0; KEY_LEN] };
+    assert_eq!(sessions.login(&credential, &MAC, &junk, attacker, 1), Err(LoginError::Challenge));
+    for t in 0..20 {
+        sessions.challenge(&credential, attacker, t);
+    }
+    // The owner's login still goes through with its nonce.
+    let page_nonce = [3; NONCE_LEN];
+    let (client_key, _) = derive(PASSWORD, &SALT, 4096);
+    let proof = client_proof(&client_key, &login_message(&MAC, &owner, &page_nonce));
+    let login = Login { module_nonce: owner, page_nonce, proof };
+    assert!(sessions.login(&credential, &MAC, &login, PAGE, 25).is_ok());
 }

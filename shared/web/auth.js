@@ -40,8 +40,16 @@
     return a.map((x, i) => x ^ b[i]);
   }
 
+  // The iteration counts a module accepts (protocol/src/auth.rs): the challenge is not signed,
+  // so a forger could ask for a weak count, or one that hangs a phone.
+  const MIN_ITERATIONS = 4096;
+  const MAX_ITERATIONS = 10000000;
+
   // SaltedPassword, then ClientKey, StoredKey and ServerKey (RFC 5802 §3 with SHA-256).
   async function deriveKeys(password, salt, iterations) {
+    if (!Number.isInteger(iterations) || iterations < MIN_ITERATIONS || iterations > MAX_ITERATIONS) {
+      throw new Error("the module asked for " + iterations + " iterations: refused");
+    }
     const base = await subtle.importKey("raw", text.encode(password), "PBKDF2", false, ["deriveBits"]);
     const salted = new Uint8Array(
       await subtle.deriveBits({ name: "PBKDF2", hash: "SHA-256", salt, iterations }, base, 256),

@@ -56,6 +56,13 @@ check("a request signature as computed with Python", async () => {
   assert.notEqual(hex(await auth.requestSignature(key, "PUT", "/api/v1/do/0?x=1", 43, '{"on":true}')), hex(signature));
 });
 
+check("an iteration count outside 4096..10000000 is refused", async () => {
+  const salt = new Uint8Array(16);
+  await assert.rejects(auth.deriveKeys("pencil", salt, 4095));
+  await assert.rejects(auth.deriveKeys("pencil", salt, 10000001));
+  await assert.rejects(auth.deriveKeys("pencil", salt, "4096"));
+});
+
 check("hex in and out; junk refused", async () => {
   assert.equal(hex(unhex("00ab1F")), "00ab1f");
   assert.throws(() => unhex("00ab1"));

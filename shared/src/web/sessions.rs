@@ -13,6 +13,8 @@ use crate::password::{Check, AUTH};
 pub const SESSIONS: usize = 2;
 /// A session ends after this long without a signed request.
 pub const IDLE_MS: u64 = 10 * 60 * 1000;
+/// A session ends this long after its login, however busy.
+pub const MAX_AGE_MS: u64 = 8 * 60 * 60 * 1000;
 /// Login challenges handed out and not used yet.
 pub const CHALLENGES: usize = 4;
 /// A challenge is valid this long.
@@ -88,6 +90,16 @@ pub enum Refusal {
     Stale,
     /// The signature does not match the request (altered, or not signed with the key).
     BadSignature,
+    /// A method that is not upper-case letters, or a target with a byte outside `!`..`~`: the
+    /// signed form is unambiguous only without them.
+    Malformed,
+}
+
+/// A state-changing request that passed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Verified {
+    /// The session was opened with the factory password (which allows less, docs/security.md).
+    pub factory: bool,
 }
 
 #[derive(Clone, Copy)]
@@ -97,6 +109,10 @@ struct Session {
     /// The last counter accepted (0 before the first request: counters start at 1).
     counter: u64,
     last_ms: u64,
+    born_ms: u64,
+    /// The password it was opened with (its StoredKey): another password in force ends it.
+    stored_key: [u8; KEY_LEN],
+    factory: bool,
 }
 
 /// The module's web sessions and login challenges.
@@ -114,13 +130,17 @@ impl Default for Sessions {
 impl Sessions {
     /// No session, no challenge.
     pub const fn new() -> Self {
-        Self { challenges: Nonces::new(CHALLENGE_MS), sessions: [None; SESSIONS] }
+        Self { challenges: Nonces::one_per_address(CHALLENGE_MS), sessions: [None; SESSIONS] }
     }
 
-    /// A login challenge for `from`, for the password `credential`.
-    pub fn challenge(&mut self, credential: &Credential, from: [u8; 4], now_ms: u64) -> Challenge {
+    /// A login challenge for `from`, for the password `credential`; none before the board
+    /// seeded the random numbers (the nonce, then the session key, would be predictable).
+    pub fn challenge(&mut self, credential: &Credential, from: [u8; 4], now_ms: u64) -> Option<Challenge> {
+        if !AUTH.is_seeded() {
+            return None;
+        }
         let nonce = self.challenges.issue(from, now_ms);
-        Challenge { salt: credential.salt, iterations: credential.iterations, nonce }
+        Some(Challenge { salt: credential.salt, iterations: credential.iterations, nonce })
     }
 
     /// Checks a login from `from` on the module `mac` against `credential` (the nonce is used
@@ -151,6 +171,9 @@ impl Sessions {
             key: session_key(&client_key, &login.module_nonce, &login.page_nonce),
             counter: 0,
             last_ms: now_ms,
+            born_ms: now_ms,
+            stored_key: credential.stored_key,
+            factory: credential.is_factory(),
         };
         let slot = (0..SESSIONS).min_by_key(|&i| self.sessions[i].map_or(0, |s| s.last_ms + 1)).unwrap_or(0);
         if let Some(place) = self.sessions.get_mut(slot) {
@@ -159,14 +182,24 @@ impl Sessions {
         Ok(LoggedIn { session: id, signature: login_signature(&credential.server_key, &message, &id) })
     }
 
-    /// Checks a state-changing request at `now_ms`: its session is live, its counter above the
-    /// last accepted and its signature right. On success the counter is taken (the same
-    /// request can never pass again) and the session's idle time starts again.
-    pub fn verify(&mut self, request: &Signed<'_>, now_ms: u64) -> Result<(), Refusal> {
+    /// Checks a state-changing request at `now_ms`, with `credential` the password in force:
+    /// its session is live and was opened with that password, its counter above the last
+    /// accepted and its signature right. On success the counter is taken (the same request can
+    /// never pass again) and the session's idle time starts again.
+    pub fn verify(&mut self, request: &Signed<'_>, credential: &Credential, now_ms: u64) -> Result<Verified, Refusal> {
         self.expire(now_ms);
+        for place in &mut self.sessions {
+            if place.is_some_and(|s| s.stored_key != credential.stored_key) {
+                *place = None;
+            }
+        }
         let (Some(id), Some(counter), Some(signature)) = (request.session, request.counter, request.signature) else {
             return Err(Refusal::Unsigned);
         };
+        let upper = !request.method.is_empty() && request.method.bytes().all(|b| b.is_ascii_uppercase());
+        if !upper || !request.target.bytes().all(|b| (0x21..=0x7E).contains(&b)) {
+            return Err(Refusal::Malformed);
+        }
         let session = self.sessions.iter_mut().flatten().find(|s| s.id == id).ok_or(Refusal::NoSession)?;
         if counter <= session.counter {
             return Err(Refusal::Stale);
@@ -177,7 +210,7 @@ impl Sessions {
         }
         session.counter = counter;
         session.last_ms = now_ms;
-        Ok(())
+        Ok(Verified { factory: session.factory })
     }
 
     /// Ends session `id` (a signed logout; also when the password changes: [`end_all`](Self::end_all)).
@@ -202,7 +235,10 @@ impl Sessions {
 
     fn expire(&mut self, now_ms: u64) {
         for place in &mut self.sessions {
-            if place.is_some_and(|s| now_ms.saturating_sub(s.last_ms) >= IDLE_MS) {
+            let ended = |s: Session| {
+                now_ms.saturating_sub(s.last_ms) >= IDLE_MS || now_ms.saturating_sub(s.born_ms) >= MAX_AGE_MS
+            };
+            if place.is_some_and(ended) {
                 *place = None;
             }
         }
