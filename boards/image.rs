@@ -54,9 +54,20 @@ async fn update(app: &'static Running) -> ! {
     app.serve_update().await
 }
 
+/// The web console (docs/web.md): on the host board so far (`--http`).
+#[cfg(not(target_os = "none"))]
+#[embassy_executor::task(pool_size = remodaq_board_host::web::CONNECTIONS)]
+async fn web(app: &'static Running) -> ! {
+    app.serve_web().await
+}
+
 async fn start(spawner: Spawner) {
     let (app, io) = remodaq_shared::board::start(spawner, &STATICS).await;
     app.spawn(spawner, io, modbus, discovery, update, spawn_application);
+    #[cfg(not(target_os = "none"))]
+    for _ in 0..remodaq_board_host::web::CONNECTIONS {
+        remodaq_shared::board::spawn(spawner, web(app), "web");
+    }
 }
 
 #[cfg(not(all(target_os = "none", feature = "board-qemu")))]

@@ -108,6 +108,16 @@ pub trait Network: 'static {
         service: &mut UpdateService,
         target: &mut U,
     ) -> !;
+    /// Serves the web console's connections, one at a time per task (docs/web.md), forever.
+    /// So far only the host board has the console (`--http`); the others wait for ever.
+    async fn serve_web<A: RegisterMap + SettingsAccess>(
+        &'static self,
+        map: &'static Shared<A>,
+        identity: Identity,
+    ) -> ! {
+        let _ = (map, identity);
+        core::future::pending().await
+    }
     /// Whether the network is up (the link, and an address), for the self-test.
     fn is_up(&self) -> bool;
     /// Restarts the module (as discovery's restart command does).
@@ -268,6 +278,11 @@ impl<B: Board, M: Module> App<B, M> {
     /// Serves Modbus/TCP connection slot `slot` (0..[`SOCKETS`]), forever.
     pub async fn serve_modbus(&'static self, slot: usize) -> ! {
         self.net.serve_modbus(&self.map, &self.slots, slot).await
+    }
+
+    /// Serves web console connections, forever (a board without the console waits for ever).
+    pub async fn serve_web(&'static self) -> ! {
+        self.net.serve_web(&self.map, self.identity).await
     }
 
     /// Serves discovery, forever.

@@ -36,6 +36,11 @@ pub struct Options {
     #[arg(long, value_name = "MS", default_value_t = 0)]
     pub slow_flash: u64,
 
+    /// Serve the web console and its JSON API (docs/web.md) on ADDR:PORT, e.g.
+    /// `127.0.0.1:8080`. Without it there is no console.
+    #[arg(long, value_name = "ADDR:PORT")]
+    pub http: Option<SocketAddr>,
+
     /// Reset every setting (network, password, I/O) to factory defaults at start-up, as
     /// holding the USER button at power-up does on the module.
     #[arg(long)]

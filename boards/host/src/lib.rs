@@ -11,6 +11,7 @@ pub mod flash;
 pub mod modbus;
 pub mod scenario;
 pub mod testing;
+pub mod web;
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -63,6 +64,8 @@ pub struct Scenario(pub Option<PathBuf>);
 pub struct HostNet {
     listener: modbus::Listener,
     discovery: discovery::HostDatagrams,
+    /// The web console's listener (`--http`).
+    web: Option<web::Listener>,
 }
 
 impl Board for HostBoard {
@@ -129,7 +132,12 @@ impl Board for HostBoard {
             }
             _ => NetConfig { port: local.port(), ..stored },
         };
-        (HostNet { listener, discovery }, running)
+        let web = self.options.http.map(|addr| {
+            let web = retry(|| web::bind(addr)).unwrap_or_else(|e| fail(&format!("cannot listen on {addr}: {e}")));
+            log::info!("web: listening on {}", web.get_ref().local_addr().unwrap_or(addr));
+            web
+        });
+        (HostNet { listener, discovery, web }, running)
     }
 
     /// The PC has no watchdog.
@@ -182,6 +190,17 @@ impl Network for HostNet {
         _: &mut U,
     ) -> ! {
         core::future::pending().await
+    }
+
+    async fn serve_web<A: RegisterMap + SettingsAccess>(
+        &'static self,
+        map: &'static Shared<A>,
+        identity: Identity,
+    ) -> ! {
+        match &self.web {
+            Some(listener) => web::connection_task(listener, map, identity).await,
+            None => core::future::pending().await,
+        }
     }
 
     fn is_up(&self) -> bool {

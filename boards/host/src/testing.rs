@@ -49,6 +49,8 @@ pub struct SimModule {
     pub addr: SocketAddr,
     /// Where its discovery service listens (UDP).
     pub discovery: SocketAddr,
+    /// Where its web console listens, when started with `--http`.
+    pub web: Option<SocketAddr>,
 }
 
 impl SimModule {
@@ -77,7 +79,7 @@ impl SimModule {
         let (tx, lines) = mpsc::channel();
         std::thread::spawn(move || {
             for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-                for what in ["modbus", "discovery"] {
+                for what in ["modbus", "discovery", "web"] {
                     if let Some(addr) = line.split(&format!("{what}: listening on ")).nth(1) {
                         if let Ok(addr) = addr.trim().parse() {
                             let _ = tx.send((what, addr));
@@ -87,8 +89,15 @@ impl SimModule {
                 eprintln!("[module] {line}");
             }
         });
-        let mut module = Self { child, lines, addr: ([0, 0, 0, 0], 0).into(), discovery: ([0, 0, 0, 0], 0).into() };
+        let mut module =
+            Self { child, lines, addr: ([0, 0, 0, 0], 0).into(), discovery: ([0, 0, 0, 0], 0).into(), web: None };
         module.wait_listening();
+        if args.contains(&"--http") && module.web.is_none() {
+            match module.lines.recv_timeout(Duration::from_secs(60)) {
+                Ok(("web", addr)) => module.web = Some(addr),
+                _ => panic!("the simulated module did not report its web address"),
+            }
+        }
         module
     }
 
@@ -99,7 +108,8 @@ impl SimModule {
         while modbus.is_none() || discovery.is_none() {
             match self.lines.recv_timeout(Duration::from_secs(60)) {
                 Ok(("modbus", addr)) => modbus = Some(addr),
-                Ok((_, addr)) => discovery = Some(addr),
+                Ok(("discovery", addr)) => discovery = Some(addr),
+                Ok((_, addr)) => self.web = Some(addr),
                 Err(_) => {
                     let _ = self.child.kill();
                     panic!("the simulated module did not report its addresses within 60 s");

@@ -166,15 +166,10 @@ fn same_origin(origin: &str, host: Option<&str>) -> bool {
     }
 }
 
-/// `?count=N` of a query, 1 without one.
-fn count(query: Option<&str>, most: u16) -> Result<u16, Answer> {
-    let Some(query) = query else { return Ok(1) };
-    let bad = || Answer::error(StatusCode::BAD_REQUEST, "count must be 1 to the limit", Some("count"));
-    let n: u16 = query.strip_prefix("count=").and_then(|n| n.parse().ok()).ok_or_else(bad)?;
-    if n == 0 || n > most {
-        return Err(bad());
-    }
-    Ok(n)
+/// `?count=N` of a query (1 to `most`), 1 without one; `None` for anything else.
+fn count(query: Option<&str>, most: u16) -> Option<u16> {
+    let Some(query) = query else { return Some(1) };
+    query.strip_prefix("count=").and_then(|n| n.parse().ok()).filter(|n| (1..=most).contains(n))
 }
 
 /// The status and text of a Modbus exception as an API error.
@@ -217,7 +212,7 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess> Api<'_, R, M> {
                     }
                     Answer::no_content()
                 }
-                Err(refused) => refused,
+                Err(why) => Answer::error(StatusCode::UNAUTHORIZED, why, None),
             },
             ("GET", (Some(table @ ("registers" | "coils")), Some(addr), None)) => {
                 let Ok(addr) = addr.parse::<u16>() else {
@@ -225,16 +220,16 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess> Api<'_, R, M> {
                 };
                 let registers = table == "registers";
                 match count(query, if registers { MAX_READ_REGISTERS } else { MAX_READ_COILS }) {
-                    Ok(n) => self.read(registers, addr, n).await,
-                    Err(answer) => answer,
+                    Some(n) => self.read(registers, addr, n).await,
+                    None => Answer::error(StatusCode::BAD_REQUEST, "count must be 1 to the limit", Some("count")),
                 }
             }
             ("PUT", (Some(table @ ("registers" | "coils")), Some(addr), None)) => {
                 let Ok(addr) = addr.parse::<u16>() else {
                     return Answer::error(StatusCode::BAD_REQUEST, "not an address", Some("address"));
                 };
-                if let Err(refused) = self.verify(signed).await {
-                    return refused;
+                if let Err(why) = self.verify(signed).await {
+                    return Answer::error(StatusCode::UNAUTHORIZED, why, None);
                 }
                 self.write(table == "registers", addr, signed.body).await
             }
@@ -313,19 +308,17 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess> Api<'_, R, M> {
         }
     }
 
-    /// The signature check of a state-changing request, against the password in force.
-    async fn verify(&self, signed: &Signed<'_>) -> Result<Verified, Answer> {
+    /// The signature check of a state-changing request, against the password in force; why
+    /// it was refused.
+    async fn verify(&self, signed: &Signed<'_>) -> Result<Verified, &'static str> {
         let credential = self.map.lock().await.settings().password();
         let now = (self.now_ms)();
-        self.sessions.lock(|s| s.borrow_mut().verify(signed, &credential, now)).map_err(|refusal| {
-            let what = match refusal {
-                Refusal::Unsigned => "unsigned",
-                Refusal::NoSession => "no session",
-                Refusal::Stale => "stale counter",
-                Refusal::BadSignature => "bad signature",
-                Refusal::Malformed => "malformed method or target",
-            };
-            Answer::error(StatusCode::UNAUTHORIZED, what, None)
+        self.sessions.lock(|s| s.borrow_mut().verify(signed, &credential, now)).map_err(|refusal| match refusal {
+            Refusal::Unsigned => "unsigned",
+            Refusal::NoSession => "no session",
+            Refusal::Stale => "stale counter",
+            Refusal::BadSignature => "bad signature",
+            Refusal::Malformed => "malformed method or target",
         })
     }
 
