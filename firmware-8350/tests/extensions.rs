@@ -25,11 +25,7 @@ const REG_ALL_DO: u16 = 0x12E;
 const REG_MODULE_STATUS: u16 = 0xF0;
 
 fn temp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("remodaq-ext-8350-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join(name);
-    let _ = std::fs::remove_file(&path);
-    path
+    remodaq_board_host::testing::temp("ext-8350", name)
 }
 
 async fn connect(addr: SocketAddr) -> Context {

@@ -17,11 +17,7 @@ use tokio_modbus::client::{tcp, Reader};
 const BIN: &str = env!("CARGO_BIN_EXE_firmware-8350");
 
 fn temp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("remodaq-web-8350-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join(name);
-    let _ = std::fs::remove_file(&path);
-    path
+    remodaq_board_host::testing::temp("web-8350", name)
 }
 
 /// An HTTP answer: status, body.

@@ -25,21 +25,30 @@ pub async fn connection_task<M: RegisterMap>(
     slot: usize,
 ) -> ! {
     loop {
-        let (stream, peer) = match listener.accept().await {
-            Ok(accepted) => accepted,
-            Err(e) => {
-                log::warn!("modbus: accept failed: {e}");
-                async_io::Timer::after(std::time::Duration::from_millis(100)).await;
-                continue;
-            }
-        };
-        let _ = stream.get_ref().set_nodelay(true);
+        let (stream, peer) = accept(listener, "modbus").await;
         log::debug!("modbus: slot {slot} serves {peer}");
         let mut io = FromFutures::new(stream);
         let ended = serve(&mut io, ipv4(peer.ip()), map, slots, slot).await;
         log::debug!("modbus: slot {slot} closed {peer}: {ended:?}");
         let stream: Async<TcpStream> = io.into_inner();
         let _ = stream.get_ref().shutdown(std::net::Shutdown::Both);
+    }
+}
+
+/// The next connection on `listener` (of the service `what`, for the log), with Nagle's delay
+/// off; a failed accept is logged and tried again 100 ms later.
+pub async fn accept(listener: &Async<TcpListener>, what: &str) -> (Async<TcpStream>, std::net::SocketAddr) {
+    loop {
+        match listener.accept().await {
+            Ok((stream, peer)) => {
+                let _ = stream.get_ref().set_nodelay(true);
+                return (stream, peer);
+            }
+            Err(e) => {
+                log::warn!("{what}: accept failed: {e}");
+                async_io::Timer::after(std::time::Duration::from_millis(100)).await;
+            }
+        }
     }
 }
 

@@ -41,6 +41,16 @@ pub fn command(program: &Path) -> Command {
     }
 }
 
+/// A fresh path `name` in a directory of this test process (`tag` names the test file), for a
+/// flash image: an earlier file of that name is removed.
+pub fn temp(tag: &str, name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("remodaq-{tag}-{}", std::process::id()));
+    let _ = std::fs::create_dir_all(&dir);
+    let path = dir.join(name);
+    let _ = std::fs::remove_file(&path);
+    path
+}
+
 /// A running simulated module; killed when dropped.
 pub struct SimModule {
     child: Child,

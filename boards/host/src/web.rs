@@ -17,7 +17,7 @@ use remodaq_shared::module::SettingsAccess;
 use remodaq_shared::web::service::{Api, SharedSessions};
 use remodaq_shared::web::Sessions;
 
-use crate::modbus::ipv4;
+use crate::modbus::{accept, ipv4};
 
 /// HTTP connections served at once (issue #25: at most 2, never a Modbus slot).
 pub const CONNECTIONS: usize = 2;
@@ -120,15 +120,7 @@ pub async fn connection_task<M: RegisterMap + SettingsAccess>(
 ) -> ! {
     let mut buffer = [0u8; HTTP_BUFFER];
     loop {
-        let (stream, peer) = match listener.accept().await {
-            Ok(accepted) => accepted,
-            Err(e) => {
-                log::warn!("web: accept failed: {e}");
-                async_io::Timer::after(std::time::Duration::from_millis(100)).await;
-                continue;
-            }
-        };
-        let _ = stream.get_ref().set_nodelay(true);
+        let (stream, peer) = accept(listener, "web").await;
         let api = Api { map, identity, sessions: &SESSIONS, peer: ipv4(peer.ip()), now_ms };
         let app = Router::from_service(api);
         let served = picoserve::Server::custom(&app, picoserve::time::EmbassyTimer, &CONFIG, &mut buffer)

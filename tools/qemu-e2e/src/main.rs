@@ -1350,26 +1350,30 @@ async fn during_update(addr: SocketAddr, update: SocketAddr, file: &[u8], log: &
         let (stalls, dry_at) = stalls_and_underruns(&String::from_utf8_lossy(text.get(log_from..).unwrap_or(&[])));
         let unexplained = unexplained_underruns(&stalls, &dry_at);
         println!(
-            "qemu-8350: during the session the output pattern ran dry {dry} times (QEMU's log: {} underruns, {} stalls of the machine over 5 ms, {unexplained} underruns without a stall just before)",
+            "qemu-8350: during the session the output pattern ran dry {dry} times (QEMU's log: {} underruns, {} stalls of the machine over 2 ms, {unexplained} underruns with less than 3.2 ms lost just before)",
             dry_at.len(),
             stalls.len()
         );
         if dry_at.len() != usize::from(dry) || unexplained != 0 {
-            return Err(format!("{RAN_DRY} {dry} times, {unexplained} of them without a stall of the machine"));
+            return Err(format!("{RAN_DRY} {dry} times, {unexplained} of them not after a stall of the machine"));
         }
     }
     Ok(())
 }
 
-/// The times (µs of the guest's clock) of the machine's stalls and of the output ring's
-/// underruns in a part of QEMU's log (boards/qemu: `time.rs`, `digital.rs`).
-fn stalls_and_underruns(log: &str) -> (Vec<u64>, Vec<u64>) {
+/// The machine's stalls (when each ended and how long the gap between two SysTicks was) and
+/// the output ring's underruns (when), µs of the guest's clock, in a part of QEMU's log
+/// (boards/qemu: `time.rs`, `digital.rs`).
+fn stalls_and_underruns(log: &str) -> (Vec<(u64, u64)>, Vec<u64>) {
     let at =
         |line: &str| line.rsplit_once(", at ").and_then(|(_, t)| t.trim_end_matches(" us").trim().parse::<u64>().ok());
+    let gap = |line: &str| {
+        line.split("stalled ").nth(1).and_then(|r| r.split(' ').next()).and_then(|g| g.parse::<u64>().ok())
+    };
     let (mut stalls, mut dry) = (vec![], vec![]);
     for line in log.lines() {
         if line.starts_with("qemu board: the machine stalled") {
-            stalls.extend(at(line));
+            stalls.extend(at(line).zip(gap(line)));
         } else if line.starts_with("qemu board: the output pattern ran dry") {
             dry.extend(at(line));
         }
@@ -1377,95 +1381,21 @@ fn stalls_and_underruns(log: &str) -> (Vec<u64>, Vec<u64>) {
     (stalls, dry)
 }
 
-/// Underruns with no stall of the machine ending from 20 ms before to 2 ms after them (the
-/// refill that finds the ring dry runs right after the stall; when the stall caught the I/O
-/// loop itself, it finds it before the SysTick that says the stall has run).
-fn unexplained_underruns(stalls: &[u64], dry: &[u64]) -> usize {
-    dry.iter().filter(|&&t| !stalls.iter().any(|&s| s + 20_000 >= t && s <= t + 2_000)).count()
+/// The time the machine lost (each gap beyond the 1 ms SysTick period) in stalls ending from
+/// 20 ms before `t` to 2 ms after (the refill that finds the ring dry runs right after the
+/// stall; when the stall caught the I/O loop itself, before the SysTick that says it), µs.
+fn lost_around(stalls: &[(u64, u64)], t: u64) -> u64 {
+    stalls.iter().filter(|&&(s, _)| s + 20_000 >= t && s <= t + 2_000).map(|&(_, gap)| gap.saturating_sub(1_000)).sum()
 }
 
-/// The runtime every mode runs on: two worker threads.
-fn runtime() -> Option<tokio::runtime::Runtime> {
-    tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().ok()
+/// Underruns the machine's stalls do not explain: less than [`EXPLAINS_US`] lost around them.
+fn unexplained_underruns(stalls: &[(u64, u64)], dry: &[u64]) -> usize {
+    dry.iter().filter(|&&t| lost_around(stalls, t) < EXPLAINS_US).count()
 }
 
-fn main() -> ExitCode {
-    let args: Vec<String> = std::env::args().collect();
-    port_range(args.get(1).map_or("", String::as_str));
-    if args.get(1).map(String::as_str) == Some("newcomer") {
-        let (Some(image), Some(Ok(runs))) = (args.get(2), args.get(3).map(|n| n.parse::<u32>())) else {
-            eprintln!("usage: qemu-e2e newcomer IMAGE RUNS");
-            return ExitCode::from(2);
-        };
-        let Some(runtime) = runtime() else { return ExitCode::from(1) };
-        let failed = (0..runs)
-            .filter(|run| {
-                let result = runtime.block_on(latency(image));
-                if let Err(e) = &result {
-                    println!("  run {}: FAILED: {e}", run + 1);
-                }
-                result.is_err()
-            })
-            .count() as u32;
-        println!("newcomer: {} passed, {failed} failed", runs - failed);
-        return if failed == 0 { ExitCode::SUCCESS } else { ExitCode::FAILURE };
-    }
-    if args.get(1).map(String::as_str) == Some("output-latency") {
-        // Against a running module (the host simulator) at ADDR:PORT, or an 8350 image under QEMU.
-        let (Some(target), Some(Ok(writes))) = (args.get(2), args.get(3).map(|n| n.parse::<u32>())) else {
-            eprintln!("usage: qemu-e2e output-latency ADDR:PORT|IMAGE WRITES");
-            return ExitCode::from(2);
-        };
-        let Some(runtime) = runtime() else { return ExitCode::from(1) };
-        let measured = runtime.block_on(async {
-            match target.parse::<SocketAddr>() {
-                Ok(addr) => output_latency(addr, writes).await,
-                Err(_) => {
-                    let ports = Ports::free()?;
-                    let qemu = start_qemu(target, &ports)?;
-                    drop(wait_ready(ports.modbus()).await?);
-                    let measured = output_latency(ports.modbus(), writes).await;
-                    drop(qemu);
-                    measured
-                }
-            }
-        });
-        return match measured {
-            Ok((median, p95, worst)) => {
-                println!(
-                    "DO write to the output pattern, {writes} writes: median {median} µs, 95 % {p95} µs, worst {worst} µs"
-                );
-                ExitCode::SUCCESS
-            }
-            Err(e) => {
-                eprintln!("{e}");
-                ExitCode::FAILURE
-            }
-        };
-    }
-    if args.get(1).map(String::as_str) == Some("latency") {
-        let Some(runtime) = runtime() else { return ExitCode::from(1) };
-        for image in &args[2..] {
-            if let Err(e) = runtime.block_on(latency(image)) {
-                println!("  {e}");
-            }
-        }
-        return ExitCode::SUCCESS;
-    }
-    let (Some(model), Some(image)) = (args.get(1), args.get(2)) else {
-        eprintln!("usage: qemu-e2e 8318|8350 IMAGE");
-        return ExitCode::from(2);
-    };
-    let Some(runtime) = runtime() else { return ExitCode::from(1) };
-    let mut report = runtime.block_on(run(model, image));
-    report.finish(checks_of(u16::from_str_radix(model, 16).unwrap_or(0)));
-    println!("qemu-{}: {} passed, {} failed", report.model, report.passed, report.failed);
-    if report.failed == 0 {
-        ExitCode::SUCCESS
-    } else {
-        ExitCode::FAILURE
-    }
-}
+/// Time lost by the machine just before an underrun that explains it: half the output ring's
+/// 6.4 ms slack (a firmware that kept the I/O loop waiting would have had to add the rest).
+const EXPLAINS_US: u64 = 3_200;
 
 #[cfg(test)]
 mod tests {
@@ -1476,18 +1406,22 @@ mod tests {
 qemu board: the output pattern ran dry, at 13669096 us
 qemu board: the machine stalled 9325 us, at 13669217 us
 bootloader: something else
-qemu board: the machine stalled 15014 us, at 14500185 us
+qemu board: the machine stalled 2500 us, at 14496000 us
+qemu board: the machine stalled 3000 us, at 14500185 us
 qemu board: the output pattern ran dry, at 14500991 us
+qemu board: the machine stalled 2100 us, at 15999000 us
 qemu board: the output pattern ran dry, at 16000000 us
 ";
 
     #[test]
-    fn underruns_after_a_stall_are_the_pcs() {
+    fn underruns_after_the_machine_lost_time_are_the_pcs() {
         let (stalls, dry) = stalls_and_underruns(LOG);
-        assert_eq!(stalls, [13_659_892, 13_669_217, 14_500_185]);
+        assert_eq!(stalls[0], (13_659_892, 8_763));
+        assert_eq!(stalls.len(), 5);
         assert_eq!(dry, [13_669_096, 14_500_991, 16_000_000]);
-        // The first two follow (or, caught in the I/O loop, precede by 121 µs) a stall; the
-        // third has none within 20 ms.
+        // The first follows (or, caught in the I/O loop, precedes by 121 µs) long stalls; the
+        // second two short ones that lost 1.5 + 2 ms; the third only 1.1 ms lost.
+        assert_eq!(lost_around(&stalls, 14_500_991), 3_500);
         assert_eq!(unexplained_underruns(&stalls, &dry), 1);
         assert_eq!(unexplained_underruns(&[], &dry), 3);
     }
