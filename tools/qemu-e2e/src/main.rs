@@ -1397,6 +1397,89 @@ fn unexplained_underruns(stalls: &[(u64, u64)], dry: &[u64]) -> usize {
 /// 6.4 ms slack (a firmware that kept the I/O loop waiting would have had to add the rest).
 const EXPLAINS_US: u64 = 3_200;
 
+/// The runtime every mode runs on: two worker threads.
+fn runtime() -> Option<tokio::runtime::Runtime> {
+    tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().ok()
+}
+
+fn main() -> ExitCode {
+    let args: Vec<String> = std::env::args().collect();
+    port_range(args.get(1).map_or("", String::as_str));
+    if args.get(1).map(String::as_str) == Some("newcomer") {
+        let (Some(image), Some(Ok(runs))) = (args.get(2), args.get(3).map(|n| n.parse::<u32>())) else {
+            eprintln!("usage: qemu-e2e newcomer IMAGE RUNS");
+            return ExitCode::from(2);
+        };
+        let Some(runtime) = runtime() else { return ExitCode::from(1) };
+        let failed = (0..runs)
+            .filter(|run| {
+                let result = runtime.block_on(latency(image));
+                if let Err(e) = &result {
+                    println!("  run {}: FAILED: {e}", run + 1);
+                }
+                result.is_err()
+            })
+            .count() as u32;
+        println!("newcomer: {} passed, {failed} failed", runs - failed);
+        return if failed == 0 { ExitCode::SUCCESS } else { ExitCode::FAILURE };
+    }
+    if args.get(1).map(String::as_str) == Some("output-latency") {
+        // Against a running module (the host simulator) at ADDR:PORT, or an 8350 image under QEMU.
+        let (Some(target), Some(Ok(writes))) = (args.get(2), args.get(3).map(|n| n.parse::<u32>())) else {
+            eprintln!("usage: qemu-e2e output-latency ADDR:PORT|IMAGE WRITES");
+            return ExitCode::from(2);
+        };
+        let Some(runtime) = runtime() else { return ExitCode::from(1) };
+        let measured = runtime.block_on(async {
+            match target.parse::<SocketAddr>() {
+                Ok(addr) => output_latency(addr, writes).await,
+                Err(_) => {
+                    let ports = Ports::free()?;
+                    let qemu = start_qemu(target, &ports)?;
+                    drop(wait_ready(ports.modbus()).await?);
+                    let measured = output_latency(ports.modbus(), writes).await;
+                    drop(qemu);
+                    measured
+                }
+            }
+        });
+        return match measured {
+            Ok((median, p95, worst)) => {
+                println!(
+                    "DO write to the output pattern, {writes} writes: median {median} µs, 95 % {p95} µs, worst {worst} µs"
+                );
+                ExitCode::SUCCESS
+            }
+            Err(e) => {
+                eprintln!("{e}");
+                ExitCode::FAILURE
+            }
+        };
+    }
+    if args.get(1).map(String::as_str) == Some("latency") {
+        let Some(runtime) = runtime() else { return ExitCode::from(1) };
+        for image in &args[2..] {
+            if let Err(e) = runtime.block_on(latency(image)) {
+                println!("  {e}");
+            }
+        }
+        return ExitCode::SUCCESS;
+    }
+    let (Some(model), Some(image)) = (args.get(1), args.get(2)) else {
+        eprintln!("usage: qemu-e2e 8318|8350 IMAGE");
+        return ExitCode::from(2);
+    };
+    let Some(runtime) = runtime() else { return ExitCode::from(1) };
+    let mut report = runtime.block_on(run(model, image));
+    report.finish(checks_of(u16::from_str_radix(model, 16).unwrap_or(0)));
+    println!("qemu-{}: {} passed, {} failed", report.model, report.passed, report.failed);
+    if report.failed == 0 {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
