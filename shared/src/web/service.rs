@@ -32,9 +32,10 @@ pub type SharedSessions = Blocking<CriticalSectionRawMutex, RefCell<Sessions>>;
 /// Largest JSON answer, bytes (125 registers as decimal numbers fit).
 pub const MAX_ANSWER: usize = 1024;
 
-/// The most registers or coils one GET reads (Modbus's limits for one request).
+/// The most registers or coils one GET reads: Modbus's limit for registers (125 of at most
+/// "65535," fit [`MAX_ANSWER`]); 150 coils (150 "false," fit it, Modbus's 2000 would not).
 const MAX_READ_REGISTERS: u16 = 125;
-const MAX_READ_COILS: u16 = 2000;
+const MAX_READ_COILS: u16 = 150;
 
 /// The API of one module to one client (`peer`: its IPv4 address, for the guessing budget, the
 /// challenges and the Modbus allow-list). Built for each connection.
