@@ -102,9 +102,10 @@ pub fn start(syst: &mut SYST) {
 /// A gap between two SysTicks longer than this is the machine stalled: SysTick preempts every
 /// task (only a critical section as long would delay it: the firmware's are bounded far below,
 /// docs/design.md), so a longer gap is QEMU's thread put aside by the PC, during which the
-/// guest's clock, the wall clock, ran on. 2 ms: the machine lost more than a SysTick period
-/// (several short stalls add up against the 8350 output ring's 6.4 ms slack).
-const STALL_US: u64 = 2_000;
+/// guest's clock, the wall clock, ran on. 5 ms: less than the 8350 output ring's 6.4 ms slack,
+/// and rare enough that the log's semihosting writes (each one stops the machine) do not
+/// disturb the latency checks (a 2 ms threshold logged hundreds a session on a loaded PC).
+const STALL_US: u64 = 5_000;
 
 /// The time of the last SysTick, µs.
 static LAST_TICK_US: Mutex<Cell<u64>> = Mutex::new(Cell::new(0));

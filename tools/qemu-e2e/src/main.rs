@@ -1350,7 +1350,7 @@ async fn during_update(addr: SocketAddr, update: SocketAddr, file: &[u8], log: &
         let (stalls, dry_at) = stalls_and_underruns(&String::from_utf8_lossy(text.get(log_from..).unwrap_or(&[])));
         let unexplained = unexplained_underruns(&stalls, &dry_at);
         println!(
-            "qemu-8350: during the session the output pattern ran dry {dry} times (QEMU's log: {} underruns, {} stalls of the machine over 2 ms, {unexplained} underruns with less than 3.2 ms lost just before)",
+            "qemu-8350: during the session the output pattern ran dry {dry} times (QEMU's log: {} underruns, {} stalls of the machine over 5 ms, {unexplained} underruns with less than 3.2 ms lost just before)",
             dry_at.len(),
             stalls.len()
         );
