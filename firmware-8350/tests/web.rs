@@ -3,117 +3,21 @@
 //! (unsigned, stale, replayed, altered and cross-origin requests refused with nothing changed;
 //! GET never changes state; oversized heads and bodies, and a slow client, leave it serving).
 
-use std::io::{Read, Write};
+use std::io::Write;
 use std::net::{SocketAddr, TcpStream};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
+use remodaq_board_host::testing::web::{field, log_in, request, send_raw, Answer};
 use remodaq_board_host::testing::SimModule;
-use remodaq_protocol::auth::{client_proof, derive, server_signature, FACTORY_PASSWORD, KEY_LEN, NONCE_LEN};
+use remodaq_protocol::auth::FACTORY_PASSWORD;
 use remodaq_protocol::m8350::BIT_DO;
-use remodaq_protocol::web::{hex, login_message, request_signature, session_key, unhex, SESSION_ID_LEN};
 use tokio_modbus::client::{tcp, Reader};
 
 const BIN: &str = env!("CARGO_BIN_EXE_firmware-8350");
 
 fn temp(name: &str) -> PathBuf {
     remodaq_board_host::testing::temp("web-8350", name)
-}
-
-/// An HTTP answer: status, body.
-struct Answer {
-    status: u16,
-    body: String,
-}
-
-/// Sends `request` (the whole text) and reads the answer until the module closes.
-fn send_raw(web: SocketAddr, request: &[u8]) -> Answer {
-    let mut s = TcpStream::connect(web).expect("connect");
-    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
-    let _ = s.write_all(request);
-    let mut text = Vec::new();
-    let _ = s.read_to_end(&mut text);
-    let text = String::from_utf8_lossy(&text).into_owned();
-    let status = text.split(' ').nth(1).and_then(|c| c.parse().ok()).unwrap_or(0);
-    let body = text.split_once("\r\n\r\n").map_or(String::new(), |(_, b)| b.to_string());
-    Answer { status, body }
-}
-
-fn request(web: SocketAddr, method: &str, target: &str, headers: &[(&str, String)], body: &str) -> Answer {
-    let mut text = format!("{method} {target} HTTP/1.1\r\nHost: {web}\r\nContent-Length: {}\r\n", body.len());
-    for (name, value) in headers {
-        text += &format!("{name}: {value}\r\n");
-    }
-    text += "\r\n";
-    text += body;
-    send_raw(web, text.as_bytes())
-}
-
-/// The value of `"field":"..."` in a JSON text.
-fn field<'a>(json: &'a str, name: &str) -> &'a str {
-    let key = format!("\"{name}\":\"");
-    json.split(&key).nth(1).and_then(|rest| rest.split('"').next()).unwrap_or("")
-}
-
-/// A logged-in page: its session and key, and its next counter.
-struct Page {
-    session: [u8; SESSION_ID_LEN],
-    key: [u8; KEY_LEN],
-    counter: u64,
-}
-
-impl Page {
-    /// The headers of a signed request.
-    fn sign(&mut self, method: &str, target: &str, body: &str) -> Vec<(&'static str, String)> {
-        self.counter += 1;
-        let signature = request_signature(&self.key, method, target, self.counter, body.as_bytes());
-        let (mut id, mut sig) = ([0u8; 16], [0u8; 64]);
-        vec![
-            ("X-RDAQ-Session", hex(&self.session, &mut id).unwrap_or("").to_string()),
-            ("X-RDAQ-Counter", self.counter.to_string()),
-            ("X-RDAQ-Signature", hex(&signature, &mut sig).unwrap_or("").to_string()),
-        ]
-    }
-}
-
-/// Logs in as a page does (docs/web.md); the answer when it fails.
-fn log_in(web: SocketAddr, password: &str) -> Result<Page, Answer> {
-    let challenge = request(web, "POST", "/api/v1/session/challenge", &[], "");
-    assert_eq!(challenge.status, 200, "{}", challenge.body);
-    let salt: [u8; 16] = unhex(field(&challenge.body, "salt")).expect("salt");
-    let nonce: [u8; NONCE_LEN] = unhex(field(&challenge.body, "nonce")).expect("nonce");
-    let iterations: u32 = challenge
-        .body
-        .split("\"iterations\":")
-        .nth(1)
-        .and_then(|r| r.split(',').next())
-        .and_then(|n| n.parse().ok())
-        .expect("iterations");
-    let identity = request(web, "GET", "/api/v1/identity", &[], "");
-    let mac: [u8; 6] = unhex(field(&identity.body, "mac")).expect("mac");
-    let page_nonce = [0x42; NONCE_LEN];
-    let (client_key, credential) = derive(password.as_bytes(), &salt, iterations);
-    let message = login_message(&mac, &nonce, &page_nonce);
-    let proof = client_proof(&client_key, &message);
-    let (mut n, mut pn, mut p) = ([0u8; 32], [0u8; 32], [0u8; 64]);
-    let body = format!(
-        "{{\"nonce\":\"{}\",\"page_nonce\":\"{}\",\"proof\":\"{}\"}}",
-        hex(&nonce, &mut n).unwrap_or(""),
-        hex(&page_nonce, &mut pn).unwrap_or(""),
-        hex(&proof, &mut p).unwrap_or("")
-    );
-    let answer = request(web, "POST", "/api/v1/session", &[], &body);
-    if answer.status != 200 {
-        return Err(answer);
-    }
-    let session: [u8; SESSION_ID_LEN] = unhex(field(&answer.body, "session")).expect("session id");
-    let signature: [u8; KEY_LEN] = unhex(field(&answer.body, "signature")).expect("signature");
-    assert_eq!(
-        signature,
-        server_signature(&credential.server_key, &[message[0], message[1], message[2], message[3], &session]),
-        "the module signed its answer with this password's ServerKey"
-    );
-    Ok(Page { session, key: session_key(&client_key, &nonce, &page_nonce), counter: 0 })
 }
 
 async fn coils(modbus: SocketAddr) -> Vec<bool> {
@@ -181,7 +85,16 @@ async fn logins_signed_writes_and_the_attacks() {
     assert_eq!(coils(modbus).await, [false, true, false, false, false, false], "nothing changed");
 
     // GET never changes state: every resource read with the attacker's writes as queries.
-    for target in ["/api/v1/identity", "/api/v1/coils/16?count=6", "/api/v1/registers/0?count=10", "/api/v1/session"] {
+    for target in [
+        "/api/v1/identity",
+        "/api/v1/coils/16?count=6",
+        "/api/v1/registers/0?count=10",
+        "/api/v1/session",
+        "/api/v1/do",
+        "/api/v1/do/1/state",
+        "/api/v1/di/0",
+        "/api/v1/diagnostics",
+    ] {
         let _ = request(web, "GET", &format!("{target}&value=false"), &page.sign("GET", target, off), off);
         let _ = request(web, "GET", target, &page.sign("GET", target, off), off);
     }
@@ -214,4 +127,78 @@ async fn logins_signed_writes_and_the_attacks() {
     let headers = page.sign("PUT", &target, off);
     expect_refused(request(web, "PUT", &target, &headers, off), "no session", 401);
     drop(slow);
+}
+
+/// A number `"name":N` in a JSON text.
+fn number(json: &str, name: &str) -> Option<f64> {
+    json.split(&format!("\"{name}\":")).nth(1)?.split([',', '}']).next()?.parse().ok()
+}
+
+/// The named resources (docs/openapi.yaml) read and written through the register map: each
+/// write confirmed by a Modbus read at the spec's address, a refused value named, and reads that
+/// leave the flags Modbus clears by reading (spec §3.1) as they are.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn named_resources_agree_with_modbus() {
+    let scenario = temp("resources.toml");
+    std::fs::write(&scenario, "[di2]\nlevel = false\n").unwrap();
+    let args = ["--listen", "127.0.0.1:0", "--http", "127.0.0.1:0", "--scenario", scenario.to_str().unwrap()];
+    let module = SimModule::start_with(BIN, &temp("resources.flash"), &args);
+    let (web, modbus) = (module.web.expect("web address"), module.addr);
+    let mut ctx = tcp::connect(modbus).await.expect("modbus");
+    let mut page = log_in(web, FACTORY_PASSWORD).unwrap_or_else(|a| panic!("login: {} {}", a.status, a.body));
+    let mut put = |target: &str, body: &str| {
+        let headers = page.sign("PUT", target, body);
+        request(web, "PUT", target, &headers, body)
+    };
+
+    // Every DI and DO is listed, with the fields of the spec (modes by name).
+    let di = request(web, "GET", "/api/v1/di", &[], "");
+    assert_eq!(di.status, 200, "{}", di.body);
+    assert_eq!(di.body.matches("\"state\":").count(), 12, "{}", di.body);
+    assert!(di.body.starts_with(r#"{"di":[{"state":false,"mode":"normal","counter":0,"frequency":null,"#), "{}", di.body);
+    let dos = request(web, "GET", "/api/v1/do", &[], "");
+    assert_eq!(dos.body.matches("\"mode\":\"normal\"").count(), 6, "{}", dos.body);
+
+    // DO3 to pulse mode with a high width of 70000 (0.1 ms): registers 40276, and 40041-40042
+    // low word first (spec §3.2).
+    assert_eq!(put("/api/v1/do/3/mode", r#"{"value":"pulse"}"#).status, 204);
+    assert_eq!(put("/api/v1/do/3/high_width", r#"{"value":70000}"#).status, 204);
+    assert_eq!(ctx.read_holding_registers(0x113, 1).await.unwrap().unwrap(), [1]);
+    assert_eq!(ctx.read_holding_registers(0x2A, 2).await.unwrap().unwrap(), [(70000 - 65536) as u16, 1]);
+    let do3 = request(web, "GET", "/api/v1/do/3", &[], "");
+    assert_eq!((field(&do3.body, "mode"), number(&do3.body, "high_width")), ("pulse", Some(70000.0)), "{}", do3.body);
+
+    // Refused values name their field, and change nothing: a mode that does not exist, a
+    // watchdog timeout over 6000 (0.1 s, extensions §3: exception 03), a read-only counter.
+    let refused = put("/api/v1/di/0/mode", r#"{"value":"sideways"}"#);
+    assert_eq!((refused.status, field(&refused.body, "field")), (422, "mode"), "{}", refused.body);
+    let refused = put("/api/v1/watchdog/timeout", r#"{"value":6001}"#);
+    assert_eq!((refused.status, field(&refused.body, "field")), (422, "timeout"), "{}", refused.body);
+    assert_eq!(ctx.read_holding_registers(0x130, 1).await.unwrap().unwrap(), [0]);
+    let refused = put("/api/v1/di/0/counter", r#"{"value":5}"#);
+    assert_eq!((refused.status, field(&refused.body, "field")), (405, "counter"), "{}", refused.body);
+    assert_eq!(request(web, "GET", "/api/v1/di/12", &[], "").status, 404);
+    // Unsigned: refused before anything is looked at.
+    let unsigned = request(web, "PUT", "/api/v1/do/3/mode", &[], r#"{"value":"normal"}"#);
+    assert_eq!((unsigned.status, field(&unsigned.body, "error")), (401, "unsigned"));
+    assert_eq!(ctx.read_holding_registers(0x113, 1).await.unwrap().unwrap(), [1]);
+
+    // DI2 as a low-to-high latch, then a rising edge (the scenario changes): the latch shows
+    // in every GET, which does not clear it; the Modbus read (bit 0x2B) does (spec §3.1).
+    assert_eq!(put("/api/v1/di/2/mode", r#"{"value":"latch rising"}"#).status, 204);
+    std::fs::write(&scenario, "[di2]\nlevel = true\n").unwrap();
+    let started = Instant::now();
+    while !request(web, "GET", "/api/v1/di/2", &[], "").body.contains("\"latch\":true") {
+        assert!(started.elapsed() < Duration::from_secs(10), "the latch was never set");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let again = request(web, "GET", "/api/v1/di/2", &[], "");
+    assert!(again.body.contains("\"state\":true") && again.body.contains("\"latch\":true"), "{}", again.body);
+    assert_eq!(ctx.read_coils(0x2B, 1).await.unwrap().unwrap(), [true]);
+    assert_eq!(ctx.read_coils(0x2B, 1).await.unwrap().unwrap(), [false]);
+    assert!(request(web, "GET", "/api/v1/di/2", &[], "").body.contains("\"latch\":false"));
+
+    // Diagnostics, with the 8350's output timing.
+    let diag = request(web, "GET", "/api/v1/diagnostics", &[], "");
+    assert!(number(&diag.body, "uptime_s").is_some() && diag.body.contains("\"pattern_underruns\":"), "{}", diag.body);
 }

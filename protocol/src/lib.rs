@@ -17,6 +17,7 @@ pub mod discovery;
 pub mod m8318;
 pub mod m8350;
 pub mod net;
+pub mod resources;
 pub mod update;
 pub mod web;
 

@@ -226,6 +226,17 @@ impl<F: NorFlash, R: RawMutex> RegisterMap for Map8350<'_, F, R> {
         decode(table, addr).map_or(0, |point| self.read_point(point))
     }
 
+    /// The overflow and latch flags and the status's "samples lost" bit as they stand, not
+    /// cleared.
+    fn observe(&mut self, table: Table, addr: u16) -> u16 {
+        match decode(table, addr) {
+            Some(Point::Overflow(n)) => io::with(self.io, |s| s.di.flags().0) >> n & 1,
+            Some(Point::Latch(n)) => io::with(self.io, |s| s.di.flags().1) >> n & 1,
+            Some(Point::Diag(d)) => DIAGNOSTICS.read(d, 0),
+            point => point.map_or(0, |point| self.read_point(point)),
+        }
+    }
+
     /// The runs a poll reads or writes are checked in one go (spec §3.1): the DI states (read
     /// only), the DOs, the counter bits and the counters (read only); others address by address.
     fn allows(&self, table: Table, start: u16, count: u16, write: bool) -> bool {

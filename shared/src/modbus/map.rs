@@ -100,6 +100,13 @@ pub trait RegisterMap {
     /// requested range was checked; may have side effects such as clear-on-read.
     fn read(&mut self, table: Table, addr: u16) -> u16;
 
+    /// Reads one value as [`RegisterMap::read`] does, without its side effects: no flag cleared
+    /// by the read. The web console's reads (docs/web.md: a GET changes nothing). The default
+    /// is [`RegisterMap::read`], for a map whose reads have no side effects.
+    fn observe(&mut self, table: Table, addr: u16) -> u16 {
+        self.read(table, addr)
+    }
+
     /// Check the values of a write to `start..start + values.len()`, all writable.
     fn validate(&self, start: u16, values: &WriteValues<'_>) -> Result<(), Exception>;
 

@@ -17,6 +17,10 @@ use picoserve::response::{IntoResponse, Response, ResponseWriter, StatusCode};
 use picoserve::routing::PathRouterService;
 use picoserve::ResponseSent;
 use remodaq_protocol::auth::{KEY_LEN, NONCE_LEN};
+use remodaq_protocol::m8318::{InputType, REG_INPUT_TYPE};
+use remodaq_protocol::m8350::{DiMode, REG_DI_MODE};
+use remodaq_protocol::resources::{self, Field, Format, Resource};
+use remodaq_protocol::Table;
 use remodaq_protocol::web::{hex, unhex, HEADER_COUNTER, HEADER_SESSION, HEADER_SIGNATURE, SESSION_ID_LEN};
 use serde::Deserialize;
 
@@ -29,8 +33,12 @@ use crate::module::{CommonSettings as _, SettingsAccess};
 /// The sessions of the module's web console (one set for both connections).
 pub type SharedSessions = Blocking<CriticalSectionRawMutex, RefCell<Sessions>>;
 
-/// Largest JSON answer, bytes (125 registers as decimal numbers fit).
-pub const MAX_ANSWER: usize = 1024;
+/// Largest JSON answer, bytes (the 8350's 12 DIs with every field fit, about 1.3 KB).
+pub const MAX_ANSWER: usize = 2048;
+
+/// The most values one resource read copies under the map's lock (the 8350's 12 DIs of 7
+/// shown fields).
+const MAX_VALUES: usize = 96;
 
 /// The most registers or coils one GET reads: Modbus's limit for registers (125 of at most
 /// "65535," fit [`MAX_ANSWER`]); 150 coils (150 "false," fit it, Modbus's 2000 would not).
@@ -99,14 +107,26 @@ struct LoginBody<'a> {
     proof: &'a str,
 }
 
+/// The body of a write: `{"value": ...}`.
 #[derive(Deserialize)]
-struct CoilBody {
-    value: bool,
+struct Body<T> {
+    value: T,
 }
 
-#[derive(Deserialize)]
-struct RegisterBody {
-    value: u16,
+/// `{"value": T}` of a request body.
+fn body<'a, T: Deserialize<'a>>(body: &'a [u8]) -> Option<T> {
+    serde_json_core::from_slice::<Body<T>>(body).ok().map(|(b, _)| b.value)
+}
+
+/// What a field reads as.
+#[derive(Clone, Copy)]
+enum Seen {
+    /// The module does not map it (left out of the answer).
+    Unmapped,
+    /// `null` (a DI's frequency outside frequency mode).
+    Null,
+    /// Its value (two registers: low word first).
+    Value(u32),
 }
 
 impl<R: RawMutex, M: RegisterMap + SettingsAccess> PathRouterService for Api<'_, R, M> {
@@ -198,6 +218,9 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess> Api<'_, R, M> {
             return Answer::error(StatusCode::NOT_FOUND, "no such resource", None);
         };
         let resource = (segments.next(), segments.next(), segments.next());
+        if segments.next().is_some() {
+            return Answer::error(StatusCode::NOT_FOUND, "no such resource", None);
+        }
         let state_changing = !(method.eq_ignore_ascii_case("GET") || method.eq_ignore_ascii_case("HEAD"));
         if state_changing && foreign {
             return Answer::error(StatusCode::FORBIDDEN, "request from another origin", None);
@@ -236,6 +259,34 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess> Api<'_, R, M> {
             }
             (_, (Some("identity" | "session" | "registers" | "coils"), _, _)) => {
                 Answer::error(StatusCode::METHOD_NOT_ALLOWED, "method not allowed here", None)
+            }
+            (_, (Some(name), a, b)) => {
+                let Some(r) = resources::of(self.identity.model).iter().find(|r| r.name == name) else {
+                    return Answer::error(StatusCode::NOT_FOUND, "no such resource", None);
+                };
+                // A list's item: `/{n}`; a field to write: the last segment.
+                let (item, field) = if r.count > 0 { (a, b) } else { (None, a.or(b).filter(|_| b.is_none())) };
+                let n = match item.map(|n| n.parse::<u16>().ok().filter(|n| *n < r.count)) {
+                    Some(None) => return Answer::error(StatusCode::NOT_FOUND, "no such item", Some("item")),
+                    Some(Some(n)) => Some(n),
+                    None => None,
+                };
+                match (method, field) {
+                    ("GET", None) => self.show(r, n).await,
+                    ("PUT", Some(field)) => {
+                        let Some(f) = r.field(field) else {
+                            return Answer::error(StatusCode::NOT_FOUND, "no such field", Some("field"));
+                        };
+                        if r.count > 0 && n.is_none() {
+                            return Answer::error(StatusCode::NOT_FOUND, "no such item", Some("item"));
+                        }
+                        if let Err(why) = self.verify(signed).await {
+                            return Answer::error(StatusCode::UNAUTHORIZED, why, None);
+                        }
+                        self.change(f, n.unwrap_or(0), signed.body).await
+                    }
+                    _ => Answer::error(StatusCode::METHOD_NOT_ALLOWED, "method not allowed here", None),
+                }
             }
             _ => Answer::error(StatusCode::NOT_FOUND, "no such resource", None),
         }
@@ -323,51 +374,225 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess> Api<'_, R, M> {
         })
     }
 
+    /// A run of registers or coils as they stand (no flag cleared: [`RegisterMap::observe`]),
+    /// read under one lock of the map. Reads are never refused by the allow-list and, unlike a
+    /// Modbus read, do not feed the host watchdog (docs/web.md).
     async fn read(&self, registers: bool, addr: u16, n: u16) -> Answer {
-        let function = if registers { 0x03 } else { 0x01 };
-        let [a_hi, a_lo] = addr.to_be_bytes();
-        let [n_hi, n_lo] = n.to_be_bytes();
-        let mut resp = [0u8; MAX_PDU];
-        let len = handle_pdu(self.map, self.peer, &[function, a_hi, a_lo, n_hi, n_lo], &mut resp).await;
-        let Some(data) = resp.get(2..len).filter(|_| resp[0] == function) else {
-            return exception_answer(resp[1], "address");
-        };
+        let table = if registers { Table::Registers } else { Table::Bits };
+        let mut values = [0u16; MAX_READ_COILS as usize];
+        let values = &mut values[..usize::from(n)];
+        {
+            let mut map = self.map.lock().await;
+            if u32::from(addr) + u32::from(n) > 0x1_0000 || !map.allows(table, addr, n, false) {
+                return exception_answer(2, "address");
+            }
+            for (i, v) in (addr..).zip(values.iter_mut()) {
+                *v = map.observe(table, i);
+            }
+        }
         let mut a = Answer::new(StatusCode::OK);
         let _ = a.json.push_str("{\"values\":[");
-        for i in 0..usize::from(n) {
+        for (i, v) in values.iter().enumerate() {
             let sep = if i == 0 { "" } else { "," };
-            let _ = if registers {
-                let v = data.get(2 * i..2 * i + 2).map_or(0, |w| u16::from_be_bytes([w[0], w[1]]));
-                write!(a.json, "{sep}{v}")
-            } else {
-                let on = data.get(i / 8).is_some_and(|b| b >> (i % 8) & 1 == 1);
-                write!(a.json, "{sep}{on}")
-            };
+            let _ = if registers { write!(a.json, "{sep}{v}") } else { write!(a.json, "{sep}{}", *v != 0) };
         }
         let _ = a.json.push_str("]}");
         a
     }
 
+    /// A write of registers or coils at `addr` from a body `{"value": ...}`.
     async fn write(&self, registers: bool, addr: u16, body: &[u8]) -> Answer {
-        let (function, value) = if registers {
-            match serde_json_core::from_slice::<RegisterBody>(body) {
-                Ok((b, _)) => (0x06, b.value),
-                Err(_) => return Answer::error(StatusCode::BAD_REQUEST, "expected {value: 0..65535}", Some("value")),
+        let request = if registers {
+            match self::body::<u16>(body) {
+                Some(v) => Pdu::word(addr, v),
+                None => return Answer::error(StatusCode::BAD_REQUEST, "expected {value: 0..65535}", Some("value")),
             }
         } else {
-            match serde_json_core::from_slice::<CoilBody>(body) {
-                Ok((b, _)) => (0x05, if b.value { 0xFF00 } else { 0 }),
-                Err(_) => return Answer::error(StatusCode::BAD_REQUEST, "expected {value: true|false}", Some("value")),
+            match self::body::<bool>(body) {
+                Some(v) => Pdu::bit(addr, v),
+                None => return Answer::error(StatusCode::BAD_REQUEST, "expected {value: true|false}", Some("value")),
             }
         };
-        let [a_hi, a_lo] = addr.to_be_bytes();
-        let [v_hi, v_lo] = value.to_be_bytes();
+        self.apply(&request, "value").await
+    }
+
+    /// Carries out a write request through the Modbus PDU engine, with this client's address:
+    /// the map's admission (the allow-list), checks and commit, as a Modbus write.
+    async fn apply(&self, request: &Pdu, field: &str) -> Answer {
         let mut resp = [0u8; MAX_PDU];
-        let len = handle_pdu(self.map, self.peer, &[function, a_hi, a_lo, v_hi, v_lo], &mut resp).await;
-        if len >= 5 && resp[0] == function {
+        let len = handle_pdu(self.map, self.peer, request.bytes(), &mut resp).await;
+        if len >= 5 && resp[0] == request.bytes()[0] {
             Answer::no_content()
         } else {
-            exception_answer(resp[1], "value")
+            exception_answer(resp[1], field)
         }
+    }
+
+    /// `GET /api/v1/{resource}` (every item) or `/api/v1/{resource}/{n}` (one).
+    async fn show(&self, r: &Resource, item: Option<u16>) -> Answer {
+        let items = match item {
+            Some(n) => n..n + 1,
+            None => 0..r.count.max(1),
+        };
+        let shown = || r.fields.iter().filter(|f| f.shown);
+        let mut values: heapless::Vec<Seen, MAX_VALUES> = heapless::Vec::new();
+        let input_type = {
+            let mut map = self.map.lock().await;
+            for n in items.clone() {
+                for f in shown() {
+                    let _ = values.push(seen(&mut *map, f, n));
+                }
+            }
+            let engineering = r.fields.iter().any(|f| f.format == Format::Engineering);
+            engineering.then(|| InputType::from_code(map.observe(Table::Registers, REG_INPUT_TYPE) as u8)).flatten()
+        };
+        let mut a = Answer::new(StatusCode::OK);
+        let list = item.is_none() && r.count > 0;
+        if list {
+            let _ = write!(a.json, "{{\"{}\":[", r.name);
+        }
+        let mut values = values.iter();
+        for n in items {
+            if n > 0 && list {
+                let _ = a.json.push(',');
+            }
+            let _ = a.json.push('{');
+            let mut first = true;
+            for (f, v) in shown().zip(&mut values) {
+                let Seen::Value(v) = *v else {
+                    if matches!(v, Seen::Null) {
+                        let _ = write!(a.json, "{}\"{}\":null", if first { "" } else { "," }, f.name);
+                        first = false;
+                    }
+                    continue;
+                };
+                let _ = write!(a.json, "{}\"{}\":", if first { "" } else { "," }, f.name);
+                first = false;
+                json_value(&mut a.json, f, v, input_type.as_ref());
+            }
+            let _ = a.json.push('}');
+        }
+        if list {
+            let _ = a.json.push_str("]}");
+        }
+        if a.json.len() == a.json.capacity() {
+            return Answer::error(StatusCode::INTERNAL_SERVER_ERROR, "answer too long", None);
+        }
+        a
+    }
+
+    /// `PUT /api/v1/{resource}[/{n}]/{field}` with `{"value": ...}`: one Modbus write.
+    async fn change(&self, f: &Field, n: u16, body: &[u8]) -> Answer {
+        if !f.writable {
+            return Answer::error(StatusCode::METHOD_NOT_ALLOWED, "the field is read-only", Some(f.name));
+        }
+        let addr = f.addr(n);
+        let request = match f.format {
+            Format::Bool => self::body::<bool>(body).map(|v| Pdu::bit(addr, v)),
+            Format::Word | Format::InputType => self::body::<u16>(body).map(|v| Pdu::word(addr, v)),
+            Format::Long => self::body::<u32>(body).map(|v| Pdu::long(addr, v)),
+            // Hundredths, rounded half away from zero; the map checks the range.
+            Format::Hundredths => self::body::<f32>(body)
+                .map(|v| v * 100.0 + if v < 0.0 { -0.5 } else { 0.5 })
+                .filter(|h| (f32::from(i16::MIN)..=f32::from(i16::MAX)).contains(h))
+                .map(|h| Pdu::word(addr, h as i16 as u16)),
+            Format::Named(names) => self::body::<&str>(body)
+                .and_then(|v| names.iter().position(|name| *name == v))
+                .map(|i| Pdu::word(addr, i as u16)),
+            Format::MaskBit | Format::Engineering | Format::Frequency | Format::Ipv4 => None,
+        };
+        match request {
+            Some(request) => self.apply(&request, f.name).await,
+            None => Answer::error(StatusCode::UNPROCESSABLE_ENTITY, "not a value of this field", Some(f.name)),
+        }
+    }
+}
+
+/// What field `f` of item `n` reads as, from the map as it stands.
+fn seen<M: RegisterMap>(map: &mut M, f: &Field, n: u16) -> Seen {
+    let addr = f.addr(n);
+    if u32::from(addr) + u32::from(f.len()) > 0x1_0000 || !map.allows(f.table, addr, f.len(), false) {
+        return Seen::Unmapped;
+    }
+    let low = map.observe(f.table, addr);
+    Seen::Value(match f.format {
+        Format::Long | Format::Ipv4 => u32::from(low) | u32::from(map.observe(f.table, addr + 1)) << 16,
+        Format::MaskBit => u32::from(low >> (n % 16) & 1),
+        Format::Frequency => {
+            if map.observe(Table::Registers, REG_DI_MODE + n) != DiMode::Frequency as u16 {
+                return Seen::Null;
+            }
+            u32::from(low)
+        }
+        _ => u32::from(low),
+    })
+}
+
+/// Writes the JSON value of field `f` read as `v` (`input_type`: the 8318's, for its values).
+fn json_value(json: &mut heapless::String<MAX_ANSWER>, f: &Field, v: u32, input_type: Option<&InputType>) {
+    let _ = match f.format {
+        Format::Bool | Format::MaskBit => write!(json, "{}", v != 0),
+        Format::Word | Format::Long | Format::Frequency => write!(json, "{v}"),
+        Format::Hundredths => {
+            let h = i32::from(v as u16 as i16);
+            let sign = if h < 0 { "-" } else { "" };
+            write!(json, "{sign}{}.{:02}", h.unsigned_abs() / 100, h.unsigned_abs() % 100)
+        }
+        Format::Named(names) => match names.get(v as usize) {
+            Some(name) => write!(json, "\"{name}\""),
+            None => write!(json, "{v}"),
+        },
+        Format::Engineering => match input_type {
+            Some(t) => write!(json, "{:.3}", t.value(v as u16)),
+            None => write!(json, "null"),
+        },
+        Format::InputType => match InputType::from_code(v as u8).filter(|_| v <= 0xFF) {
+            Some(t) => {
+                let thermocouple = t.thermocouple().map_or("", |tc| tc.letter());
+                write!(
+                    json,
+                    "{{\"code\":{v},\"unit\":\"{}\",\"lo\":{},\"hi\":{},\"thermocouple\":\"{thermocouple}\"}}",
+                    resources::unit(&t),
+                    t.lo,
+                    t.hi
+                )
+            }
+            None => write!(json, "{{\"code\":{v}}}"),
+        },
+        Format::Ipv4 => {
+            let [c, d, a, b] = v.to_be_bytes();
+            write!(json, "\"{a}.{b}.{c}.{d}\"")
+        }
+    };
+}
+
+/// A Modbus write request PDU (at most code 16 with two registers).
+struct Pdu {
+    bytes: [u8; 10],
+    len: usize,
+}
+
+impl Pdu {
+    fn bytes(&self) -> &[u8] {
+        &self.bytes[..self.len]
+    }
+
+    /// Code 05: one coil.
+    fn bit(addr: u16, on: bool) -> Self {
+        let [a, b] = addr.to_be_bytes();
+        Self { bytes: [0x05, a, b, if on { 0xFF } else { 0 }, 0, 0, 0, 0, 0, 0], len: 5 }
+    }
+
+    /// Code 06: one register.
+    fn word(addr: u16, value: u16) -> Self {
+        let ([a, b], [c, d]) = (addr.to_be_bytes(), value.to_be_bytes());
+        Self { bytes: [0x06, a, b, c, d, 0, 0, 0, 0, 0], len: 5 }
+    }
+
+    /// Code 16: a 32-bit value in two registers, low word first (spec §3.2), in one request
+    /// (all or nothing).
+    fn long(addr: u16, value: u32) -> Self {
+        let ([a, b], [hh, hl, lh, ll]) = (addr.to_be_bytes(), value.to_be_bytes());
+        Self { bytes: [0x10, a, b, 0, 2, 4, lh, ll, hh, hl], len: 10 }
     }
 }

@@ -5,6 +5,8 @@
 //! `firmware-8350`, e.g. the Windows build `target/x86_64-pc-windows-gnu/debug`) and
 //! `REMODAQ_E2E_RUNNER` (a program that runs them, e.g. `wine`).
 
+pub mod web;
+
 use std::io::{BufRead, BufReader};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};

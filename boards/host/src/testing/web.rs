@@ -1,0 +1,110 @@
+//! An HTTP client of the web console's API for end-to-end tests (docs/web.md): raw requests,
+//! and a login computed on the PC's side as a page computes it.
+
+use std::io::{Read, Write};
+use std::net::{SocketAddr, TcpStream};
+use std::time::Duration;
+
+use remodaq_protocol::auth::{client_proof, derive, server_signature, KEY_LEN, NONCE_LEN};
+use remodaq_protocol::web::{hex, login_message, request_signature, session_key, unhex, SESSION_ID_LEN};
+
+/// An HTTP answer: status, body.
+pub struct Answer {
+    /// The status code (0: no answer).
+    pub status: u16,
+    /// The body.
+    pub body: String,
+}
+
+/// Sends `request` (the whole text) and reads the answer until the module closes.
+pub fn send_raw(web: SocketAddr, request: &[u8]) -> Answer {
+    let mut s = TcpStream::connect(web).expect("connect");
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    let _ = s.write_all(request);
+    let mut text = Vec::new();
+    let _ = s.read_to_end(&mut text);
+    let text = String::from_utf8_lossy(&text).into_owned();
+    let status = text.split(' ').nth(1).and_then(|c| c.parse().ok()).unwrap_or(0);
+    let body = text.split_once("\r\n\r\n").map_or(String::new(), |(_, b)| b.to_string());
+    Answer { status, body }
+}
+
+/// Sends one request with a `Host` and a `Content-Length` header.
+pub fn request(web: SocketAddr, method: &str, target: &str, headers: &[(&str, String)], body: &str) -> Answer {
+    let mut text = format!("{method} {target} HTTP/1.1\r\nHost: {web}\r\nContent-Length: {}\r\n", body.len());
+    for (name, value) in headers {
+        text += &format!("{name}: {value}\r\n");
+    }
+    text += "\r\n";
+    text += body;
+    send_raw(web, text.as_bytes())
+}
+
+/// The value of `"field":"..."` in a JSON text.
+pub fn field<'a>(json: &'a str, name: &str) -> &'a str {
+    let key = format!("\"{name}\":\"");
+    json.split(&key).nth(1).and_then(|rest| rest.split('"').next()).unwrap_or("")
+}
+
+/// A logged-in page: its session and key, and its next counter.
+pub struct Page {
+    session: [u8; SESSION_ID_LEN],
+    key: [u8; KEY_LEN],
+    /// The counter of the last signed request.
+    pub counter: u64,
+}
+
+impl Page {
+    /// The headers of a signed request.
+    pub fn sign(&mut self, method: &str, target: &str, body: &str) -> Vec<(&'static str, String)> {
+        self.counter += 1;
+        let signature = request_signature(&self.key, method, target, self.counter, body.as_bytes());
+        let (mut id, mut sig) = ([0u8; 16], [0u8; 64]);
+        vec![
+            ("X-RDAQ-Session", hex(&self.session, &mut id).unwrap_or("").to_string()),
+            ("X-RDAQ-Counter", self.counter.to_string()),
+            ("X-RDAQ-Signature", hex(&signature, &mut sig).unwrap_or("").to_string()),
+        ]
+    }
+}
+
+/// Logs in as a page does (docs/web.md); the answer when it fails.
+pub fn log_in(web: SocketAddr, password: &str) -> Result<Page, Answer> {
+    let challenge = request(web, "POST", "/api/v1/session/challenge", &[], "");
+    assert_eq!(challenge.status, 200, "{}", challenge.body);
+    let salt: [u8; 16] = unhex(field(&challenge.body, "salt")).expect("salt");
+    let nonce: [u8; NONCE_LEN] = unhex(field(&challenge.body, "nonce")).expect("nonce");
+    let iterations: u32 = challenge
+        .body
+        .split("\"iterations\":")
+        .nth(1)
+        .and_then(|r| r.split(',').next())
+        .and_then(|n| n.parse().ok())
+        .expect("iterations");
+    let identity = request(web, "GET", "/api/v1/identity", &[], "");
+    let mac: [u8; 6] = unhex(field(&identity.body, "mac")).expect("mac");
+    let page_nonce = [0x42; NONCE_LEN];
+    let (client_key, credential) = derive(password.as_bytes(), &salt, iterations);
+    let message = login_message(&mac, &nonce, &page_nonce);
+    let proof = client_proof(&client_key, &message);
+    let (mut n, mut pn, mut p) = ([0u8; 32], [0u8; 32], [0u8; 64]);
+    let body = format!(
+        "{{\"nonce\":\"{}\",\"page_nonce\":\"{}\",\"proof\":\"{}\"}}",
+        hex(&nonce, &mut n).unwrap_or(""),
+        hex(&page_nonce, &mut pn).unwrap_or(""),
+        hex(&proof, &mut p).unwrap_or("")
+    );
+    let answer = request(web, "POST", "/api/v1/session", &[], &body);
+    if answer.status != 200 {
+        return Err(answer);
+    }
+    let session: [u8; SESSION_ID_LEN] = unhex(field(&answer.body, "session")).expect("session id");
+    let signature: [u8; KEY_LEN] = unhex(field(&answer.body, "signature")).expect("signature");
+    assert_eq!(
+        signature,
+        server_signature(&credential.server_key, &[message[0], message[1], message[2], message[3], &session]),
+        "the module signed its answer with this password's ServerKey"
+    );
+    Ok(Page { session, key: session_key(&client_key, &nonce, &page_nonce), counter: 0 })
+}
+
