@@ -483,29 +483,49 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess> Api<'_, R, M> {
 
     /// `PUT /api/v1/{resource}[/{n}]/{field}` with `{"value": ...}`: one Modbus write.
     async fn change(&self, f: &Field, n: u16, body: &[u8]) -> Answer {
-        if !f.writable {
-            return Answer::error(StatusCode::METHOD_NOT_ALLOWED, "the field is read-only", Some(f.name));
-        }
-        let addr = f.addr(n);
-        let request = match f.format {
-            Format::Bool => self::body::<bool>(body).map(|v| Pdu::bit(addr, v)),
-            Format::Word | Format::InputType => self::body::<u16>(body).map(|v| Pdu::word(addr, v)),
-            Format::Long => self::body::<u32>(body).map(|v| Pdu::long(addr, v)),
-            // Hundredths, rounded half away from zero; the map checks the range.
-            Format::Hundredths => self::body::<f32>(body)
-                .map(|v| v * 100.0 + if v < 0.0 { -0.5 } else { 0.5 })
-                .filter(|h| (f32::from(i16::MIN)..=f32::from(i16::MAX)).contains(h))
-                .map(|h| Pdu::word(addr, h as i16 as u16)),
-            Format::Named(names) => self::body::<&str>(body)
-                .and_then(|v| names.iter().position(|name| *name == v))
-                .map(|i| Pdu::word(addr, i as u16)),
-            Format::MaskBit | Format::Engineering | Format::Frequency | Format::Ipv4 => None,
-        };
-        match request {
-            Some(request) => self.apply(&request, f.name).await,
-            None => Answer::error(StatusCode::UNPROCESSABLE_ENTITY, "not a value of this field", Some(f.name)),
+        match write_request(f, n, body) {
+            Ok(request) => self.apply(&request, f.name).await,
+            Err(WriteError::ReadOnly) => {
+                Answer::error(StatusCode::METHOD_NOT_ALLOWED, "the field is read-only", Some(f.name))
+            }
+            Err(WriteError::NotAValue) => {
+                Answer::error(StatusCode::UNPROCESSABLE_ENTITY, "not a value of this field", Some(f.name))
+            }
         }
     }
+}
+
+/// Why a body is no write of a field.
+#[derive(Debug, PartialEq, Eq)]
+pub enum WriteError {
+    /// The API does not write this field.
+    ReadOnly,
+    /// The body is not `{"value": ...}` with a value of the field's format.
+    NotAValue,
+}
+
+/// The Modbus write request of a body `{"value": ...}` for field `f` of item `n`: code 05 for
+/// a bit, 06 for a register, 16 for a 32-bit value; the register map still checks the value.
+pub fn write_request(f: &Field, n: u16, body: &[u8]) -> Result<Pdu, WriteError> {
+    if !f.writable {
+        return Err(WriteError::ReadOnly);
+    }
+    let addr = f.addr(n);
+    let request = match f.format {
+        Format::Bool => self::body::<bool>(body).map(|v| Pdu::bit(addr, v)),
+        Format::Word | Format::InputType => self::body::<u16>(body).map(|v| Pdu::word(addr, v)),
+        Format::Long => self::body::<u32>(body).map(|v| Pdu::long(addr, v)),
+        // Hundredths, rounded half away from zero; the map checks the range.
+        Format::Hundredths => self::body::<f32>(body)
+            .map(|v| v * 100.0 + if v < 0.0 { -0.5 } else { 0.5 })
+            .filter(|h| (f32::from(i16::MIN)..=f32::from(i16::MAX)).contains(h))
+            .map(|h| Pdu::word(addr, h as i16 as u16)),
+        Format::Named(names) => self::body::<&str>(body)
+            .and_then(|v| names.iter().position(|name| *name == v))
+            .map(|i| Pdu::word(addr, i as u16)),
+        Format::MaskBit | Format::Engineering | Format::Frequency | Format::Ipv4 => return Err(WriteError::ReadOnly),
+    };
+    request.ok_or(WriteError::NotAValue)
 }
 
 /// What field `f` of item `n` reads as, from the map as it stands.
@@ -567,13 +587,14 @@ fn json_value(json: &mut heapless::String<MAX_ANSWER>, f: &Field, v: u32, input_
 }
 
 /// A Modbus write request PDU (at most code 16 with two registers).
-struct Pdu {
+pub struct Pdu {
     bytes: [u8; 10],
     len: usize,
 }
 
 impl Pdu {
-    fn bytes(&self) -> &[u8] {
+    /// The request's bytes, from the function code.
+    pub fn bytes(&self) -> &[u8] {
         &self.bytes[..self.len]
     }
 
