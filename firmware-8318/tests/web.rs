@@ -34,8 +34,11 @@ async fn channel_values_follow_the_input_type() {
     let dir = remodaq_board_host::testing::temp("web-8318", "d");
     std::fs::create_dir_all(&dir).unwrap();
     let scenario = dir.join("scenario.toml");
-    std::fs::write(&scenario, "cjc_celsius = 25.0\n[ch0]\nmillivolts = 41.276\n[ch1]\nvolts = 1.2\n[ch3]\nopen = true\n")
-        .unwrap();
+    std::fs::write(
+        &scenario,
+        "cjc_celsius = 25.0\n[ch0]\nmillivolts = 41.276\n[ch1]\nvolts = 1.2\n[ch3]\nopen = true\n",
+    )
+    .unwrap();
     let flash = remodaq_board_host::testing::temp("web-8318", "web.flash");
     let args = ["--listen", "127.0.0.1:0", "--http", "127.0.0.1:0", "--scenario", scenario.to_str().unwrap()];
     let module = SimModule::start_with(BIN, &flash, &args);
@@ -46,7 +49,11 @@ async fn channel_values_follow_the_input_type() {
     // NIST ITS-90 type K table E(25 °C) = 1.000 mV, 42.276 mV lies between E(1025 °C) = 42.247
     // and E(1026 °C) = 42.286 mV: 1025.74 °C (one count of the range is 0.025 °C).
     let inputs = request(web, "GET", "/api/v1/inputs", &[], "");
-    assert!(inputs.body.contains(r#""type":{"code":15,"unit":"°C","lo":-250,"hi":1400,"thermocouple":"K"}"#), "{}", inputs.body);
+    assert!(
+        inputs.body.contains(r#""type":{"code":15,"unit":"°C","lo":-250,"hi":1400,"thermocouple":"K"}"#),
+        "{}",
+        inputs.body
+    );
     let ch = get_until(web, "/api/v1/channels", |b| b.contains("\"status\":\"open\"")).await;
     let first = ch.split("},{").next().unwrap_or("");
     let t = 1025.0 + (42.276 - 42.247) / (42.286 - 42.247);
@@ -65,8 +72,13 @@ async fn channel_values_follow_the_input_type() {
     assert_eq!(request(web, "PUT", "/api/v1/inputs/type", &headers, body).status, 204);
     assert_eq!(ctx.read_holding_registers(0xC8, 1).await.unwrap().unwrap(), [5]);
     let inputs = request(web, "GET", "/api/v1/inputs", &[], "");
-    assert!(inputs.body.contains(r#""type":{"code":5,"unit":"mV","lo":-2500,"hi":2500,"thermocouple":""}"#), "{}", inputs.body);
-    let one = get_until(web, "/api/v1/channels/1", |b| number(b, "value").is_some_and(|v| (v - 1200.0).abs() < 0.1)).await;
+    assert!(
+        inputs.body.contains(r#""type":{"code":5,"unit":"mV","lo":-2500,"hi":2500,"thermocouple":""}"#),
+        "{}",
+        inputs.body
+    );
+    let one =
+        get_until(web, "/api/v1/channels/1", |b| number(b, "value").is_some_and(|v| (v - 1200.0).abs() < 0.1)).await;
     assert_eq!(field(&one, "status"), "ok", "{one}");
 
     // The CJC offset in °C: +1.25 is 125 hundredths at 40216; +60 °C is refused (spec §2.4:

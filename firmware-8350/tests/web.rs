@@ -155,7 +155,11 @@ async fn named_resources_agree_with_modbus() {
     let di = request(web, "GET", "/api/v1/di", &[], "");
     assert_eq!(di.status, 200, "{}", di.body);
     assert_eq!(di.body.matches("\"state\":").count(), 12, "{}", di.body);
-    assert!(di.body.starts_with(r#"{"di":[{"state":false,"mode":"normal","counter":0,"frequency":null,"#), "{}", di.body);
+    assert!(
+        di.body.starts_with(r#"{"di":[{"state":false,"mode":"normal","counter":0,"frequency":null,"#),
+        "{}",
+        di.body
+    );
     let dos = request(web, "GET", "/api/v1/do", &[], "");
     assert_eq!(dos.body.matches("\"mode\":\"normal\"").count(), 6, "{}", dos.body);
 

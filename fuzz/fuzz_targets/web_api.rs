@@ -157,7 +157,8 @@ fn check(answer: &[u8]) {
     }
     let text = String::from_utf8_lossy(answer);
     let (head, body) = text.split_once("\r\n\r\n").expect("a head and a body");
-    let status: u16 = head.strip_prefix("HTTP/1.1 ").and_then(|r| r.get(..3)).and_then(|c| c.parse().ok()).expect("status");
+    let status: u16 =
+        head.strip_prefix("HTTP/1.1 ").and_then(|r| r.get(..3)).and_then(|c| c.parse().ok()).expect("status");
     assert!(
         [200, 204, 400, 401, 403, 404, 405, 408, 413, 422, 429, 431, 500, 503].contains(&status),
         "status {status}: {head}"
@@ -179,7 +180,11 @@ fuzz_target!(|data: &[u8]| {
     if which & 0x80 != 0 {
         // The JSON of a write, for one field of one resource.
         let Some((&pick, body)) = rest.split_first() else { return };
-        let all: Vec<_> = resources::M8318.iter().chain(resources::M8350).flat_map(|r| r.fields.iter().map(move |f| (r, f))).collect();
+        let all: Vec<_> = resources::M8318
+            .iter()
+            .chain(resources::M8350)
+            .flat_map(|r| r.fields.iter().map(move |f| (r, f)))
+            .collect();
         let (r, f) = all[usize::from(pick) % all.len()];
         let n = u16::from(which & 0x0F) % r.count.max(1);
         if let Ok(pdu) = write_request(f, n, body) {

@@ -62,7 +62,7 @@ impl Field {
     }
 
     /// How many addresses the value takes.
-    pub fn len(&self) -> u16 {
+    pub fn words(&self) -> u16 {
         match self.format {
             Format::Long | Format::Ipv4 => 2,
             _ => 1,
@@ -232,15 +232,14 @@ mod tests {
     /// claims (the register maps' own access rules, spec §2.1, §3.1, §3.2).
     #[test]
     fn every_field_names_mapped_addresses() {
-        for (resources, access) in [
-            (M8318, m8318::access as fn(Table, u16) -> Access),
-            (M8350, m8350::access as fn(Table, u16) -> Access),
-        ] {
+        for (resources, access) in
+            [(M8318, m8318::access as fn(Table, u16) -> Access), (M8350, m8350::access as fn(Table, u16) -> Access)]
+        {
             for r in resources {
                 for f in r.fields {
                     let optional = f.base >= diag::REG_PATTERN_UNDERRUNS && r.name == "diagnostics";
                     for n in 0..r.count.max(1) {
-                        for a in f.addr(n)..f.addr(n) + f.len() {
+                        for a in f.addr(n)..f.addr(n) + f.words() {
                             let got = access(f.table, a);
                             if optional && got == Access::None {
                                 continue;
@@ -261,6 +260,9 @@ mod tests {
         assert_eq!(DO_MODE_NAMES[m8350::DoMode::Pulse as usize], "pulse");
         // Spec §3.2: the pulse fields of DO n at 18h+2n, 24h+2n, 30h+2n, 3Ch+2n.
         let fields = M8350[1].fields;
-        assert_eq!([fields[2].addr(5), fields[3].addr(0), fields[4].addr(0), fields[5].addr(5)], [0x22, 0x24, 0x30, 0x46]);
+        assert_eq!(
+            [fields[2].addr(5), fields[3].addr(0), fields[4].addr(0), fields[5].addr(5)],
+            [0x22, 0x24, 0x30, 0x46]
+        );
     }
 }

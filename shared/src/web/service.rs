@@ -20,8 +20,8 @@ use remodaq_protocol::auth::{KEY_LEN, NONCE_LEN};
 use remodaq_protocol::m8318::{InputType, REG_INPUT_TYPE};
 use remodaq_protocol::m8350::{DiMode, REG_DI_MODE};
 use remodaq_protocol::resources::{self, Field, Format, Resource};
-use remodaq_protocol::Table;
 use remodaq_protocol::web::{hex, unhex, HEADER_COUNTER, HEADER_SESSION, HEADER_SIGNATURE, SESSION_ID_LEN};
+use remodaq_protocol::Table;
 use serde::Deserialize;
 
 use super::{Login, LoginError, Refusal, Sessions, Signed, Verified};
@@ -531,7 +531,7 @@ pub fn write_request(f: &Field, n: u16, body: &[u8]) -> Result<Pdu, WriteError> 
 /// What field `f` of item `n` reads as, from the map as it stands.
 fn seen<M: RegisterMap>(map: &mut M, f: &Field, n: u16) -> Seen {
     let addr = f.addr(n);
-    if u32::from(addr) + u32::from(f.len()) > 0x1_0000 || !map.allows(f.table, addr, f.len(), false) {
+    if u32::from(addr) + u32::from(f.words()) > 0x1_0000 || !map.allows(f.table, addr, f.words(), false) {
         return Seen::Unmapped;
     }
     let low = map.observe(f.table, addr);

@@ -107,4 +107,3 @@ pub fn log_in(web: SocketAddr, password: &str) -> Result<Page, Answer> {
     );
     Ok(Page { session, key: session_key(&client_key, &nonce, &page_nonce), counter: 0 })
 }
-
