@@ -54,9 +54,10 @@ async fn update(app: &'static Running) -> ! {
     app.serve_update().await
 }
 
-/// The web console (docs/web.md): on the host board so far (`--http`).
-#[cfg(not(target_os = "none"))]
-#[embassy_executor::task(pool_size = remodaq_board_host::web::CONNECTIONS)]
+/// The web console (docs/web.md): on the host board (`--http`) and in an image built with the
+/// feature `web` (the QEMU board's).
+#[cfg(any(not(target_os = "none"), feature = "web"))]
+#[embassy_executor::task(pool_size = remodaq_shared::web::service::CONNECTIONS)]
 async fn web(app: &'static Running) -> ! {
     app.serve_web().await
 }
@@ -64,8 +65,8 @@ async fn web(app: &'static Running) -> ! {
 async fn start(spawner: Spawner) {
     let (app, io) = remodaq_shared::board::start(spawner, &STATICS).await;
     app.spawn(spawner, io, modbus, discovery, update, spawn_application);
-    #[cfg(not(target_os = "none"))]
-    for _ in 0..remodaq_board_host::web::CONNECTIONS {
+    #[cfg(any(not(target_os = "none"), feature = "web"))]
+    for _ in 0..remodaq_shared::web::service::CONNECTIONS {
         remodaq_shared::board::spawn(spawner, web(app), "web");
     }
 }

@@ -22,6 +22,14 @@ use embedded_storage_async::nor_flash::NorFlash;
 /// How long a connection the peer closed may take to finish closing before it is reset.
 const CLOSE_WAIT: Duration = Duration::from_millis(100);
 
+/// The stack's sockets: the Modbus connection tasks, discovery, update, one of slack, and the
+/// web console's connections in an image that has it.
+pub const STACK_SOCKETS: usize = crate::modbus::server::SOCKETS + 3 + WEB_SOCKETS;
+#[cfg(feature = "web")]
+const WEB_SOCKETS: usize = crate::web::service::CONNECTIONS;
+#[cfg(not(feature = "web"))]
+const WEB_SOCKETS: usize = 0;
+
 /// Socket buffer size, each way: two full frames.
 pub const SOCKET_BUF: usize = 2 * crate::modbus::frame::MAX_ADU;
 
@@ -104,17 +112,7 @@ impl<E: Effects> Network for EmbassyNet<E> {
         let mut tx = [0u8; 64];
         loop {
             let mut socket = TcpSocket::new(self.stack, &mut rx, &mut tx);
-            // A handshake that never completes (a SYN from a forged or vanished host) must not
-            // hold the update port: smoltcp would wait for ever.
-            socket.set_timeout(Some(Duration::from_millis(HANDSHAKE_TIMEOUT_MS)));
-            let accepted = socket.accept(crate::update::PORT).await;
-            socket.set_timeout(None);
-            if let Err(e) = accepted {
-                warn!("update: accept failed: {:?}", e);
-                continue;
-            }
-            if socket.state() == State::Closed {
-                // The handshake timed out.
+            if !accept_one(&mut socket, crate::update::PORT, "update").await {
                 continue;
             }
             let now_ms = embassy_time::Instant::now().as_millis();
@@ -124,6 +122,29 @@ impl<E: Effects> Network for EmbassyNet<E> {
             reset(&mut socket).await;
             if let Outcome::Updated { .. } = outcome {
                 self.restart().await;
+            }
+        }
+    }
+
+    /// Two tasks (issue #25: at most 2 connections, never a Modbus slot), each with its own
+    /// socket and buffers; one request per connection, within the service's timeouts.
+    #[cfg(feature = "web")]
+    async fn serve_web<A: RegisterMap + SettingsAccess>(&'static self, map: &'static Shared<A>, identity: Identity) -> ! {
+        use crate::web::service::{serve_connection, HTTP_BUFFER, PORT};
+        let mut rx = [0u8; WEB_RX];
+        let mut tx = [0u8; WEB_TX];
+        let mut buffer = [0u8; HTTP_BUFFER];
+        loop {
+            let mut socket = TcpSocket::new(self.stack, &mut rx, &mut tx);
+            if !accept_one(&mut socket, PORT, "web").await {
+                continue;
+            }
+            // A peer that stops acknowledging cannot hold the connection past this.
+            socket.set_timeout(Some(WEB_IDLE));
+            let from = peer(&socket);
+            // picoserve closes the connection (or aborts it on an error or a timeout).
+            if serve_connection(map, identity, from, socket, &mut buffer).await.is_err() {
+                debug!("web: a connection ended in an error or a timeout");
             }
         }
     }
@@ -172,6 +193,31 @@ async fn accept(socket: &mut TcpSocket<'_>, port: u16) -> Result<(), AcceptError
     }
     result
 }
+
+/// Accepts one connection on `port` (the update and web services): a handshake that never
+/// completes (a SYN from a forged or vanished host) must not hold the port, smoltcp would wait
+/// for ever. Whether a client is connected.
+async fn accept_one(socket: &mut TcpSocket<'_>, port: u16, service: &str) -> bool {
+    socket.set_timeout(Some(Duration::from_millis(HANDSHAKE_TIMEOUT_MS)));
+    let accepted = socket.accept(port).await;
+    socket.set_timeout(None);
+    if let Err(e) = accepted {
+        warn!("{}: accept failed: {:?}", service, e);
+        return false;
+    }
+    // CLOSED: the handshake timed out.
+    socket.state() != State::Closed
+}
+
+/// The web console's socket buffers: a request (head and body) fits the receive buffer; an
+/// answer of up to 2 KiB leaves in two windows.
+#[cfg(feature = "web")]
+const WEB_RX: usize = 1024;
+#[cfg(feature = "web")]
+const WEB_TX: usize = 1024;
+/// A web connection whose peer stops acknowledging is dropped after this.
+#[cfg(feature = "web")]
+const WEB_IDLE: Duration = Duration::from_secs(10);
 
 /// Sends our FIN after the last answer, waiting for it at most [`CLOSE_WAIT`].
 async fn close(socket: &mut TcpSocket<'_>) {

@@ -1,43 +1,22 @@
 //! The web console of the simulated module (`--http ADDR:PORT`, docs/web.md): the shared
 //! picoserve service on std sockets, at most [`CONNECTIONS`] at a time (each task serves one
-//! connection), apart from the Modbus connections.
+//! connection), apart from the Modbus connections; the buffer, timeouts and sessions are the
+//! module's ([`remodaq_shared::web::service`]).
 
-use core::cell::RefCell;
 use std::net::{TcpListener, TcpStream};
 
 use async_io::Async;
-use embassy_sync::blocking_mutex::Mutex as Blocking;
 use embedded_io_adapters::futures_03::FromFutures;
 use picoserve::io::Socket;
-use picoserve::{Config, Router, Timeouts};
+use picoserve::Timeouts;
 use remodaq_shared::board::Shared;
 use remodaq_shared::discovery::Identity;
 use remodaq_shared::modbus::RegisterMap;
 use remodaq_shared::module::SettingsAccess;
-use remodaq_shared::web::service::{Api, SharedSessions};
-use remodaq_shared::web::Sessions;
+pub use remodaq_shared::web::service::CONNECTIONS;
+use remodaq_shared::web::service::{serve_connection, HTTP_BUFFER};
 
 use crate::modbus::{accept, ipv4};
-
-/// HTTP connections served at once (issue #25: at most 2, never a Modbus slot).
-pub const CONNECTIONS: usize = 2;
-
-/// The request head and body together must fit (a larger head: 431 and closed; a larger
-/// body: 413).
-pub const HTTP_BUFFER: usize = 2048;
-
-/// The timeouts of every connection: the first byte within 5 s, the whole request within 3 s
-/// of it, each write within 1 s; one request per connection.
-pub static CONFIG: Config = Config::new(Timeouts {
-    start_read_request: embassy_time::Duration::from_secs(5),
-    persistent_start_read_request: embassy_time::Duration::from_secs(1),
-    read_request: embassy_time::Duration::from_secs(3),
-    write: embassy_time::Duration::from_secs(1),
-})
-.close_connection_after_response();
-
-/// The web sessions of this module.
-static SESSIONS: SharedSessions = Blocking::new(RefCell::new(Sessions::new()));
 
 /// The web listener.
 pub type Listener = Async<TcpListener>;
@@ -107,11 +86,6 @@ impl Socket<picoserve::EmbassyRuntime> for Connection {
     }
 }
 
-/// Milliseconds since the module started.
-fn now_ms() -> u64 {
-    embassy_time::Instant::now().as_millis()
-}
-
 /// One of the web tasks: accept, serve the connection, repeat.
 pub async fn connection_task<M: RegisterMap + SettingsAccess>(
     listener: &Listener,
@@ -121,12 +95,7 @@ pub async fn connection_task<M: RegisterMap + SettingsAccess>(
     let mut buffer = [0u8; HTTP_BUFFER];
     loop {
         let (stream, peer) = accept(listener, "web").await;
-        let api = Api { map, identity, sessions: &SESSIONS, peer: ipv4(peer.ip()), now_ms };
-        let app = Router::from_service(api);
-        let served = picoserve::Server::custom(&app, picoserve::time::EmbassyTimer, &CONFIG, &mut buffer)
-            .serve(Connection(stream))
-            .await;
-        if let Err(e) = served {
+        if let Err(e) = serve_connection(map, identity, ipv4(peer.ip()), Connection(stream), &mut buffer).await {
             log::debug!("web: {peer}: {e:?}");
         }
     }

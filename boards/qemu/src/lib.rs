@@ -121,8 +121,7 @@ pub mod test_switches {
     }
 }
 
-/// Sockets: the Modbus connection tasks, discovery, and slack.
-const STACK_SOCKETS: usize = remodaq_shared::modbus::server::SOCKETS + 3;
+use remodaq_shared::embassy_net::STACK_SOCKETS;
 
 /// The MPS2 AN386 as QEMU emulates it.
 pub struct QemuBoard {

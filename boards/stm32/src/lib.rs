@@ -56,8 +56,7 @@ pub type DfuFlash = Serialized<Bank2Region3<'static, Async>>;
 /// sector at x8). Bank 1 is read on meanwhile (read-while-write between the banks, §3.6).
 pub type BootStateFlash = Serialized<Bank2Region2<'static, Async>>;
 
-/// Sockets: Modbus connection tasks plus the discovery socket, plus slack.
-const STACK_SOCKETS: usize = remodaq_shared::modbus::server::SOCKETS + 3;
+use remodaq_shared::embassy_net::STACK_SOCKETS;
 /// Independent watchdog period, nominal. The IWDG runs from the LSI, 17 to 47 kHz on the
 /// F429 (datasheet DS9405, LSI oscillator characteristics) against the 32 kHz embassy computes
 /// the reload with: 8 s nominal is 5.4 s to 15 s real. Fed every [`FEED_EVERY`] while every

@@ -11,11 +11,11 @@ use core::fmt::Write as _;
 use embassy_sync::blocking_mutex::raw::{CriticalSectionRawMutex, RawMutex};
 use embassy_sync::blocking_mutex::Mutex as Blocking;
 use embassy_sync::mutex::Mutex;
-use picoserve::io::Read;
+use picoserve::io::{Read, Socket};
 use picoserve::request::{Path, Request};
 use picoserve::response::{IntoResponse, Response, ResponseWriter, StatusCode};
 use picoserve::routing::PathRouterService;
-use picoserve::ResponseSent;
+use picoserve::{Config, EmbassyRuntime, ResponseSent, Router, Timeouts};
 use remodaq_protocol::auth::{KEY_LEN, NONCE_LEN};
 use remodaq_protocol::m8318::{InputType, REG_INPUT_TYPE};
 use remodaq_protocol::m8350::{DiMode, REG_DI_MODE};
@@ -32,6 +32,50 @@ use crate::module::{CommonSettings as _, SettingsAccess};
 
 /// The sessions of the module's web console (one set for both connections).
 pub type SharedSessions = Blocking<CriticalSectionRawMutex, RefCell<Sessions>>;
+
+/// The module's web sessions.
+pub static SESSIONS: SharedSessions = Blocking::new(RefCell::new(Sessions::new()));
+
+/// HTTP connections served at once (issue #25: at most 2, each in a task of its own, never a
+/// Modbus slot).
+pub const CONNECTIONS: usize = 2;
+
+/// The TCP port of the console on a module (issue #25: port 80).
+pub const PORT: u16 = 80;
+
+/// The request head and body together must fit (a larger head: 431 and closed; a larger
+/// body: 413). A login is about 300 bytes of head and 150 of body.
+pub const HTTP_BUFFER: usize = 1536;
+
+/// The timeouts of every connection: the first byte within 5 s, the whole request within 3 s
+/// of it, each write within 1 s; one request per connection (no keep-alive: a connection
+/// slot is not held between a page's requests).
+pub static CONFIG: Config = Config::new(Timeouts {
+    start_read_request: embassy_time::Duration::from_secs(5),
+    persistent_start_read_request: embassy_time::Duration::from_secs(1),
+    read_request: embassy_time::Duration::from_secs(3),
+    write: embassy_time::Duration::from_secs(1),
+})
+.close_connection_after_response();
+
+/// Milliseconds since the module started.
+fn now_ms() -> u64 {
+    embassy_time::Instant::now().as_millis()
+}
+
+/// Serves one connection (`socket`, from the client at `peer`) with the module's API, in
+/// `buffer`; every board's connection task calls this.
+pub async fn serve_connection<R: RawMutex, M: RegisterMap + SettingsAccess, S: Socket<EmbassyRuntime>>(
+    map: &Mutex<R, M>,
+    identity: Identity,
+    peer: [u8; 4],
+    socket: S,
+    buffer: &mut [u8; HTTP_BUFFER],
+) -> Result<(), picoserve::Error<S::Error>> {
+    let api = Api { map, identity, sessions: &SESSIONS, peer, now_ms };
+    let app = Router::from_service(api);
+    picoserve::Server::custom(&app, picoserve::time::EmbassyTimer, &CONFIG, buffer).serve(socket).await.map(|_| ())
+}
 
 /// Largest JSON answer, bytes (the 8350's 12 DIs with every field fit, about 1.3 KB).
 pub const MAX_ANSWER: usize = 2048;
