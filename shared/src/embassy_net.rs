@@ -129,7 +129,11 @@ impl<E: Effects> Network for EmbassyNet<E> {
     /// Two tasks (issue #25: at most 2 connections, never a Modbus slot), each with its own
     /// socket and buffers; one request per connection, within the service's timeouts.
     #[cfg(feature = "web")]
-    async fn serve_web<A: RegisterMap + SettingsAccess>(&'static self, map: &'static Shared<A>, identity: Identity) -> ! {
+    async fn serve_web<A: RegisterMap + SettingsAccess>(
+        &'static self,
+        map: &'static Shared<A>,
+        identity: Identity,
+    ) -> ! {
         use crate::web::service::{serve_connection, HTTP_BUFFER, PORT};
         let mut rx = [0u8; WEB_RX];
         let mut tx = [0u8; WEB_TX];

@@ -559,17 +559,50 @@ pub fn write_request(f: &Field, n: u16, body: &[u8]) -> Result<Pdu, WriteError> 
         Format::Bool => self::body::<bool>(body).map(|v| Pdu::bit(addr, v)),
         Format::Word | Format::InputType => self::body::<u16>(body).map(|v| Pdu::word(addr, v)),
         Format::Long => self::body::<u32>(body).map(|v| Pdu::long(addr, v)),
-        // Hundredths, rounded half away from zero; the map checks the range.
-        Format::Hundredths => self::body::<f32>(body)
-            .map(|v| v * 100.0 + if v < 0.0 { -0.5 } else { 0.5 })
-            .filter(|h| (f32::from(i16::MIN)..=f32::from(i16::MAX)).contains(h))
-            .map(|h| Pdu::word(addr, h as i16 as u16)),
+        // A decimal number of °C with at most two decimals (no float parsing in the image);
+        // the map checks the range.
+        Format::Hundredths => hundredths(body).and_then(|h| i16::try_from(h).ok()).map(|h| Pdu::word(addr, h as u16)),
         Format::Named(names) => self::body::<&str>(body)
             .and_then(|v| names.iter().position(|name| *name == v))
             .map(|i| Pdu::word(addr, i as u16)),
         Format::MaskBit | Format::Engineering | Format::Frequency | Format::Ipv4 => return Err(WriteError::ReadOnly),
     };
     request.ok_or(WriteError::NotAValue)
+}
+
+/// `{"value": N}` with N a decimal number of at most two decimals (`-2`, `1.25`), in
+/// hundredths.
+fn hundredths(body: &[u8]) -> Option<i32> {
+    let text = core::str::from_utf8(body).ok()?.trim();
+    let inner = text.strip_prefix('{')?.strip_suffix('}')?.trim();
+    let number = inner.strip_prefix("\"value\"")?.trim_start().strip_prefix(':')?.trim();
+    let (negative, digits) = match number.strip_prefix('-') {
+        Some(digits) => (true, digits),
+        None => (false, number),
+    };
+    let (whole, fraction) = match digits.split_once('.') {
+        Some((whole, fraction)) if !fraction.is_empty() => (whole, fraction),
+        Some(_) => return None,
+        None => (digits, ""),
+    };
+    let decimal = |t: &str| !t.is_empty() && t.len() <= 5 && t.bytes().all(|b| b.is_ascii_digit());
+    if !decimal(whole) || !(fraction.is_empty() || decimal(fraction)) || fraction.len() > 2 {
+        return None;
+    }
+    let cents = match fraction.len() {
+        0 => 0,
+        1 => fraction.parse::<i32>().ok()? * 10,
+        _ => fraction.parse::<i32>().ok()?,
+    };
+    let h = whole.parse::<i32>().ok()? * 100 + cents;
+    Some(if negative { -h } else { h })
+}
+
+/// Writes `thousandths` as a decimal number with three decimals.
+fn write_thousandths(json: &mut heapless::String<MAX_ANSWER>, thousandths: i64) -> core::fmt::Result {
+    let sign = if thousandths < 0 { "-" } else { "" };
+    let a = thousandths.unsigned_abs();
+    write!(json, "{sign}{}.{:03}", a / 1000, a % 1000)
 }
 
 /// What field `f` of item `n` reads as, from the map as it stands.
@@ -606,8 +639,13 @@ fn json_value(json: &mut heapless::String<MAX_ANSWER>, f: &Field, v: u32, input_
             Some(name) => write!(json, "\"{name}\""),
             None => write!(json, "{v}"),
         },
+        // spec §2.3 inverted in integers (every range's ends are whole units): lo + raw / 65535
+        // x (hi - lo), in thousandths, rounded (no float formatting in the image).
         Format::Engineering => match input_type {
-            Some(t) => write!(json, "{:.3}", t.value(v as u16)),
+            Some(t) => {
+                let (lo, hi) = (t.lo as i64, t.hi as i64);
+                write_thousandths(json, lo * 1000 + (i64::from(v as u16) * (hi - lo) * 1000 + 32767) / 65535)
+            }
             None => write!(json, "null"),
         },
         Format::InputType => match InputType::from_code(v as u8).filter(|_| v <= 0xFF) {
@@ -617,8 +655,8 @@ fn json_value(json: &mut heapless::String<MAX_ANSWER>, f: &Field, v: u32, input_
                     json,
                     "{{\"code\":{v},\"unit\":\"{}\",\"lo\":{},\"hi\":{},\"thermocouple\":\"{thermocouple}\"}}",
                     resources::unit(&t),
-                    t.lo,
-                    t.hi
+                    t.lo as i64,
+                    t.hi as i64
                 )
             }
             None => write!(json, "{{\"code\":{v}}}"),
@@ -659,5 +697,40 @@ impl Pdu {
     fn long(addr: u16, value: u32) -> Self {
         let ([a, b], [hh, hl, lh, ll]) = (addr.to_be_bytes(), value.to_be_bytes());
         Self { bytes: [0x10, a, b, 0, 2, 4, lh, ll, hh, hl], len: 10 }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn decimal_numbers_in_hundredths() {
+        for (body, want) in [
+            (r#"{"value":1.25}"#, Some(125)),
+            (r#"{"value":-2}"#, Some(-200)),
+            (r#"{"value":-0.5}"#, Some(-50)),
+            (r#" { "value" : 60 } "#, Some(6000)),
+            (r#"{"value":1.2}"#, Some(120)),
+            (r#"{"value":1.250}"#, None),
+            (r#"{"value":1.}"#, None),
+            (r#"{"value":.5}"#, None),
+            (r#"{"value":1e2}"#, None),
+            (r#"{"value":"1"}"#, None),
+            (r#"{"value":--1}"#, None),
+            (r#"{"value":123456}"#, None),
+            (r#"{"other":1}"#, None),
+        ] {
+            assert_eq!(hundredths(body.as_bytes()), want, "{body}");
+        }
+    }
+
+    #[test]
+    fn thousandths_as_decimals() {
+        for (t, want) in [(1200, "1.200"), (-250_000, "-250.000"), (-5, "-0.005"), (0, "0.000")] {
+            let mut json = heapless::String::new();
+            write_thousandths(&mut json, t).unwrap();
+            assert_eq!(json.as_str(), want);
+        }
     }
 }
