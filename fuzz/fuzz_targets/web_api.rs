@@ -80,11 +80,7 @@ impl picoserve::io::Write for Output<'_> {
         &mut self,
         f: F,
     ) -> Result<R, Self::Error> {
-        let mut buffer = [0u8; 1024];
-        let mut buffer = picoserve::mem::BorrowedBuffer::new(&mut buffer);
-        let output = f(buffer.unfilled());
-        self.0.extend_from_slice(buffer.filled());
-        Ok(output)
+        remodaq_shared::web::service::write_with_buffer(self, f).await
     }
 }
 

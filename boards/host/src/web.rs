@@ -51,10 +51,7 @@ impl picoserve::io::Write for Sender<'_> {
         &mut self,
         f: F,
     ) -> Result<R, Self::Error> {
-        let mut buffer = [0u8; 1024];
-        let mut buffer = picoserve::mem::BorrowedBuffer::new(&mut buffer);
-        let output = f(buffer.unfilled());
-        embedded_io_async::Write::write_all(&mut self.0, buffer.filled()).await.map(|()| output)
+        remodaq_shared::web::service::write_with_buffer(&mut self.0, f).await
     }
 }
 

@@ -63,6 +63,19 @@ fn now_ms() -> u64 {
     embassy_time::Instant::now().as_millis()
 }
 
+/// picoserve's [`picoserve::io::Write::write_with`] for a writer that has no buffer of its own
+/// to lend (a std socket, a test's output): `f` formats into a 1 KiB buffer, which is then
+/// written whole.
+pub async fn write_with_buffer<W: embedded_io_async::Write, F: FnOnce(picoserve::mem::BorrowedCursor<'_>) -> T, T>(
+    writer: &mut W,
+    f: F,
+) -> Result<T, W::Error> {
+    let mut buffer = [0u8; 1024];
+    let mut buffer = picoserve::mem::BorrowedBuffer::new(&mut buffer);
+    let output = f(buffer.unfilled());
+    writer.write_all(buffer.filled()).await.map(|()| output)
+}
+
 /// Serves one connection (`socket`, from the client at `peer`) with the module's API, in
 /// `buffer`; every board's connection task calls this.
 pub async fn serve_connection<R: RawMutex, M: RegisterMap + SettingsAccess, S: Socket<EmbassyRuntime>>(
