@@ -98,7 +98,7 @@ const fn shown(name: &'static str, base: u16, format: Format) -> Field {
 
 /// The register names of a channel status (registers 40225-40232), by value.
 pub const STATUS_NAMES: [&str; ChannelStatus::ALL.len()] =
-    ["ok", "open", "over", "under", "disabled", "front-end fault", "cold-junction fault"];
+    ["ok", "open", "over range", "under range", "disabled", "front-end fault", "cold-junction fault"];
 
 /// The names of the 8350's DI modes (spec §3.2), by register value.
 pub const DI_MODE_NAMES: [&str; 5] = ["normal", "counter", "latch rising", "latch falling", "frequency"];
@@ -255,7 +255,9 @@ mod tests {
 
     #[test]
     fn the_names_follow_the_register_values() {
-        assert_eq!(STATUS_NAMES[ChannelStatus::CjcFault as usize], "cold-junction fault");
+        for status in ChannelStatus::ALL {
+            assert_eq!(STATUS_NAMES[status as usize], status.name());
+        }
         assert_eq!(DI_MODE_NAMES[m8350::DiMode::Frequency as usize], "frequency");
         assert_eq!(DO_MODE_NAMES[m8350::DoMode::Pulse as usize], "pulse");
         // Spec §3.2: the pulse fields of DO n at 18h+2n, 24h+2n, 30h+2n, 3Ch+2n.

@@ -14,7 +14,7 @@ use remodaq_protocol::m8350::{
 use remodaq_shared::access;
 use remodaq_shared::diagnostics::{status, DIAGNOSTICS};
 use remodaq_shared::identity::FIRMWARE_VERSION;
-use remodaq_shared::modbus::map::{allows_each, read_bits_each, read_registers_each};
+use remodaq_shared::modbus::map::{allows_each, observe_registers_each, read_bits_each, read_registers_each};
 use remodaq_shared::modbus::{Access, Exception, RegisterMap, Table, WriteValues};
 use remodaq_shared::module::{write_update, SettingsAccess, Store, UpdateError};
 use remodaq_shared::warn;
@@ -172,6 +172,21 @@ impl<'a, F: NorFlash, R: RawMutex> Map8350<'a, F, R> {
         })
     }
 
+    /// Counter registers `start..start + len` (spec §3.2), each given to `put` with its index,
+    /// under one lock of the I/O state (a counter's two words belong together); `false` when
+    /// the run is not inside the counters.
+    fn counters(&self, start: u16, len: usize, mut put: impl FnMut(usize, u16)) -> bool {
+        let first = start.checked_sub(REG_COUNTER).map(usize::from).filter(|i| i + len <= 2 * DI_CHANNELS);
+        let Some(first) = first else { return false };
+        io::with(self.io, |s| {
+            for i in 0..len {
+                let (n, w) = ((first + i) / 2, Word::of((first + i) as u16));
+                put(i, w.get(s.di.counter_value(n)));
+            }
+        });
+        true
+    }
+
     fn read_point(&self, point: Point) -> u16 {
         let settings = &self.settings;
         io::with(self.io, |s| match point {
@@ -270,17 +285,26 @@ impl<F: NorFlash, R: RawMutex> RegisterMap for Map8350<'_, F, R> {
     }
 
     fn read_registers(&mut self, start: u16, out: &mut [u8]) {
-        let first = start.checked_sub(REG_COUNTER).map(usize::from).filter(|i| i + out.len() / 2 <= 2 * DI_CHANNELS);
-        if let Some(first) = first {
-            io::with(self.io, |s| {
-                for (i, word) in out.chunks_exact_mut(2).enumerate() {
-                    let (n, w) = ((first + i) / 2, Word::of((first + i) as u16));
-                    word.copy_from_slice(&w.get(s.di.counter_value(n)).to_be_bytes());
-                }
-            });
-            return;
+        let counters = self.counters(start, out.len() / 2, |i, v| {
+            if let Some(word) = out.get_mut(2 * i..2 * i + 2) {
+                word.copy_from_slice(&v.to_be_bytes());
+            }
+        });
+        if !counters {
+            read_registers_each(self, start, out)
         }
-        read_registers_each(self, start, out)
+    }
+
+    /// The counters' words together, as a Modbus read of them gets them.
+    fn observe_registers(&mut self, start: u16, out: &mut [u16]) {
+        let counters = self.counters(start, out.len(), |i, v| {
+            if let Some(word) = out.get_mut(i) {
+                *word = v;
+            }
+        });
+        if !counters {
+            observe_registers_each(self, start, out)
+        }
     }
 
     /// A write that touches RAM only (the bits, the extra pulses, the all-DO register, the

@@ -107,6 +107,14 @@ pub trait RegisterMap {
         self.read(table, addr)
     }
 
+    /// Registers `start..start + out.len()` (inside the 16-bit space, readable) as
+    /// [`RegisterMap::observe`] gives them, in one snapshot where the values are kept together
+    /// (a 32-bit counter's two words, which the I/O may change between two single reads). The
+    /// default: one at a time.
+    fn observe_registers(&mut self, start: u16, out: &mut [u16]) {
+        observe_registers_each(self, start, out)
+    }
+
     /// Check the values of a write to `start..start + values.len()`, all writable.
     fn validate(&self, start: u16, values: &WriteValues<'_>) -> Result<(), Exception>;
 
@@ -183,6 +191,13 @@ pub fn allows_each<M: RegisterMap + ?Sized>(map: &M, table: Table, start: u16, c
             access.readable()
         }
     })
+}
+
+/// [`RegisterMap::observe_registers`] one register at a time, through [`RegisterMap::observe`].
+pub fn observe_registers_each<M: RegisterMap + ?Sized>(map: &mut M, start: u16, out: &mut [u16]) {
+    for (i, v) in out.iter_mut().enumerate() {
+        *v = map.observe(Table::Registers, start.wrapping_add(i as u16));
+    }
 }
 
 /// [`RegisterMap::read_registers`] one register at a time, through [`RegisterMap::read`].

@@ -87,8 +87,34 @@ pub async fn serve_connection<R: RawMutex, M: RegisterMap + SettingsAccess, S: S
 ) -> Result<(), picoserve::Error<S::Error>> {
     let api = Api { map, identity, sessions: &SESSIONS, peer, now_ms };
     let app = Router::from_service(api);
-    picoserve::Server::custom(&app, picoserve::time::EmbassyTimer, &CONFIG, buffer).serve(socket).await.map(|_| ())
+    let serve = picoserve::Server::custom(&app, picoserve::time::EmbassyTimer, &CONFIG, buffer).serve(socket);
+    // picoserve's timeouts bound each read and write, not a client that reads its answer a byte
+    // at a time: the whole connection is bounded too (dropping it closes the socket).
+    match embassy_time::with_timeout(CONNECTION_MAX, serve).await {
+        Ok(served) => served.map(|_| ()),
+        Err(_) => Ok(()),
+    }
 }
+
+/// The longest a connection is served: one request (5 s to start, 3 s to arrive), its answer,
+/// and the close.
+pub const CONNECTION_MAX: embassy_time::Duration = embassy_time::Duration::from_secs(10);
+
+/// The console's pages: path, type, and the file gzip-compressed at build time (build.rs).
+const PAGES: [(&str, &str, &[u8]); 4] = [
+    ("/", "text/html; charset=utf-8", include_bytes!(concat!(env!("OUT_DIR"), "/index.html.gz"))),
+    ("/app.js", "text/javascript; charset=utf-8", include_bytes!(concat!(env!("OUT_DIR"), "/app.js.gz"))),
+    ("/auth.js", "text/javascript; charset=utf-8", include_bytes!(concat!(env!("OUT_DIR"), "/auth.js.gz"))),
+    ("/style.css", "text/css; charset=utf-8", include_bytes!(concat!(env!("OUT_DIR"), "/style.css.gz"))),
+];
+
+/// What every answer says about itself: a page's scripts come from the module only and no
+/// other site may frame it (clickjacking); browsers take the declared types as they are.
+const SECURITY_HEADERS: [(&str, &str); 3] = [
+    ("Content-Security-Policy", "default-src 'self'; frame-ancestors 'none'; form-action 'self'"),
+    ("X-Content-Type-Options", "nosniff"),
+    ("Referrer-Policy", "no-referrer"),
+];
 
 /// Largest JSON answer, bytes (the 8350's 12 DIs with every field fit, about 1.3 KB).
 pub const MAX_ANSWER: usize = 2048;
@@ -117,15 +143,43 @@ pub struct Api<'a, R: RawMutex, M> {
     pub now_ms: fn() -> u64,
 }
 
+/// A JSON text being written: once a piece did not fit, it is marked cut (and answered as an
+/// error, never sent cut short).
+#[derive(Default)]
+pub struct Json {
+    text: heapless::String<MAX_ANSWER>,
+    cut: bool,
+}
+
+impl core::fmt::Write for Json {
+    fn write_str(&mut self, s: &str) -> core::fmt::Result {
+        if self.cut || self.text.push_str(s).is_err() {
+            self.cut = true;
+            return Err(core::fmt::Error);
+        }
+        Ok(())
+    }
+}
+
+impl Json {
+    fn push(&mut self, c: char) {
+        let _ = self.write_char(c);
+    }
+
+    fn push_str(&mut self, s: &str) {
+        let _ = self.write_str(s);
+    }
+}
+
 /// An answer: a status and a JSON text.
 pub struct Answer {
     status: StatusCode,
-    json: heapless::String<MAX_ANSWER>,
+    json: Json,
 }
 
 impl Answer {
     fn new(status: StatusCode) -> Self {
-        Self { status, json: heapless::String::new() }
+        Self { status, json: Json::default() }
     }
 
     /// `{"error": what}` (and `"field": field` when one field is at fault).
@@ -135,7 +189,7 @@ impl Answer {
         if let Some(field) = field {
             let _ = write!(a.json, ",\"field\":\"{field}\"");
         }
-        let _ = a.json.push('}');
+        a.json.push('}');
         a
     }
 
@@ -150,9 +204,15 @@ impl IntoResponse for Answer {
         connection: picoserve::response::Connection<'_, R>,
         response_writer: W,
     ) -> Result<ResponseSent, W::Error> {
-        let response = Response::new(self.status, self.json.as_str())
+        let (status, json) = if self.json.cut {
+            (StatusCode::INTERNAL_SERVER_ERROR, "{\"error\":\"answer too long\"}")
+        } else {
+            (self.status, self.json.text.as_str())
+        };
+        let response = Response::new(status, json)
             .with_content_type("application/json")
-            .with_header("Cache-Control", "no-store");
+            .with_header("Cache-Control", "no-store")
+            .with_headers(SECURITY_HEADERS);
         response_writer.write_response(connection, response).await
     }
 }
@@ -198,10 +258,20 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess> PathRouterService for Api<'_,
         let parts = request.parts;
         let method = parts.method();
         let target = path.encoded();
+        if let Some((_, kind, gz)) = PAGES.iter().find(|(p, ..)| *p == target).filter(|_| method == "GET") {
+            // Every browser takes gzip; the page's files are served as compressed at build time.
+            let response = Response::new(StatusCode::OK, *gz)
+                .with_content_type(*kind)
+                .with_header("Content-Encoding", "gzip")
+                .with_header("Cache-Control", "no-cache")
+                .with_headers(SECURITY_HEADERS);
+            return response_writer.write_response(request.body_connection.finalize().await?, response).await;
+        }
         let query = parts.query().map(|q| q.0);
         let full = full_target(target, query);
-        let answer = match request.body_connection.body().read_all().await {
-            Ok(body) => {
+        let answer = match (request.body_connection.body().read_all().await, full.as_ref()) {
+            (Ok(_), None) => Answer::error(StatusCode::URI_TOO_LONG, "target too long", None),
+            (Ok(body), Some(full)) => {
                 let signed = Signed {
                     method,
                     target: full.as_str(),
@@ -214,7 +284,7 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess> PathRouterService for Api<'_,
                     header(&parts, "Origin").is_some_and(|origin| !same_origin(origin, header(&parts, "Host")));
                 self.route(method, target, query, &signed, foreign).await
             }
-            Err(_) => Answer::error(StatusCode::PAYLOAD_TOO_LARGE, "body too large", None),
+            (Err(_), _) => Answer::error(StatusCode::PAYLOAD_TOO_LARGE, "body too large", None),
         };
         answer.write_to(request.body_connection.finalize().await?, response_writer).await
     }
@@ -225,15 +295,16 @@ fn header<'a>(parts: &picoserve::request::RequestParts<'a>, name: &str) -> Optio
     parts.headers().get(name).and_then(|v| v.as_str().ok())
 }
 
-/// The request target as sent: the path, and `?` and the query when there is one.
-fn full_target(path: &str, query: Option<&str>) -> heapless::String<256> {
+/// The request target as sent: the path, and `?` and the query when there is one; `None` when
+/// it is longer than any resource's (it could not be signed whole).
+fn full_target(path: &str, query: Option<&str>) -> Option<heapless::String<256>> {
     let mut t = heapless::String::new();
-    let _ = t.push_str(path);
+    t.push_str(path).ok()?;
     if let Some(q) = query {
-        let _ = t.push('?');
-        let _ = t.push_str(q);
+        t.push('?').ok()?;
+        t.push_str(q).ok()?;
     }
-    t
+    Some(t)
 }
 
 /// Whether `origin` (`http://host[:port]`) is the origin the request was sent to (`Host`).
@@ -443,17 +514,18 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess> Api<'_, R, M> {
             if u32::from(addr) + u32::from(n) > 0x1_0000 || !map.allows(table, addr, n, false) {
                 return exception_answer(2, "address");
             }
-            for (i, v) in (addr..).zip(values.iter_mut()) {
-                *v = map.observe(table, i);
+            // addr + i stays within 16 bits: checked above.
+            for (i, v) in (0..n).zip(values.iter_mut()) {
+                *v = map.observe(table, addr + i);
             }
         }
         let mut a = Answer::new(StatusCode::OK);
-        let _ = a.json.push_str("{\"values\":[");
+        a.json.push_str("{\"values\":[");
         for (i, v) in values.iter().enumerate() {
             let sep = if i == 0 { "" } else { "," };
             let _ = if registers { write!(a.json, "{sep}{v}") } else { write!(a.json, "{sep}{}", *v != 0) };
         }
-        let _ = a.json.push_str("]}");
+        a.json.push_str("]}");
         a
     }
 
@@ -511,9 +583,9 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess> Api<'_, R, M> {
         let mut values = values.iter();
         for n in items {
             if n > 0 && list {
-                let _ = a.json.push(',');
+                a.json.push(',');
             }
-            let _ = a.json.push('{');
+            a.json.push('{');
             let mut first = true;
             for (f, v) in shown().zip(&mut values) {
                 let Seen::Value(v) = *v else {
@@ -527,13 +599,10 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess> Api<'_, R, M> {
                 first = false;
                 json_value(&mut a.json, f, v, input_type.as_ref());
             }
-            let _ = a.json.push('}');
+            a.json.push('}');
         }
         if list {
-            let _ = a.json.push_str("]}");
-        }
-        if a.json.len() == a.json.capacity() {
-            return Answer::error(StatusCode::INTERNAL_SERVER_ERROR, "answer too long", None);
+            a.json.push_str("]}");
         }
         a
     }
@@ -612,7 +681,7 @@ fn hundredths(body: &[u8]) -> Option<i32> {
 }
 
 /// Writes `thousandths` as a decimal number with three decimals.
-fn write_thousandths(json: &mut heapless::String<MAX_ANSWER>, thousandths: i64) -> core::fmt::Result {
+fn write_thousandths(json: &mut Json, thousandths: i64) -> core::fmt::Result {
     let sign = if thousandths < 0 { "-" } else { "" };
     let a = thousandths.unsigned_abs();
     write!(json, "{sign}{}.{:03}", a / 1000, a % 1000)
@@ -624,9 +693,13 @@ fn seen<M: RegisterMap>(map: &mut M, f: &Field, n: u16) -> Seen {
     if u32::from(addr) + u32::from(f.words()) > 0x1_0000 || !map.allows(f.table, addr, f.words(), false) {
         return Seen::Unmapped;
     }
+    if matches!(f.format, Format::Long | Format::Ipv4) && f.table == Table::Registers {
+        let mut words = [0u16; 2];
+        map.observe_registers(addr, &mut words);
+        return Seen::Value(u32::from(words[0]) | u32::from(words[1]) << 16);
+    }
     let low = map.observe(f.table, addr);
     Seen::Value(match f.format {
-        Format::Long | Format::Ipv4 => u32::from(low) | u32::from(map.observe(f.table, addr + 1)) << 16,
         Format::MaskBit => u32::from(low >> (n % 16) & 1),
         Format::Frequency => {
             if map.observe(Table::Registers, REG_DI_MODE + n) != DiMode::Frequency as u16 {
@@ -639,7 +712,7 @@ fn seen<M: RegisterMap>(map: &mut M, f: &Field, n: u16) -> Seen {
 }
 
 /// Writes the JSON value of field `f` read as `v` (`input_type`: the 8318's, for its values).
-fn json_value(json: &mut heapless::String<MAX_ANSWER>, f: &Field, v: u32, input_type: Option<&InputType>) {
+fn json_value(json: &mut Json, f: &Field, v: u32, input_type: Option<&InputType>) {
     let _ = match f.format {
         Format::Bool | Format::MaskBit => write!(json, "{}", v != 0),
         Format::Word | Format::Long | Format::Frequency => write!(json, "{v}"),

@@ -1,0 +1,320 @@
+// The web console's pages (docs/web.md): plain JavaScript, no framework. Reads need no login;
+// every change is a request signed with the session key (auth.js), which lives only in this
+// tab's memory. English and Simplified Chinese, from the browser's language, with a switch.
+"use strict";
+
+(function () {
+  const A = window.RdaqAuth;
+
+  const TEXT = {
+    en: {
+      status: "Status", io: "Live I/O", settings: "Settings", login: "Log in", logout: "Log out",
+      password: "Password", cancel: "Cancel", model: "Model", firmware: "Firmware", mac: "MAC address",
+      uptime: "Uptime", connections: "Modbus connections", requests: "Requests", exceptions: "Exceptions",
+      auth_failures: "Failed logins", last_failed_source: "Last failed login from",
+      channel: "Channel", value: "Value", raw: "Raw", enabled: "Enabled", input_type: "Input type",
+      cjc: "Cold junction", cjc_offset: "Cold-junction offset (°C)", open_value: "Open input reads",
+      upscale: "upscale (FFFFh)", downscale: "downscale (0000h)", enable_mask: "Enabled channels",
+      di: "Digital inputs", do: "Digital outputs", state: "State", mode: "Mode", counter: "Counter",
+      frequency: "Frequency (Hz)", latch: "Latch", overflow: "Overflow", on: "on", off: "off",
+      normal: "normal", "latch rising": "latch, rising edge", "latch falling": "latch, falling edge",
+      pulse: "pulse output", low_width: "Low (0.1 ms)", high_width: "High (0.1 ms)",
+      pulses: "Pulses (0: continuous)", timeout: "Host watchdog (0.1 s, 0: off)", watchdog: "Host watchdog",
+      saved: "Saved.", "need login": "Log in to change anything.", "wrong password": "Wrong password.",
+      "logged in": "Logged in.", "logged out": "Logged out.",
+      ok: "ok", open: "open", "over range": "over range", "under range": "under range", disabled: "disabled",
+      "front-end fault": "front-end fault", "cold-junction fault": "cold-junction fault",
+      thermocouple: "thermocouple", voltage: "voltage", current: "current",
+    },
+    zh: {
+      status: "状态", io: "实时 I/O", settings: "设置", login: "登录", logout: "退出登录",
+      password: "密码", cancel: "取消", model: "型号", firmware: "固件版本", mac: "MAC 地址",
+      uptime: "运行时间", connections: "Modbus 连接数", requests: "请求数", exceptions: "异常数",
+      auth_failures: "登录失败次数", last_failed_source: "最近失败登录来源",
+      channel: "通道", value: "数值", raw: "原始码", enabled: "启用", input_type: "输入类型",
+      cjc: "冷端温度", cjc_offset: "冷端偏移 (°C)", open_value: "断线时读数",
+      upscale: "上限 (FFFFh)", downscale: "下限 (0000h)", enable_mask: "启用的通道",
+      di: "数字输入", do: "数字输出", state: "状态", mode: "模式", counter: "计数",
+      frequency: "频率 (Hz)", latch: "锁存", overflow: "溢出", on: "开", off: "关",
+      normal: "普通", "latch rising": "上升沿锁存", "latch falling": "下降沿锁存",
+      pulse: "脉冲输出", low_width: "低电平 (0.1 ms)", high_width: "高电平 (0.1 ms)",
+      pulses: "脉冲数 (0: 连续)", timeout: "主机看门狗 (0.1 s, 0: 关闭)", watchdog: "主机看门狗",
+      saved: "已保存。", "need login": "请先登录再修改。", "wrong password": "密码错误。",
+      "logged in": "已登录。", "logged out": "已退出登录。",
+      ok: "正常", open: "断线", "over range": "超上限", "under range": "超下限", disabled: "已禁用",
+      "front-end fault": "前端故障", "cold-junction fault": "冷端故障",
+      thermocouple: "热电偶", voltage: "电压", current: "电流",
+    },
+  };
+
+  // Spec §2.2: the 8318's input types, by code.
+  const INPUT_TYPES = [
+    [0x00, "±15 mV"], [0x01, "±50 mV"], [0x02, "±100 mV"], [0x03, "±500 mV"], [0x04, "±1 V"],
+    [0x05, "±2.5 V"], [0x06, "±20 mA"], [0x0e, "J -200…1100 °C"], [0x0f, "K -250…1400 °C"],
+    [0x10, "T -250…400 °C"], [0x11, "E -250…900 °C"], [0x12, "R 0…1750 °C"], [0x13, "S 0…1750 °C"],
+    [0x14, "B 0…1800 °C"], [0x15, "N -250…1300 °C"], [0x16, "C 0…2310 °C"], [0x17, "L -200…800 °C"],
+    [0x18, "M -200…100 °C"],
+  ];
+  const DI_MODES = ["normal", "counter", "latch rising", "latch falling", "frequency"];
+  const DO_MODES = ["normal", "pulse"];
+
+  let lang = (localStorage.getItem("rdaq-lang") || navigator.language || "en").toLowerCase().startsWith("zh") ? "zh" : "en";
+  let identity = null;
+  let session = null; // { id, key, counter }: this tab's memory only
+  let timer = null;
+
+  const t = (key) => (TEXT[lang] && TEXT[lang][key]) || TEXT.en[key] || key;
+  const $ = (id) => document.getElementById(id);
+  const page = $("page");
+
+  function el(tag, attrs, ...children) {
+    const e = document.createElement(tag);
+    for (const [k, v] of Object.entries(attrs || {})) {
+      if (k.startsWith("on")) e.addEventListener(k.slice(2), v);
+      else if (v !== undefined && v !== null && v !== false) e.setAttribute(k, v === true ? "" : v);
+    }
+    for (const c of children.flat(Infinity)) e.append(c instanceof Node ? c : String(c));
+    return e;
+  }
+
+  function say(text, error) {
+    const m = $("message");
+    m.textContent = text;
+    m.className = error ? "error" : "";
+  }
+
+  async function get(path) {
+    const r = await fetch("/api/v1/" + path, { cache: "no-store" });
+    const body = await r.json();
+    if (!r.ok) throw new Error(body.error || r.status);
+    return body;
+  }
+
+  // A state-changing request, signed (docs/web.md, "Authentication"); the error's field, if any.
+  async function signed(method, path, value) {
+    if (!session) {
+      say(t("need login"), true);
+      throw new Error("need login");
+    }
+    const target = "/api/v1/" + path;
+    const body = value === undefined ? "" : JSON.stringify({ value });
+    session.counter += 1;
+    const signature = await A.requestSignature(session.key, method, target, session.counter, body);
+    const r = await fetch(target, {
+      method,
+      body: body || undefined,
+      headers: {
+        "Content-Type": "application/json",
+        "X-RDAQ-Session": session.id,
+        "X-RDAQ-Counter": String(session.counter),
+        "X-RDAQ-Signature": A.hex(signature),
+      },
+    });
+    if (r.status === 204) return;
+    const answer = await r.json().catch(() => ({}));
+    if (r.status === 401 && answer.error === "no session") session = null;
+    const what = (answer.field ? t(answer.field) + ": " : "") + (answer.error || r.status);
+    say(what, true);
+    throw new Error(what);
+  }
+
+  async function login(password) {
+    const c = await (await fetch("/api/v1/session/challenge", { method: "POST" })).json();
+    if (!c.nonce) throw new Error(c.error || "no challenge");
+    const keys = await A.deriveKeys(password, A.unhex(c.salt), c.iterations);
+    const mac = A.unhex(identity.mac);
+    const nonce = A.unhex(c.nonce);
+    const pageNonce = crypto.getRandomValues(new Uint8Array(16));
+    const message = A.loginMessage(mac, nonce, pageNonce);
+    const proof = await A.proof(keys, message);
+    const r = await fetch("/api/v1/session", {
+      method: "POST",
+      headers: { "Content-Type": "application/json" },
+      body: JSON.stringify({ nonce: c.nonce, page_nonce: A.hex(pageNonce), proof: A.hex(proof) }),
+    });
+    const s = await r.json();
+    if (r.status !== 200) throw new Error(s.error === "wrong password" ? t("wrong password") : s.error);
+    // The module proves it knows this password too: a forger on the LAN cannot fake a login.
+    if (!(await A.loginSignatureIsRight(keys, message, A.unhex(s.session), A.unhex(s.signature)))) {
+      throw new Error("the module's signature is wrong");
+    }
+    session = { id: s.session, key: await A.sessionKey(keys, nonce, pageNonce), counter: 0 };
+  }
+
+  // A control that writes one field when changed.
+  function field(path, value, kind, options) {
+    const write = async (v) => {
+      try {
+        await signed("PUT", path, v);
+        say(t("saved"));
+      } catch (e) {
+        show();
+      }
+    };
+    if (kind === "select") {
+      return el("select", { "aria-label": path, onchange: (e) => write(options.parse ? options.parse(e.target.value) : e.target.value) },
+        options.list.map(([v, label]) => el("option", { value: v, selected: String(v) === String(value) }, label)));
+    }
+    return el("input", {
+      "aria-label": path, type: "number", value, step: kind === "decimal" ? "0.01" : "1",
+      onchange: (e) => write(Number(e.target.value)),
+    });
+  }
+
+  function table(head, rows) {
+    return el("table", {}, el("tr", {}, head.map((h) => el("th", {}, h))), rows);
+  }
+
+  function statusClass(s) {
+    return s.split(" ")[0];
+  }
+
+  function uptime(s) {
+    const d = Math.floor(s / 86400), h = Math.floor(s / 3600) % 24, m = Math.floor(s / 60) % 60;
+    return (d ? d + " d " : "") + h + " h " + m + " min";
+  }
+
+  const PAGES = {
+    async status() {
+      const d = await get("diagnostics");
+      const rows = [
+        ["model", identity.name], ["firmware", identity.firmware], ["mac", identity.mac],
+        ["uptime", uptime(d.uptime_s)], ["connections", d.connections], ["requests", d.requests],
+        ["exceptions", d.exceptions], ["auth_failures", d.auth_failures], ["last_failed_source", d.last_failed_source],
+      ];
+      return el("dl", {}, rows.map(([k, v]) => [el("dt", {}, t(k)), el("dd", {}, v)]));
+    },
+
+    async io() {
+      if (identity.model === "8318") {
+        const [c, i] = await Promise.all([get("channels"), get("inputs")]);
+        const unit = i.type.unit || "";
+        return table([t("channel"), t("value"), t("status"), t("raw")], c.channels.map((ch, n) =>
+          el("tr", { class: statusClass(ch.status) },
+            el("td", {}, n), el("td", { class: "num" }, ch.value === null ? "-" : ch.value.toFixed(3) + " " + unit),
+            el("td", {}, t(ch.status)), el("td", { class: "num" }, ch.raw))));
+      }
+      const [di, dout] = await Promise.all([get("di"), get("do")]);
+      return [
+        el("h2", {}, t("di")),
+        table([t("channel"), t("state"), t("mode"), t("counter"), t("frequency"), t("latch"), t("overflow")], di.di.map((d, n) =>
+          el("tr", {}, el("td", {}, "DI" + n), el("td", { class: d.state ? "on" : "" }, t(d.state ? "on" : "off")),
+            el("td", {}, t(d.mode)), el("td", { class: "num" }, d.counter),
+            el("td", { class: "num" }, d.frequency === null ? "-" : d.frequency),
+            el("td", {}, d.latch ? "●" : ""), el("td", {}, d.overflow ? "●" : "")))),
+        el("h2", {}, t("do")),
+        table([t("channel"), t("state"), t("mode")], dout.do.map((d, n) =>
+          el("tr", {}, el("td", {}, "DO" + n),
+            el("td", {}, el("button", {
+              class: "toggle" + (d.state ? " on" : ""), "aria-pressed": String(d.state), "aria-label": "DO" + n,
+              onclick: () => signed("PUT", "do/" + n + "/state", !d.state).then(show, () => {}),
+            }, t(d.state ? "on" : "off"))),
+            el("td", {}, t(d.mode))))),
+      ];
+    },
+
+    async settings() {
+      if (identity.model === "8318") {
+        const i = await get("inputs");
+        const types = INPUT_TYPES.map(([code, name]) => [code, name]);
+        return el("div", {},
+          el("label", {}, t("input_type") + " ", field("inputs/type", i.type.code, "select", { list: types, parse: Number })),
+          el("label", {}, t("enable_mask") + " ", field("inputs/enable_mask", i.enable_mask, "number")),
+          el("label", {}, t("cjc_offset") + " ", field("inputs/cjc_offset", i.cjc_offset, "decimal")),
+          el("label", {}, t("open_value") + " ", field("inputs/open_value", i.open_value, "select",
+            { list: [["upscale", t("upscale")], ["downscale", t("downscale")]] })),
+          el("p", {}, t("cjc") + ": " + i.cjc + " °C"));
+      }
+      const [di, dout, w] = await Promise.all([get("di"), get("do"), get("watchdog")]);
+      const modes = (list) => ({ list: list.map((m) => [m, t(m)]) });
+      return [
+        el("h2", {}, t("di")),
+        table([t("channel"), t("mode")], di.di.map((d, n) =>
+          el("tr", {}, el("td", {}, "DI" + n), el("td", {}, field("di/" + n + "/mode", d.mode, "select", modes(DI_MODES)))))),
+        el("h2", {}, t("do")),
+        table([t("channel"), t("mode"), t("low_width"), t("high_width"), t("pulses")], dout.do.map((d, n) =>
+          el("tr", {}, el("td", {}, "DO" + n),
+            el("td", {}, field("do/" + n + "/mode", d.mode, "select", modes(DO_MODES))),
+            el("td", {}, field("do/" + n + "/low_width", d.low_width, "number")),
+            el("td", {}, field("do/" + n + "/high_width", d.high_width, "number")),
+            el("td", {}, field("do/" + n + "/pulses", d.pulses, "number"))))),
+        el("h2", {}, t("watchdog")),
+        el("label", {}, t("timeout") + " ", field("watchdog/timeout", w.timeout, "number")),
+      ];
+    },
+  };
+
+  function current() {
+    const name = location.hash.slice(1);
+    return PAGES[name] ? name : "status";
+  }
+
+  // Draws the current page; the live I/O page again about twice a second.
+  async function show() {
+    clearTimeout(timer);
+    const name = current();
+    for (const a of document.querySelectorAll("nav a")) a.classList.toggle("on", a.getAttribute("href") === "#" + name);
+    try {
+      const content = await PAGES[name]();
+      // A control being edited is not redrawn under the user's hands.
+      if (name !== "settings" || !page.contains(document.activeElement)) page.replaceChildren(...[content].flat());
+    } catch (e) {
+      say(String(e.message || e), true);
+    }
+    if (name === "io") timer = setTimeout(show, 500);
+  }
+
+  function translate() {
+    document.documentElement.lang = lang === "zh" ? "zh-CN" : "en";
+    for (const e of document.querySelectorAll("[data-t]")) e.textContent = t(e.dataset.t);
+    $("lang").textContent = lang === "zh" ? "English" : "中文";
+    $("login").textContent = t(session ? "logout" : "login");
+  }
+
+  $("lang").addEventListener("click", () => {
+    lang = lang === "zh" ? "en" : "zh";
+    localStorage.setItem("rdaq-lang", lang);
+    translate();
+    show();
+  });
+
+  $("login").addEventListener("click", async () => {
+    if (session) {
+      await signed("DELETE", "session").catch(() => {});
+      session = null;
+      say(t("logged out"));
+      translate();
+      return;
+    }
+    $("login-error").textContent = "";
+    $("login-dialog").showModal();
+  });
+
+  $("login-form").addEventListener("submit", async (e) => {
+    if (e.submitter && e.submitter.value === "cancel") return;
+    e.preventDefault();
+    try {
+      await login($("password").value);
+      $("password").value = "";
+      $("login-dialog").close();
+      say(t("logged in"));
+      translate();
+    } catch (err) {
+      $("login-error").textContent = String(err.message || err);
+    }
+  });
+
+  window.addEventListener("hashchange", show);
+
+  (async () => {
+    try {
+      identity = await get("identity");
+      $("model").textContent = identity.name;
+      document.title = identity.name;
+    } catch (e) {
+      say(String(e.message || e), true);
+    }
+    translate();
+    show();
+  })();
+})();

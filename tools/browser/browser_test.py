@@ -1,0 +1,298 @@
+#!/usr/bin/env python3
+"""The web console in a real headless browser (issue #25): Debian's chromium driven through
+chromedriver by the W3C WebDriver protocol (plain HTTP and JSON, Python's standard library
+only), against the host build of both modules, started here with --http.
+
+    tools/browser/browser_test.py TARGET_DIR [SCREENSHOT_DIR]
+
+TARGET_DIR holds firmware-8318 and firmware-8350 (the host build, e.g. target/debug). Each
+check prints `browser CHECK ... ok` or `... FAILED: why`; the last line is
+`browser: N passed, M failed`. Screenshots of the pages go to SCREENSHOT_DIR (default
+target/browser). Expected values come from the spec (modules.md) and the Modbus reads made
+here, never from the console's own code.
+"""
+import base64
+import json
+import os
+import shutil
+import socket
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.error
+import urllib.request
+
+FACTORY_PASSWORD = "remodaq"  # protocol/src/auth.rs, the factory credential
+ELEMENT = "element-6066-11e4-a52e-4f735466cecf"  # W3C WebDriver §12: the web element identifier
+
+
+def free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class WebDriver:
+    """A chromedriver session: the few W3C WebDriver commands these checks use."""
+
+    def __init__(self, driver_port, window="1000,800"):
+        self.base = f"http://127.0.0.1:{driver_port}"
+        caps = {
+            "capabilities": {
+                "alwaysMatch": {
+                    "browserName": "chrome",
+                    "goog:chromeOptions": {
+                        "binary": shutil.which("chromium") or "/usr/bin/chromium",
+                        "args": ["--headless=new", "--no-sandbox", "--disable-gpu", f"--window-size={window}", "--lang=en-US"],
+                    },
+                }
+            }
+        }
+        self.session = self.call("POST", "/session", caps)["sessionId"]
+
+    def call(self, method, path, body=None):
+        data = None if body is None else json.dumps(body).encode()
+        req = urllib.request.Request(self.base + path, data=data, method=method, headers={"Content-Type": "application/json"})
+        try:
+            with urllib.request.urlopen(req, timeout=60) as r:
+                return json.load(r).get("value")
+        except urllib.error.HTTPError as e:
+            raise RuntimeError(f"webdriver {method} {path}: {e.read().decode(errors='replace')[:300]}") from None
+
+    def s(self, method, path, body=None):
+        return self.call(method, f"/session/{self.session}{path}", body)
+
+    def go(self, url):
+        self.s("POST", "/url", {"url": url})
+
+    def find(self, css, wait=10.0):
+        deadline = time.time() + wait
+        while True:
+            found = self.s("POST", "/elements", {"using": "css selector", "value": css})
+            if found:
+                return found[0][ELEMENT]
+            if time.time() > deadline:
+                raise RuntimeError(f"no element {css!r}")
+            time.sleep(0.1)
+
+    def click(self, css):
+        self.s("POST", f"/element/{self.find(css)}/click", {})
+
+    def type(self, css, text):
+        e = self.find(css)
+        self.s("POST", f"/element/{e}/clear", {})
+        self.s("POST", f"/element/{e}/value", {"text": text})
+
+    def text(self, css):
+        return self.s("GET", f"/element/{self.find(css)}/text")
+
+    def wait_text(self, css, want, wait=10.0):
+        """Waits until the element's text contains `want`; returns the text."""
+        deadline = time.time() + wait
+        text = ""
+        while time.time() < deadline:
+            try:
+                text = self.text(css)
+            except RuntimeError:
+                text = ""
+            if want in text:
+                return text
+            time.sleep(0.1)
+        raise RuntimeError(f"{css!r} reads {text!r}, not {want!r}")
+
+    def screenshot(self, path):
+        with open(path, "wb") as f:
+            f.write(base64.b64decode(self.s("GET", "/screenshot")))
+
+    def quit(self):
+        try:
+            self.s("DELETE", "")
+        except Exception:
+            pass
+
+
+def read_coils(modbus, start, count):
+    """Modbus/TCP function 01, over a plain socket."""
+    with socket.create_connection(modbus, timeout=5) as s:
+        s.sendall(struct.pack(">HHHBBHH", 1, 0, 6, 1, 1, start, count))
+        answer = s.recv(64)
+    if answer[7] != 1:
+        raise RuntimeError(f"exception {answer[8]}")
+    bits = int.from_bytes(answer[9 : 9 + answer[8]], "little")
+    return [bool(bits >> i & 1) for i in range(count)]
+
+
+def read_registers(modbus, start, count):
+    """Modbus/TCP function 03."""
+    with socket.create_connection(modbus, timeout=5) as s:
+        s.sendall(struct.pack(">HHHBBHH", 1, 0, 6, 1, 3, start, count))
+        answer = s.recv(300)
+    if answer[7] != 3:
+        raise RuntimeError(f"exception {answer[8]}")
+    return list(struct.unpack(f">{count}H", answer[9 : 9 + 2 * count]))
+
+
+class Module:
+    """A simulated module (the host build) with its web console on a free port."""
+
+    def __init__(self, program, workdir, scenario):
+        self.modbus = ("127.0.0.1", free_port())
+        self.web = f"http://127.0.0.1:{free_port()}"
+        name = os.path.basename(program)
+        scenario_file = os.path.join(workdir, f"{name}.toml")
+        with open(scenario_file, "w") as f:
+            f.write(scenario)
+        args = [program, "--listen", "%s:%d" % self.modbus, "--http", self.web[len("http://") :],
+                "--discovery", f"127.0.0.1:{free_port()}", "--flash", os.path.join(workdir, f"{name}.flash"),
+                "--scenario", scenario_file]
+        self.process = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        deadline = time.time() + 30
+        while True:
+            try:
+                urllib.request.urlopen(self.web + "/api/v1/identity", timeout=2).read()
+                break
+            except Exception:
+                if time.time() > deadline or self.process.poll() is not None:
+                    raise RuntimeError(f"{name} did not start")
+                time.sleep(0.2)
+
+    def stop(self):
+        self.process.kill()
+        self.process.wait()
+
+
+class Checks:
+    def __init__(self):
+        self.passed = 0
+        self.failed = 0
+
+    def check(self, name, f):
+        try:
+            f()
+            self.passed += 1
+            print(f"browser {name} ... ok", flush=True)
+        except Exception as e:  # every failure is reported, and the next check runs
+            self.failed += 1
+            print(f"browser {name} ... FAILED: {e}", flush=True)
+
+
+def log_in(b, password):
+    b.click("#login")
+    b.type("#password", password)
+    b.click("#login-form button[value=ok]")
+
+
+def main():
+    target = sys.argv[1] if len(sys.argv) > 1 else "target/debug"
+    shots = sys.argv[2] if len(sys.argv) > 2 else "target/browser"
+    os.makedirs(shots, exist_ok=True)
+    driver_port = free_port()
+    driver = subprocess.Popen(["chromedriver", f"--port={driver_port}"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    checks = Checks()
+    work = tempfile.mkdtemp(prefix="rdaq-browser-")
+    modules = []
+    try:
+        time.sleep(1)
+        m8350 = Module(os.path.join(target, "firmware-8350"), work, "[di0]\nsquare_hz = 5.0\n[di1]\nlevel = true\n")
+        m8318 = Module(os.path.join(target, "firmware-8318"), work,
+                       "cjc_celsius = 25.0\n[ch0]\nmillivolts = 41.276\n[ch1]\nvolts = 1.2\n[ch3]\nopen = true\n")
+        modules += [m8350, m8318]
+        b = WebDriver(driver_port)
+
+        # 8350: every page loads.
+        # What each page must show (spec: firmware version A100h, 12 DI, 6 DO; extensions §3).
+        shows = {"status": ["Firmware\nA100", "Uptime"], "io": ["DI11", "DO5"], "settings": ["DI11", "Host watchdog"]}
+        for page in ["status", "io", "settings"]:
+            def load(page=page):
+                b.go(f"{m8350.web}/#{page}")
+                b.wait_text("#model", "RemoDAQ-8350")
+                for want in shows[page]:
+                    b.wait_text("main#page", want)
+                if "[object" in b.text("main#page"):
+                    raise RuntimeError("the page shows an object where text belongs")
+                b.screenshot(os.path.join(shots, f"8350-{page}.png"))
+            checks.check(f"8350 page {page} loads and shows {', '.join(w.replace(chr(10), ' ') for w in shows[page])}", load)
+
+        def wrong_then_right():
+            b.go(f"{m8350.web}/#io")
+            log_in(b, "not the password")
+            b.wait_text("#login-error", "Wrong password")
+            b.type("#password", FACTORY_PASSWORD)
+            b.click("#login-form button[value=ok]")
+            b.wait_text("#message", "Logged in")
+            b.wait_text("#login", "Log out")
+        checks.check("8350 log in: a wrong password refused, then the right one", wrong_then_right)
+
+        def toggle():
+            b.go(f"{m8350.web}/#io")
+            b.wait_text("button[aria-label=DO2]", "off")
+            b.click("button[aria-label=DO2]")
+            b.wait_text("button[aria-label=DO2]", "on")
+            # Spec §3.1: DO0-DO5 at coils 10h-15h.
+            coils = read_coils(m8350.modbus, 0x10, 6)
+            if coils != [False, False, True, False, False, False]:
+                raise RuntimeError(f"Modbus reads the DOs {coils}")
+            b.screenshot(os.path.join(shots, "8350-io-do2-on.png"))
+        checks.check("8350 DO2 toggled on the live page, confirmed by a Modbus read", toggle)
+
+        def chinese():
+            b.go(f"{m8350.web}/#io")
+            b.click("#lang")
+            b.wait_text("nav", "实时")
+            b.wait_text("main#page", "数字输入")
+            b.screenshot(os.path.join(shots, "8350-io-zh.png"))
+            b.click("#lang")
+            b.wait_text("nav", "Live I/O")
+        checks.check("8350 language switch to Simplified Chinese and back", chinese)
+
+        # 8318: pages, then the input type changed on the settings page.
+        # The scenario's channel 3 is an open thermocouple (extensions §2: status open).
+        shows = {"status": ["Firmware\nA100", "Uptime"], "io": ["open", "°C"], "settings": ["Input type", "Cold junction: 25"]}
+        for page in ["status", "io", "settings"]:
+            def load(page=page):
+                b.go(f"{m8318.web}/#{page}")
+                b.wait_text("#model", "RemoDAQ-8318")
+                for want in shows[page]:
+                    b.wait_text("main#page", want)
+                if "[object" in b.text("main#page"):
+                    raise RuntimeError("the page shows an object where text belongs")
+                b.screenshot(os.path.join(shots, f"8318-{page}.png"))
+            checks.check(f"8318 page {page} loads and shows {', '.join(w.replace(chr(10), ' ') for w in shows[page])}", load)
+
+        def input_type():
+            b.go(f"{m8318.web}/#io")
+            # Factory type K (spec §2.2): °C.
+            b.wait_text("main#page", "°C")
+            log_in(b, FACTORY_PASSWORD)
+            b.wait_text("#message", "Logged in")
+            b.go(f"{m8318.web}/#settings")
+            b.click('select[aria-label="inputs/type"]')
+            b.click('select[aria-label="inputs/type"] option[value="5"]')
+            b.wait_text("#message", "Saved")
+            # Spec §2.1: 40201 holds the type code; 05h is ±2.5 V.
+            if read_registers(m8318.modbus, 0xC8, 1) != [5]:
+                raise RuntimeError(f"40201 reads {read_registers(m8318.modbus, 0xC8, 1)}")
+            b.go(f"{m8318.web}/#io")
+            # Channel 1 at 1.2 V reads 1200 mV (one count of ±2.5 V is 0.076 mV).
+            text = b.wait_text("main#page", " mV")
+            if "°C" in text or "1200.0" not in text:
+                raise RuntimeError(f"the live page reads {text!r}")
+            b.screenshot(os.path.join(shots, "8318-io-volts.png"))
+        checks.check("8318 input type changed to ±2.5 V: 40201 reads 05h, the values turn to mV", input_type)
+        b.quit()
+    except Exception as e:
+        checks.failed += 1
+        print(f"browser set-up ... FAILED: {e}", flush=True)
+    finally:
+        for m in modules:
+            m.stop()
+        driver.kill()
+        shutil.rmtree(work, ignore_errors=True)
+    print(f"browser: {checks.passed} passed, {checks.failed} failed")
+    return 0 if checks.failed == 0 else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
