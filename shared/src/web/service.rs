@@ -261,7 +261,7 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess> PathRouterService for Api<'_,
         if let Some((_, kind, gz)) = PAGES.iter().find(|(p, ..)| *p == target).filter(|_| method == "GET") {
             // Every browser takes gzip; the page's files are served as compressed at build time.
             let response = Response::new(StatusCode::OK, *gz)
-                .with_content_type(*kind)
+                .with_content_type(kind)
                 .with_header("Content-Encoding", "gzip")
                 .with_header("Cache-Control", "no-cache")
                 .with_headers(SECURITY_HEADERS);
