@@ -812,11 +812,23 @@ mod tests {
     }
 
     #[test]
+    fn an_answer_that_does_not_fit_is_marked_cut() {
+        let mut json = Json::default();
+        for _ in 0..MAX_ANSWER / 10 {
+            json.push_str("0123456789");
+        }
+        assert!(!json.cut);
+        json.push_str("0123456789");
+        json.push('}');
+        assert!(json.cut, "a piece that did not fit, and any after it");
+    }
+
+    #[test]
     fn thousandths_as_decimals() {
         for (t, want) in [(1200, "1.200"), (-250_000, "-250.000"), (-5, "-0.005"), (0, "0.000")] {
-            let mut json = heapless::String::new();
+            let mut json = Json::default();
             write_thousandths(&mut json, t).unwrap();
-            assert_eq!(json.as_str(), want);
+            assert_eq!(json.text.as_str(), want);
         }
     }
 }
