@@ -178,6 +178,20 @@ class Checks:
             print(f"browser {name} ... FAILED: {e}", flush=True)
 
 
+def every_page(checks, b, module, model, shots, shows):
+    """Loads each page of `module`; each must show the texts `shows` names for it."""
+    for page, wanted in shows.items():
+        def load(page=page, wanted=wanted):
+            b.go(f"{module.web}/#{page}")
+            b.wait_text("#model", f"RemoDAQ-{model}")
+            for want in wanted:
+                b.wait_text("main#page", want)
+            if "[object" in b.text("main#page"):
+                raise RuntimeError("the page shows an object where text belongs")
+            b.screenshot(os.path.join(shots, f"{model}-{page}.png"))
+        checks.check(f"{model} page {page} loads and shows {', '.join(w.replace(chr(10), ' ') for w in wanted)}", load)
+
+
 def log_in(b, password):
     b.click("#login")
     b.type("#password", password)
@@ -203,17 +217,8 @@ def main():
 
         # 8350: every page loads.
         # What each page must show (spec: firmware version A100h, 12 DI, 6 DO; extensions §3).
-        shows = {"status": ["Firmware\nA100", "Uptime"], "io": ["DI11", "DO5"], "settings": ["DI11", "Host watchdog"]}
-        for page in ["status", "io", "settings"]:
-            def load(page=page):
-                b.go(f"{m8350.web}/#{page}")
-                b.wait_text("#model", "RemoDAQ-8350")
-                for want in shows[page]:
-                    b.wait_text("main#page", want)
-                if "[object" in b.text("main#page"):
-                    raise RuntimeError("the page shows an object where text belongs")
-                b.screenshot(os.path.join(shots, f"8350-{page}.png"))
-            checks.check(f"8350 page {page} loads and shows {', '.join(w.replace(chr(10), ' ') for w in shows[page])}", load)
+        every_page(checks, b, m8350, "8350", shots,
+                   {"status": ["Firmware\nA100", "Uptime"], "io": ["DI11", "DO5"], "settings": ["DI11", "Host watchdog"]})
 
         def wrong_then_right():
             b.go(f"{m8350.web}/#io")
@@ -249,17 +254,8 @@ def main():
 
         # 8318: pages, then the input type changed on the settings page.
         # The scenario's channel 3 is an open thermocouple (extensions §2: status open).
-        shows = {"status": ["Firmware\nA100", "Uptime"], "io": ["open", "°C"], "settings": ["Input type", "Cold junction: 25"]}
-        for page in ["status", "io", "settings"]:
-            def load(page=page):
-                b.go(f"{m8318.web}/#{page}")
-                b.wait_text("#model", "RemoDAQ-8318")
-                for want in shows[page]:
-                    b.wait_text("main#page", want)
-                if "[object" in b.text("main#page"):
-                    raise RuntimeError("the page shows an object where text belongs")
-                b.screenshot(os.path.join(shots, f"8318-{page}.png"))
-            checks.check(f"8318 page {page} loads and shows {', '.join(w.replace(chr(10), ' ') for w in shows[page])}", load)
+        every_page(checks, b, m8318, "8318", shots,
+                   {"status": ["Firmware\nA100", "Uptime"], "io": ["open", "°C"], "settings": ["Input type", "Cold junction: 25"]})
 
         def input_type():
             b.go(f"{m8318.web}/#io")
