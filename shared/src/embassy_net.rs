@@ -213,8 +213,8 @@ async fn accept_one(socket: &mut TcpSocket<'_>, port: u16, service: &str) -> boo
     socket.state() != State::Closed
 }
 
-/// The web console's socket buffers: a request (head and body) fits the receive buffer; an
-/// answer of up to 2 KiB leaves in two windows.
+/// The web console's socket buffers: a request larger than the receive buffer (up to the
+/// service's 1.5 KiB) arrives in two windows, an answer of up to 2 KiB leaves in two.
 #[cfg(feature = "web")]
 const WEB_RX: usize = 1024;
 #[cfg(feature = "web")]
