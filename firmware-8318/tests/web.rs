@@ -4,17 +4,12 @@
 
 use std::time::{Duration, Instant};
 
-use remodaq_board_host::testing::web::{field, log_in, request};
+use remodaq_board_host::testing::web::{field, log_in, number, request};
 use remodaq_board_host::testing::SimModule;
 use remodaq_protocol::auth::FACTORY_PASSWORD;
 use tokio_modbus::client::{tcp, Reader};
 
 const BIN: &str = env!("CARGO_BIN_EXE_firmware-8318");
-
-/// A number `"name":N` in a JSON text.
-fn number(json: &str, name: &str) -> Option<f64> {
-    json.split(&format!("\"{name}\":")).nth(1)?.split([',', '}']).next()?.parse().ok()
-}
 
 /// GETs `target` until `done` holds for its body (10 s at most).
 async fn get_until(web: std::net::SocketAddr, target: &str, done: impl Fn(&str) -> bool) -> String {

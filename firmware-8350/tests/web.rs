@@ -8,7 +8,7 @@ use std::net::{SocketAddr, TcpStream};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use remodaq_board_host::testing::web::{field, log_in, request, send_raw, Answer};
+use remodaq_board_host::testing::web::{field, log_in, number, request, send_raw, Answer};
 use remodaq_board_host::testing::SimModule;
 use remodaq_protocol::auth::FACTORY_PASSWORD;
 use remodaq_protocol::m8350::BIT_DO;
@@ -127,11 +127,6 @@ async fn logins_signed_writes_and_the_attacks() {
     let headers = page.sign("PUT", &target, off);
     expect_refused(request(web, "PUT", &target, &headers, off), "no session", 401);
     drop(slow);
-}
-
-/// A number `"name":N` in a JSON text.
-fn number(json: &str, name: &str) -> Option<f64> {
-    json.split(&format!("\"{name}\":")).nth(1)?.split([',', '}']).next()?.parse().ok()
 }
 
 /// The named resources (docs/openapi.yaml) read and written through the register map: each

@@ -21,7 +21,7 @@ use remodaq_protocol::m8318::{InputType, REG_INPUT_TYPE};
 use remodaq_protocol::m8350::{DiMode, REG_DI_MODE};
 use remodaq_protocol::resources::{self, Field, Format, Resource};
 use remodaq_protocol::web::{hex, unhex, HEADER_COUNTER, HEADER_SESSION, HEADER_SIGNATURE, SESSION_ID_LEN};
-use remodaq_protocol::Table;
+use remodaq_protocol::{u32_low_first, words_low_first, Table};
 use serde::Deserialize;
 
 use super::{Login, LoginError, Refusal, Sessions, Signed, Verified};
@@ -511,7 +511,7 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess> Api<'_, R, M> {
         let values = &mut values[..usize::from(n)];
         {
             let mut map = self.map.lock().await;
-            if u32::from(addr) + u32::from(n) > 0x1_0000 || !map.allows(table, addr, n, false) {
+            if !readable(&*map, table, addr, n) {
                 return exception_answer(2, "address");
             }
             // addr + i stays within 16 bits: checked above.
@@ -687,16 +687,21 @@ fn write_thousandths(json: &mut Json, thousandths: i64) -> core::fmt::Result {
     write!(json, "{sign}{}.{:03}", a / 1000, a % 1000)
 }
 
+/// Whether `n` addresses from `addr` lie inside the 16-bit space and the map lets them be read.
+fn readable<M: RegisterMap>(map: &M, table: Table, addr: u16, n: u16) -> bool {
+    u32::from(addr) + u32::from(n) <= 0x1_0000 && map.allows(table, addr, n, false)
+}
+
 /// What field `f` of item `n` reads as, from the map as it stands.
 fn seen<M: RegisterMap>(map: &mut M, f: &Field, n: u16) -> Seen {
     let addr = f.addr(n);
-    if u32::from(addr) + u32::from(f.words()) > 0x1_0000 || !map.allows(f.table, addr, f.words(), false) {
+    if !readable(map, f.table, addr, f.words()) {
         return Seen::Unmapped;
     }
     if matches!(f.format, Format::Long | Format::Ipv4) && f.table == Table::Registers {
         let mut words = [0u16; 2];
         map.observe_registers(addr, &mut words);
-        return Seen::Value(u32::from(words[0]) | u32::from(words[1]) << 16);
+        return Seen::Value(u32_low_first(words[0], words[1]));
     }
     let low = map.observe(f.table, addr);
     Seen::Value(match f.format {
@@ -781,7 +786,8 @@ impl Pdu {
     /// Code 16: a 32-bit value in two registers, low word first (spec §3.2), in one request
     /// (all or nothing).
     fn long(addr: u16, value: u32) -> Self {
-        let ([a, b], [hh, hl, lh, ll]) = (addr.to_be_bytes(), value.to_be_bytes());
+        let [low, high] = words_low_first(value);
+        let ([a, b], [lh, ll], [hh, hl]) = (addr.to_be_bytes(), low.to_be_bytes(), high.to_be_bytes());
         Self { bytes: [0x10, a, b, 0, 2, 4, lh, ll, hh, hl], len: 10 }
     }
 }

@@ -46,6 +46,11 @@ pub fn field<'a>(json: &'a str, name: &str) -> &'a str {
     json.split(&key).nth(1).and_then(|rest| rest.split('"').next()).unwrap_or("")
 }
 
+/// A number `"name":N` in a JSON text.
+pub fn number(json: &str, name: &str) -> Option<f64> {
+    json.split(&format!("\"{name}\":")).nth(1)?.split([',', '}']).next()?.parse().ok()
+}
+
 /// A logged-in page: its session and key, and its next counter.
 pub struct Page {
     session: [u8; SESSION_ID_LEN],
