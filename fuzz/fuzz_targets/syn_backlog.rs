@@ -101,7 +101,7 @@ impl Model {
 }
 
 fuzz_target!(|data: &[u8]| {
-    let mut backlog = Backlog::new();
+    let mut backlog = Backlog::<HELD, SOCKETS>::new();
     let mut model = Model::default();
     let mut now = 0u64;
     let mut accepting = 0usize;

@@ -1,4 +1,5 @@
-//! A listen backlog for the Modbus/TCP port, for a TCP stack that has none (smoltcp).
+//! A listen backlog for the Modbus/TCP port (and the web console's, feature `web`), for a TCP
+//! stack that has none (smoltcp).
 //!
 //! smoltcp gives each connection a socket of its own and answers a SYN that finds no socket
 //! listening with a RST. Under a flood (64 clients connecting at once, spec §1.1's newcomer
@@ -164,31 +165,35 @@ struct HeldSyn {
     frame: [u8; MAX_SYN_FRAME],
 }
 
-/// The backlog's state: plain logic over a millisecond clock the caller passes in.
-pub struct Backlog {
+/// The backlog's state: plain logic over a millisecond clock the caller passes in. `H`: SYNs
+/// held at most; `S`: connection tasks on the port at most.
+pub struct Backlog<const H: usize, const S: usize> {
     port: u16,
     /// Connection tasks listening on `port` (or in a handshake they have not finished).
     accepting: usize,
     /// SYNs let through whose handshakes are under way, and when.
-    in_flight: Vec<(Peer, u64), SOCKETS>,
-    held: Deque<HeldSyn, HELD>,
+    in_flight: Vec<(Peer, u64), S>,
+    held: Deque<HeldSyn, H>,
     /// The module's MAC and IPv4 address, once the board said: SYNs for anything else, or
     /// damaged, are dropped before they can take a listening task's place.
     me: Option<([u8; 6], [u8; 4])>,
-    /// SYNs one source address may have held ([`HELD`] until the board says otherwise).
+    /// SYNs one source address may have held (`H` until the board says otherwise).
     per_source: usize,
 }
 
-impl Default for Backlog {
+/// The Modbus port's backlog: [`HELD`] SYNs, the server's [`SOCKETS`] connection tasks.
+pub type ModbusBacklog = Backlog<HELD, SOCKETS>;
+
+impl<const H: usize, const S: usize> Default for Backlog<H, S> {
     fn default() -> Self {
         Self::new()
     }
 }
 
-impl Backlog {
+impl<const H: usize, const S: usize> Backlog<H, S> {
     /// Empty, no task listening.
     pub const fn new() -> Self {
-        Self { port: 0, accepting: 0, in_flight: Vec::new(), held: Deque::new(), me: None, per_source: HELD }
+        Self { port: 0, accepting: 0, in_flight: Vec::new(), held: Deque::new(), me: None, per_source: H }
     }
 
     /// The module's MAC and IPv4 address: from now on only SYNs to them, with right checksums,
@@ -197,7 +202,7 @@ impl Backlog {
     /// a board whose clients all arrive through one address, QEMU's user network).
     pub fn identify(&mut self, mac: [u8; 6], ip: [u8; 4], per_source: usize) {
         self.me = Some((mac, ip));
-        self.per_source = per_source.clamp(1, HELD);
+        self.per_source = per_source.clamp(1, H.max(1));
     }
 
     /// SYN frames held now.
@@ -341,26 +346,76 @@ impl Backlog {
 }
 
 /// The backlog shared by the network runner (through [`Backlogged`]) and the connection tasks.
-pub struct SynGate {
-    state: Mutex<CriticalSectionRawMutex, RefCell<(Backlog, Option<Waker>)>>,
+pub struct SynGate<const H: usize, const S: usize> {
+    state: Mutex<CriticalSectionRawMutex, RefCell<(Backlog<H, S>, Option<Waker>)>>,
 }
 
-impl Default for SynGate {
+impl<const H: usize, const S: usize> Default for SynGate<H, S> {
     fn default() -> Self {
         Self::new()
     }
 }
 
-/// The Modbus port's backlog on the boards that run embassy-net.
-pub static MODBUS_BACKLOG: SynGate = SynGate::new();
+/// The Modbus port's gate.
+pub type ModbusGate = SynGate<HELD, SOCKETS>;
 
-impl SynGate {
+/// The Modbus port's backlog on the boards that run embassy-net.
+pub static MODBUS_BACKLOG: ModbusGate = SynGate::new();
+
+/// SYNs for the web console's port held at most: a browser opens up to 6 connections to a
+/// host at once (a page's files), and the console serves
+/// [`CONNECTIONS`](crate::web::service::CONNECTIONS) at a time; the rest wait here instead of
+/// being reset.
+#[cfg(feature = "web")]
+pub const WEB_HELD: usize = 8;
+
+/// The web console port's gate.
+#[cfg(feature = "web")]
+pub type WebGate = SynGate<WEB_HELD, { crate::web::service::CONNECTIONS }>;
+
+/// The web console port's backlog on the boards that run embassy-net.
+#[cfg(feature = "web")]
+pub static WEB_BACKLOG: WebGate = SynGate::new();
+
+/// Every port's gate, in the order they see a frame.
+pub static GATES: &[&dyn Gate] = &[
+    &MODBUS_BACKLOG,
+    #[cfg(feature = "web")]
+    &WEB_BACKLOG,
+];
+
+/// The module's MAC and IPv4 address to every gate (the board, when its network starts; see
+/// [`Backlog::identify`]): `per_source` for the Modbus port; the web port's SYNs come from
+/// browsers, which open several connections at once, so one source may fill its backlog.
+pub fn identify(mac: [u8; 6], ip: [u8; 4], per_source: usize) {
+    MODBUS_BACKLOG.identify(mac, ip, per_source);
+    #[cfg(feature = "web")]
+    WEB_BACKLOG.identify(mac, ip, WEB_HELD);
+}
+
+/// A port's gate as the connection tasks and the driver wrapper see it.
+pub trait Gate: Sync {
+    /// A connection task listens on `port` (its socket already in LISTEN): a held SYN may go
+    /// to the stack now, so the network runner is woken.
+    fn listening(&self, port: u16);
+    /// A connection task's accept ended, with a connection from `peer` or without.
+    fn accepted(&self, peer: Option<Peer>);
+    /// A frame from the wire at `now_ms`: to the stack, or held.
+    fn arrive(&self, frame: &[u8], now_ms: u64) -> Verdict;
+    /// Whether a held SYN can go to the stack now: `Ok`, or when to look again if one waits
+    /// (the runner's waker is kept for when a task listens).
+    fn ready(&self, now_ms: u64, cx: &Context<'_>) -> Result<(), Option<u64>>;
+    /// The oldest held SYN, copied into `out`, if a task listens for it now: its length.
+    fn release(&self, now_ms: u64, out: &mut [u8; MAX_SYN_FRAME]) -> Option<usize>;
+}
+
+impl<const H: usize, const S: usize> SynGate<H, S> {
     /// Empty.
     pub const fn new() -> Self {
         Self { state: Mutex::new(RefCell::new((Backlog::new(), None))) }
     }
 
-    fn with<T>(&self, f: impl FnOnce(&mut Backlog, &mut Option<Waker>) -> T) -> T {
+    fn with<T>(&self, f: impl FnOnce(&mut Backlog<H, S>, &mut Option<Waker>) -> T) -> T {
         self.state.lock(|cell| {
             let mut state = cell.borrow_mut();
             let (backlog, waker) = &mut *state;
@@ -368,9 +423,15 @@ impl SynGate {
         })
     }
 
-    /// A connection task listens on `port` (its socket already in LISTEN): a held SYN may go
-    /// to the stack now, so the network runner is woken.
-    pub fn listening(&self, port: u16) {
+    /// The module's MAC and IPv4 address, and the SYNs one source may have held
+    /// ([`Backlog::identify`]).
+    pub fn identify(&self, mac: [u8; 6], ip: [u8; 4], per_source: usize) {
+        self.with(|backlog, _| backlog.identify(mac, ip, per_source));
+    }
+}
+
+impl<const H: usize, const S: usize> Gate for SynGate<H, S> {
+    fn listening(&self, port: u16) {
         let waker = self.with(|backlog, waker| {
             backlog.listening(port);
             if backlog.held() > 0 {
@@ -384,14 +445,7 @@ impl SynGate {
         }
     }
 
-    /// The module's MAC and IPv4 address, and the SYNs one source may have held (the board,
-    /// when its network starts; [`Backlog::identify`]).
-    pub fn identify(&self, mac: [u8; 6], ip: [u8; 4], per_source: usize) {
-        self.with(|backlog, _| backlog.identify(mac, ip, per_source));
-    }
-
-    /// A connection task's accept ended, with a connection from `peer` or without.
-    pub fn accepted(&self, peer: Option<Peer>) {
+    fn accepted(&self, peer: Option<Peer>) {
         self.with(|backlog, _| backlog.accepted(peer));
     }
 
@@ -399,8 +453,6 @@ impl SynGate {
         self.with(|backlog, _| backlog.arrive(frame, now_ms))
     }
 
-    /// Whether a held SYN can go to the stack now: `Ok`, or when to look again if one waits
-    /// (the runner's waker is kept for when a task listens).
     fn ready(&self, now_ms: u64, cx: &Context<'_>) -> Result<(), Option<u64>> {
         self.with(|backlog, waker| {
             if backlog.ready(now_ms) {
@@ -427,7 +479,7 @@ mod driver {
 
     use embassy_net_driver::{Capabilities, Driver, HardwareAddress, LinkState, RxToken};
 
-    use super::{SynGate, Verdict, MAX_SYN_FRAME};
+    use super::{Gate, Verdict, MAX_SYN_FRAME};
 
     use embassy_time::{Instant, Timer};
 
@@ -435,18 +487,28 @@ mod driver {
         Instant::now().as_millis()
     }
 
-    /// A board's Ethernet driver behind the Modbus port's backlog: every received frame is
-    /// seen by the gate first; a held SYN reaches the stack later, from the gate's copy.
+    /// A board's Ethernet driver behind the ports' backlogs ([`GATES`](super::GATES)): every
+    /// received frame is seen by the gates first; a held SYN reaches the stack later, from
+    /// its gate's copy.
     pub struct Backlogged<D> {
         inner: D,
-        gate: &'static SynGate,
+        gates: &'static [&'static dyn Gate],
         released: [u8; MAX_SYN_FRAME],
     }
 
     impl<D: Driver> Backlogged<D> {
-        /// `inner` behind `gate`.
-        pub fn new(inner: D, gate: &'static SynGate) -> Self {
-            Self { inner, gate, released: [0; MAX_SYN_FRAME] }
+        /// `inner` behind `gates`.
+        pub fn new(inner: D, gates: &'static [&'static dyn Gate]) -> Self {
+            Self { inner, gates, released: [0; MAX_SYN_FRAME] }
+        }
+    }
+
+    /// What the gates make of a frame: held if one holds it (each looks only at its port's).
+    fn arrive(gates: &[&dyn Gate], frame: &[u8], now_ms: u64) -> Verdict {
+        if gates.iter().any(|gate| gate.arrive(frame, now_ms) == Verdict::Hold) {
+            Verdict::Hold
+        } else {
+            Verdict::Pass
         }
     }
 
@@ -454,7 +516,7 @@ mod driver {
     /// held SYN the gate released.
     pub enum Rx<'a, T> {
         /// From the driver.
-        Wire(T, &'static SynGate),
+        Wire(T, &'static [&'static dyn Gate]),
         /// A released SYN.
         Released(&'a mut [u8]),
     }
@@ -462,7 +524,7 @@ mod driver {
     impl<T: RxToken> RxToken for Rx<'_, T> {
         fn consume<R, F: FnOnce(&mut [u8]) -> R>(self, f: F) -> R {
             match self {
-                Rx::Wire(token, gate) => token.consume(|frame| match gate.arrive(frame, now_ms()) {
+                Rx::Wire(token, gates) => token.consume(|frame| match arrive(gates, frame, now_ms()) {
                     Verdict::Pass => f(frame),
                     // The stack drops an empty frame (too short for Ethernet) without a word.
                     Verdict::Hold => f(&mut []),
@@ -486,24 +548,28 @@ mod driver {
             // Held SYNs first, in order, whenever a task listens for them (and the driver can
             // send the answer).
             let now = now_ms();
-            match self.gate.ready(now, cx) {
-                Ok(()) => {
-                    // The answer needs a transmit buffer: without one, the SYN stays held (the
-                    // driver wakes the runner when one frees). `release` cannot fail after
-                    // `ready` (nothing runs between).
-                    let tx = self.inner.transmit(cx)?;
-                    let len = self.gate.release(now, &mut self.released)?;
-                    return Some((Rx::Released(&mut self.released[..len]), tx));
+            let mut next: Option<u64> = None;
+            for gate in self.gates {
+                match gate.ready(now, cx) {
+                    Ok(()) => {
+                        // The answer needs a transmit buffer: without one, the SYN stays held
+                        // (the driver wakes the runner when one frees). `release` cannot fail
+                        // after `ready` (nothing runs between).
+                        let tx = self.inner.transmit(cx)?;
+                        let len = gate.release(now, &mut self.released)?;
+                        return Some((Rx::Released(&mut self.released[..len]), tx));
+                    }
+                    Err(Some(at)) => next = Some(next.map_or(at, |n| n.min(at))),
+                    Err(None) => {}
                 }
-                // SYNs wait; nothing may wake the runner when one lapses: a timer does.
-                Err(Some(at)) => {
-                    let mut timer = Timer::at(Instant::from_millis(at));
-                    let _ = Pin::new(&mut timer).poll(cx);
-                }
-                Err(None) => {}
+            }
+            // SYNs wait; nothing may wake the runner when one lapses: a timer does.
+            if let Some(at) = next {
+                let mut timer = Timer::at(Instant::from_millis(at));
+                let _ = Pin::new(&mut timer).poll(cx);
             }
             let (rx, tx) = self.inner.receive(cx)?;
-            Some((Rx::Wire(rx, self.gate), tx))
+            Some((Rx::Wire(rx, self.gates), tx))
         }
 
         fn transmit(&mut self, cx: &mut Context) -> Option<Self::TxToken<'_>> {
@@ -619,7 +685,7 @@ mod tests {
         // Another MAC, another destination IP, a damaged IP header, a damaged TCP segment.
         for (what, frame) in [("mac", junk(5)), ("ip", junk(33)), ("ip header", junk(22)), ("tcp", junk(49))] {
             assert!(!for_me(&frame, &MY_MAC, &MY_IP), "{what}");
-            let mut b = Backlog::new();
+            let mut b = ModbusBacklog::new();
             b.identify(MY_MAC, MY_IP, HELD_PER_SOURCE);
             b.listening(PORT);
             assert_eq!(b.arrive(&frame, 0), Verdict::Hold, "{what}: dropped");
@@ -630,7 +696,7 @@ mod tests {
 
     #[test]
     fn one_source_holds_at_most_four_syns() {
-        let mut b = Backlog::new();
+        let mut b = ModbusBacklog::new();
         b.identify([0x02, 0, 0, 0, 0, 0x15], [10, 0, 2, 15], HELD_PER_SOURCE);
         b.me = None; // the hand-built frames carry no checksums
         b.listening(PORT);
@@ -654,7 +720,7 @@ mod tests {
             // The TCP flags are at byte 14 + 20 + 13 = 47: anything shorter is not a SYN.
             let expected = if len > 47 { Some(peer(40000)) } else { None };
             assert_eq!(syn_to(&f[..len], PORT), expected, "length {len}");
-            let mut b = Backlog::new();
+            let mut b = ModbusBacklog::new();
             b.listening(PORT);
             let _ = b.arrive(&f[..len], 0);
         }
@@ -662,7 +728,7 @@ mod tests {
 
     #[test]
     fn a_syn_passes_while_a_task_listens_and_is_held_after() {
-        let mut b = Backlog::new();
+        let mut b = ModbusBacklog::new();
         // No task has listened yet: the port is unknown, everything passes.
         assert_eq!(b.arrive(&syn(1), 0), Verdict::Pass);
         b.listening(PORT);
@@ -686,7 +752,7 @@ mod tests {
     fn a_new_connection_from_a_held_port_replaces_the_held_syn() {
         // The client reused port 4 for a new connection (a new initial sequence number) while
         // its first SYN was held: the newer SYN is the one released, in the first one's place.
-        let mut b = Backlog::new();
+        let mut b = ModbusBacklog::new();
         b.listening(PORT);
         assert_eq!(b.arrive(&syn(2), 0), Verdict::Pass);
         assert_eq!(b.arrive(&syn(4), 0), Verdict::Hold);
@@ -704,7 +770,7 @@ mod tests {
 
     #[test]
     fn held_syns_go_in_arrival_order_as_tasks_listen_again() {
-        let mut b = Backlog::new();
+        let mut b = ModbusBacklog::new();
         b.listening(PORT);
         assert_eq!(b.arrive(&syn(10), 0), Verdict::Pass);
         for port in 11..15 {
@@ -732,7 +798,7 @@ mod tests {
 
     #[test]
     fn a_full_backlog_drops_its_oldest_syn_for_the_newcomer() {
-        let mut b = Backlog::new();
+        let mut b = ModbusBacklog::new();
         b.listening(PORT);
         assert_eq!(b.arrive(&syn(100), 0), Verdict::Pass);
         for i in 0..HELD as u16 + 1 {
@@ -759,7 +825,7 @@ mod tests {
 
     #[test]
     fn old_syns_and_stalled_handshakes_expire() {
-        let mut b = Backlog::new();
+        let mut b = ModbusBacklog::new();
         b.listening(PORT);
         assert_eq!(b.arrive(&syn(1), 0), Verdict::Pass);
         assert_eq!(b.arrive(&syn(2), 0), Verdict::Hold);
@@ -779,7 +845,7 @@ mod tests {
 
     #[test]
     fn a_client_that_resets_its_handshake_frees_the_task() {
-        let mut b = Backlog::new();
+        let mut b = ModbusBacklog::new();
         b.listening(PORT);
         assert_eq!(b.arrive(&syn(1), 0), Verdict::Pass);
         assert_eq!(b.arrive(&syn(2), 0), Verdict::Hold);
@@ -795,7 +861,7 @@ mod tests {
 
     #[test]
     fn a_syn_too_long_to_hold_goes_to_the_stack() {
-        let mut b = Backlog::new();
+        let mut b = ModbusBacklog::new();
         b.listening(PORT);
         assert_eq!(b.arrive(&syn(1), 0), Verdict::Pass);
         // The longest TCP header (60 bytes) with a frame check sequence after it is held; a
@@ -871,13 +937,14 @@ mod tests {
                 self.0.fetch_add(1, Ordering::Relaxed);
             }
         }
-        static GATE: SynGate = SynGate::new();
+        static GATE: ModbusGate = SynGate::new();
+        static GATES: &[&dyn Gate] = &[&GATE];
         let count = Arc::new(Count(AtomicUsize::new(0)));
         let waker = Waker::from(count.clone());
         let mut cx = Context::from_waker(&waker);
         let ack = segment(9, PORT, 0x10, 0);
         let mut driver =
-            Backlogged::new(Wire { inbox: [syn(1), syn(2), ack.clone(), syn(3)].into_iter().collect() }, &GATE);
+            Backlogged::new(Wire { inbox: [syn(1), syn(2), ack.clone(), syn(3)].into_iter().collect() }, GATES);
         GATE.listening(PORT);
         // The stack sees the first SYN and the ACK; the other SYNs reach it as empty frames.
         assert_eq!(drain(&mut driver, &mut cx), [syn(1), StdVec::new(), ack, StdVec::new()]);
@@ -891,5 +958,38 @@ mod tests {
         GATE.listening(PORT);
         assert_eq!(count.0.load(Ordering::Relaxed), 2);
         assert_eq!(drain(&mut driver, &mut cx), [syn(3)]);
+    }
+
+    #[test]
+    fn each_port_has_its_own_gate() {
+        // A second port (the web console's, 80) with 2 SYNs held at most and one task.
+        static MODBUS: ModbusGate = SynGate::new();
+        static WEB: SynGate<2, 1> = SynGate::new();
+        static BOTH: &[&dyn Gate] = &[&MODBUS, &WEB];
+        let waker = Waker::noop();
+        let mut cx = Context::from_waker(waker);
+        let web_syn = |from| segment(from, 80, SYN, 20);
+        let inbox = [syn(1), web_syn(2), web_syn(3), web_syn(4), web_syn(5), syn(6)];
+        let mut driver = Backlogged::new(Wire { inbox: inbox.into_iter().collect() }, BOTH);
+        MODBUS.listening(PORT);
+        MODBUS.listening(PORT);
+        WEB.listening(80);
+        // Modbus's two SYNs and the web's first reach the stack; web SYNs 3-5 wait (the
+        // backlog keeps the newest 2: 4 and 5).
+        assert_eq!(
+            drain(&mut driver, &mut cx),
+            [syn(1), web_syn(2), StdVec::new(), StdVec::new(), StdVec::new(), syn(6)]
+        );
+        // Modbus tasks listening again release nothing of the web's.
+        MODBUS.accepted(Some(peer(1)));
+        MODBUS.listening(PORT);
+        assert_eq!(drain(&mut driver, &mut cx), StdVec::<StdVec<u8>>::new());
+        // The web task accepts 2 and listens again: 4 comes, then 5 after the next.
+        WEB.accepted(Some(peer(2)));
+        WEB.listening(80);
+        assert_eq!(drain(&mut driver, &mut cx), [web_syn(4)]);
+        WEB.accepted(Some(peer(4)));
+        WEB.listening(80);
+        assert_eq!(drain(&mut driver, &mut cx), [web_syn(5)]);
     }
 }

@@ -9,7 +9,7 @@ use embassy_net::udp::{PacketMetadata, UdpSocket};
 use embassy_net::{IpAddress, IpEndpoint, Stack};
 use embassy_time::{with_timeout, Duration, Timer};
 
-use crate::backlog::{Peer, HANDSHAKE_TIMEOUT_MS, MODBUS_BACKLOG};
+use crate::backlog::{Gate, Peer, HANDSHAKE_TIMEOUT_MS, MODBUS_BACKLOG};
 use crate::board::{Effects, ModbusSlots, Network, Shared};
 use crate::discovery::{serve, Datagrams, Effect, Identity, MAX_DATAGRAM, PORT};
 use crate::modbus::server::{serve as serve_modbus, Ended};
@@ -54,7 +54,7 @@ impl<E: Effects> Network for EmbassyNet<E> {
         let mut tx = [0u8; SOCKET_BUF];
         loop {
             let mut socket = TcpSocket::new(self.stack, &mut rx, &mut tx);
-            match accept(&mut socket, self.port).await {
+            match accept(&mut socket, self.port, &MODBUS_BACKLOG).await {
                 Ok(()) => {}
                 Err(AcceptError::ConnectionReset) => {
                     debug!("modbus: slot {}: a handshake did not complete", slot);
@@ -140,7 +140,10 @@ impl<E: Effects> Network for EmbassyNet<E> {
         let mut buffer = [0u8; HTTP_BUFFER];
         loop {
             let mut socket = TcpSocket::new(self.stack, &mut rx, &mut tx);
-            if !accept_one(&mut socket, PORT, "web").await {
+            // Through the web port's backlog: a browser's parallel connections wait for a task
+            // instead of being reset.
+            if let Err(e) = accept(&mut socket, PORT, &crate::backlog::WEB_BACKLOG).await {
+                debug!("web: accept failed: {:?}", e);
                 continue;
             }
             // A peer that stops acknowledging cannot hold the connection past this.
@@ -166,12 +169,13 @@ impl<E: Effects> Network for EmbassyNet<E> {
     }
 }
 
-/// Accepts a connection on the Modbus port through its backlog ([`MODBUS_BACKLOG`]): the gate
+/// Accepts a connection on `port` through its backlog (`gate`: [`MODBUS_BACKLOG`], or the web
+/// console's): the gate
 /// learns the socket listens only once it does (the accept's first poll puts it in LISTEN),
 /// and which client it took. A handshake that does not complete within
 /// [`HANDSHAKE_TIMEOUT_MS`] (smoltcp would wait for ever: a SYN from a host gone, or spoofed)
 /// ends it with `ConnectionReset`.
-async fn accept(socket: &mut TcpSocket<'_>, port: u16) -> Result<(), AcceptError> {
+async fn accept(socket: &mut TcpSocket<'_>, port: u16, gate: &dyn Gate) -> Result<(), AcceptError> {
     socket.set_timeout(Some(Duration::from_millis(HANDSHAKE_TIMEOUT_MS)));
     let mut listening = false;
     let result = {
@@ -180,7 +184,7 @@ async fn accept(socket: &mut TcpSocket<'_>, port: u16) -> Result<(), AcceptError
             let poll = accepting.as_mut().poll(cx);
             if poll.is_pending() && !listening {
                 listening = true;
-                MODBUS_BACKLOG.listening(port);
+                gate.listening(port);
             }
             poll
         })
@@ -193,12 +197,12 @@ async fn accept(socket: &mut TcpSocket<'_>, port: u16) -> Result<(), AcceptError
         _ => Ok(()),
     });
     if listening {
-        MODBUS_BACKLOG.accepted(result.ok().and_then(|()| client(socket)));
+        gate.accepted(result.ok().and_then(|()| client(socket)));
     }
     result
 }
 
-/// Accepts one connection on `port` (the update and web services): a handshake that never
+/// Accepts one connection on `port` (the update service): a handshake that never
 /// completes (a SYN from a forged or vanished host) must not hold the port, smoltcp would wait
 /// for ever. Whether a client is connected.
 async fn accept_one(socket: &mut TcpSocket<'_>, port: u16, service: &str) -> bool {

@@ -21,7 +21,7 @@
       pulse: "pulse output", low_width: "Low (0.1 ms)", high_width: "High (0.1 ms)",
       pulses: "Pulses (0: continuous)", timeout: "Host watchdog (0.1 s, 0: off)", watchdog: "Host watchdog",
       saved: "Saved.", "need login": "Log in to change anything.", "wrong password": "Wrong password.",
-      "logged in": "Logged in.", "logged out": "Logged out.",
+      "logged in": "Logged in.", "logged out": "Logged out.", "not a number": "Not a number: nothing written.",
       ok: "ok", open: "open", "over range": "over range", "under range": "under range", disabled: "disabled",
       "front-end fault": "front-end fault", "cold-junction fault": "cold-junction fault",
       thermocouple: "thermocouple", voltage: "voltage", current: "current",
@@ -40,7 +40,7 @@
       pulse: "脉冲输出", low_width: "低电平 (0.1 ms)", high_width: "高电平 (0.1 ms)",
       pulses: "脉冲数 (0: 连续)", timeout: "主机看门狗 (0.1 s, 0: 关闭)", watchdog: "主机看门狗",
       saved: "已保存。", "need login": "请先登录再修改。", "wrong password": "密码错误。",
-      "logged in": "已登录。", "logged out": "已退出登录。",
+      "logged in": "已登录。", "logged out": "已退出登录。", "not a number": "不是数字：未写入。",
       ok: "正常", open: "断线", "over range": "超上限", "under range": "超下限", disabled: "已禁用",
       "front-end fault": "前端故障", "cold-junction fault": "冷端故障",
       thermocouple: "热电偶", voltage: "电压", current: "电流",
@@ -85,13 +85,22 @@
 
   async function get(path) {
     const r = await fetch("/api/v1/" + path, { cache: "no-store" });
-    const body = await r.json();
+    const body = await r.json().catch(() => ({}));
     if (!r.ok) throw new Error(body.error || r.status);
     return body;
   }
 
+  // Signed requests go one after the other: each counter must reach the module after the one
+  // before it (a later one arriving first would make the earlier one stale).
+  let signing = Promise.resolve();
+  function signed(method, path, value) {
+    const run = signing.then(() => signedNow(method, path, value));
+    signing = run.catch(() => {});
+    return run;
+  }
+
   // A state-changing request, signed (docs/web.md, "Authentication"); the error's field, if any.
-  async function signed(method, path, value) {
+  async function signedNow(method, path, value) {
     if (!session) {
       say(t("need login"), true);
       throw new Error("need login");
@@ -112,14 +121,17 @@
     });
     if (r.status === 204) return;
     const answer = await r.json().catch(() => ({}));
-    if (r.status === 401 && answer.error === "no session") session = null;
+    if (r.status === 401 && answer.error === "no session") {
+      session = null;
+      translate();
+    }
     const what = (answer.field ? t(answer.field) + ": " : "") + (answer.error || r.status);
     say(what, true);
     throw new Error(what);
   }
 
   async function login(password) {
-    const c = await (await fetch("/api/v1/session/challenge", { method: "POST" })).json();
+    const c = await (await fetch("/api/v1/session/challenge", { method: "POST" })).json().catch(() => ({}));
     if (!c.nonce) throw new Error(c.error || "no challenge");
     const keys = await A.deriveKeys(password, A.unhex(c.salt), c.iterations);
     const mac = A.unhex(identity.mac);
@@ -132,7 +144,7 @@
       headers: { "Content-Type": "application/json" },
       body: JSON.stringify({ nonce: c.nonce, page_nonce: A.hex(pageNonce), proof: A.hex(proof) }),
     });
-    const s = await r.json();
+    const s = await r.json().catch(() => ({}));
     if (r.status !== 200) throw new Error(s.error === "wrong password" ? t("wrong password") : s.error);
     // The module proves it knows this password too: a forger on the LAN cannot fake a login.
     if (!(await A.loginSignatureIsRight(keys, message, A.unhex(s.session), A.unhex(s.signature)))) {
@@ -148,7 +160,7 @@
         await signed("PUT", path, v);
         say(t("saved"));
       } catch (e) {
-        show();
+        show(true);
       }
     };
     if (kind === "select") {
@@ -156,8 +168,16 @@
         options.list.map(([v, label]) => el("option", { value: v, selected: String(v) === String(value) }, label)));
     }
     return el("input", {
-      "aria-label": path, type: "number", value, step: kind === "decimal" ? "0.01" : "1",
-      onchange: (e) => write(Number(e.target.value)),
+      "aria-label": path, type: "number", value, step: kind === "decimal" ? "0.01" : "1", required: true,
+      onchange: (e) => {
+        // An emptied field is no 0 (which would turn the watchdog off, or every channel).
+        if (e.target.value === "" || !e.target.validity.valid) {
+          say(t("not a number"), true);
+          show(true);
+        } else {
+          write(Number(e.target.value));
+        }
+      },
     });
   }
 
@@ -166,7 +186,7 @@
   }
 
   function statusClass(s) {
-    return s.split(" ")[0];
+    return String(s).split(" ")[0];
   }
 
   function uptime(s) {
@@ -194,7 +214,9 @@
             el("td", {}, n), el("td", { class: "num" }, ch.value === null ? "-" : ch.value.toFixed(3) + " " + unit),
             el("td", {}, t(ch.status)), el("td", { class: "num" }, ch.raw))));
       }
-      const [di, dout] = await Promise.all([get("di"), get("do")]);
+      // One request at a time: the module serves two connections.
+      const di = await get("di");
+      const dout = await get("do");
       return [
         el("h2", {}, t("di")),
         table([t("channel"), t("state"), t("mode"), t("counter"), t("frequency"), t("latch"), t("overflow")], di.di.map((d, n) =>
@@ -207,7 +229,9 @@
           el("tr", {}, el("td", {}, "DO" + n),
             el("td", {}, el("button", {
               class: "toggle" + (d.state ? " on" : ""), "aria-pressed": String(d.state), "aria-label": "DO" + n,
-              onclick: () => signed("PUT", "do/" + n + "/state", !d.state).then(show, () => {}),
+              // The state shown when clicked (the row is updated in place between clicks).
+              onclick: (e) => signed("PUT", "do/" + n + "/state", e.currentTarget.getAttribute("aria-pressed") !== "true")
+                .then(() => show(), () => {}),
             }, t(d.state ? "on" : "off"))),
             el("td", {}, t(d.mode))))),
       ];
@@ -246,22 +270,70 @@
 
   function current() {
     const name = location.hash.slice(1);
-    return PAGES[name] ? name : "status";
+    return Object.hasOwn(PAGES, name) ? name : "status";
   }
 
-  // Draws the current page; the live I/O page again about twice a second.
-  async function show() {
+  // `fresh` made the shape of `old` in place (text, attributes), so that a control keeps its
+  // focus and a click its target; what differs in shape is replaced.
+  function patch(old, fresh) {
+    if (old.nodeName !== fresh.nodeName || old.childNodes.length !== fresh.childNodes.length) {
+      old.replaceWith(fresh);
+    } else if (old.nodeType === Node.TEXT_NODE) {
+      if (old.data !== fresh.data) old.data = fresh.data;
+    } else {
+      for (const a of Array.from(old.attributes)) if (!fresh.hasAttribute(a.name)) old.removeAttribute(a.name);
+      for (const a of Array.from(fresh.attributes)) if (old.getAttribute(a.name) !== a.value) old.setAttribute(a.name, a.value);
+      const olds = Array.from(old.childNodes);
+      Array.from(fresh.childNodes).forEach((c, i) => patch(olds[i], c));
+    }
+  }
+
+  // Draws the current page, one drawing at a time (a call during one asks for another after
+  // it); the live I/O page again about twice a second, less often while the module does not
+  // answer (up to 10 s), not while the tab is hidden. `force`: redraw the settings page even
+  // under a control being edited (after a write).
+  let drawing = false, again = false, failures = 0;
+  async function show(force) {
+    if (drawing) {
+      again = true;
+      return;
+    }
+    drawing = true;
     clearTimeout(timer);
     const name = current();
     for (const a of document.querySelectorAll("nav a")) a.classList.toggle("on", a.getAttribute("href") === "#" + name);
     try {
-      const content = await PAGES[name]();
-      // A control being edited is not redrawn under the user's hands.
-      if (name !== "settings" || !page.contains(document.activeElement)) page.replaceChildren(...[content].flat());
+      if (!identity) identity = await loadIdentity();
+      const content = [await PAGES[name]()].flat();
+      if (current() !== name) {
+        // The page changed while this one loaded: drawn by the next call.
+      } else if (name === "io" && page.dataset.shows === "io" && page.childNodes.length === content.length) {
+        const olds = Array.from(page.childNodes);
+        content.forEach((c, i) => patch(olds[i], c));
+      } else if (name !== "settings" || force === true || !page.contains(document.activeElement)) {
+        // A control being edited is not redrawn under the user's hands.
+        page.replaceChildren(...content);
+        page.dataset.shows = name;
+      }
+      failures = 0;
     } catch (e) {
+      failures += 1;
       say(String(e.message || e), true);
     }
-    if (name === "io") timer = setTimeout(show, 500);
+    drawing = false;
+    if (again) {
+      again = false;
+      show();
+    } else if (current() === "io" && !document.hidden) {
+      timer = setTimeout(show, Math.min(500 * 2 ** failures, 10000));
+    }
+  }
+
+  async function loadIdentity() {
+    const i = await get("identity");
+    $("model").textContent = i.name;
+    document.title = i.name;
+    return i;
   }
 
   function translate() {
@@ -304,17 +376,12 @@
     }
   });
 
-  window.addEventListener("hashchange", show);
+  window.addEventListener("hashchange", () => show());
+  document.addEventListener("visibilitychange", () => document.hidden || show());
+  $("login-dialog").addEventListener("close", () => {
+    $("password").value = "";
+  });
 
-  (async () => {
-    try {
-      identity = await get("identity");
-      $("model").textContent = identity.name;
-      document.title = identity.name;
-    } catch (e) {
-      say(String(e.message || e), true);
-    }
-    translate();
-    show();
-  })();
+  translate();
+  show();
 })();

@@ -1,11 +1,122 @@
 // The web console's authentication, the page's side (docs/web.md, "Authentication"): the
 // password never leaves the page, the session key never leaves this tab's memory.
-// Plain JavaScript on WebCrypto (PBKDF2, HMAC-SHA-256, SHA-256): a browser, or node >= 18.
+// WebCrypto (PBKDF2, HMAC-SHA-256, SHA-256) where the browser offers it; browsers offer it only
+// to secure contexts (HTTPS, or localhost), and a module on the LAN is plain
+// http://192.168.x.x, so the same functions in plain JavaScript (FIPS 180-4, RFC 2104, RFC
+// 8018) stand in for it there. A browser, or node >= 18.
 "use strict";
 
 (function (root) {
-  const subtle = (root.crypto && root.crypto.subtle) || require("node:crypto").webcrypto.subtle;
   const text = new TextEncoder();
+
+  // SHA-256's constants (FIPS 180-4 §4.2.2, §5.3.3): the first 32 bits of the fractional parts
+  // of the cube roots of the first 64 primes, and of the square roots of the first 8.
+  const K = new Uint32Array(64);
+  const H0 = new Uint32Array(8);
+  (function () {
+    const frac = (x) => ((x - Math.floor(x)) * 0x100000000) >>> 0;
+    for (let p = 2, n = 0; n < 64; p++) {
+      let prime = true;
+      for (let d = 2; d * d <= p; d++) if (p % d === 0) prime = false;
+      if (!prime) continue;
+      if (n < 8) H0[n] = frac(Math.sqrt(p));
+      K[n++] = frac(Math.cbrt(p));
+    }
+  })();
+
+  const ror = (x, n) => (x >>> n) | (x << (32 - n));
+  const W = new Uint32Array(64);
+
+  // One 64-byte block at `at` of `bytes` into the state `h` (FIPS 180-4 §6.2.2).
+  function compress(h, bytes, at) {
+    for (let i = 0; i < 16; i++) {
+      const j = at + 4 * i;
+      W[i] = (bytes[j] << 24) | (bytes[j + 1] << 16) | (bytes[j + 2] << 8) | bytes[j + 3];
+    }
+    for (let i = 16; i < 64; i++) {
+      const x = W[i - 15], y = W[i - 2];
+      const s0 = ror(x, 7) ^ ror(x, 18) ^ (x >>> 3);
+      const s1 = ror(y, 17) ^ ror(y, 19) ^ (y >>> 10);
+      W[i] = (W[i - 16] + s0 + W[i - 7] + s1) | 0;
+    }
+    let a = h[0], b = h[1], c = h[2], d = h[3], e = h[4], f = h[5], g = h[6], k = h[7];
+    for (let i = 0; i < 64; i++) {
+      const t1 = (k + (ror(e, 6) ^ ror(e, 11) ^ ror(e, 25)) + ((e & f) ^ (~e & g)) + K[i] + W[i]) | 0;
+      const t2 = ((ror(a, 2) ^ ror(a, 13) ^ ror(a, 22)) + ((a & b) ^ (a & c) ^ (b & c))) | 0;
+      k = g;
+      g = f;
+      f = e;
+      e = (d + t1) | 0;
+      d = c;
+      c = b;
+      b = a;
+      a = (t1 + t2) | 0;
+    }
+    const v = [a, b, c, d, e, f, g, k];
+    for (let i = 0; i < 8; i++) h[i] = (h[i] + v[i]) | 0;
+  }
+
+  // SHA-256 of `data`, continuing from `state` after `before` bytes (a multiple of 64).
+  function sha256From(state, before, data) {
+    const h = Uint32Array.from(state);
+    const total = Math.ceil((data.length + 9) / 64) * 64;
+    const m = new Uint8Array(total);
+    m.set(data);
+    m[data.length] = 0x80;
+    const bits = (before + data.length) * 8;
+    const view = new DataView(m.buffer);
+    view.setUint32(total - 8, Math.floor(bits / 0x100000000));
+    view.setUint32(total - 4, bits >>> 0);
+    for (let at = 0; at < total; at += 64) compress(h, m, at);
+    const out = new Uint8Array(32);
+    const o = new DataView(out.buffer);
+    for (let i = 0; i < 8; i++) o.setUint32(4 * i, h[i]);
+    return out;
+  }
+
+  // HMAC-SHA-256 (RFC 2104) of messages under `key`: the padded key's two blocks once.
+  function hmacJs(key) {
+    const k0 = new Uint8Array(64);
+    k0.set(key.length > 64 ? sha256From(H0, 0, key) : key);
+    const inner = Uint32Array.from(H0), outer = Uint32Array.from(H0);
+    compress(inner, k0.map((b) => b ^ 0x36), 0);
+    compress(outer, k0.map((b) => b ^ 0x5c), 0);
+    return (data) => sha256From(outer, 64, sha256From(inner, 64, data));
+  }
+
+  // The two cores: WebCrypto's, and this file's (the same answers, checked in test/).
+  const plain = {
+    digest: async (data) => sha256From(H0, 0, data),
+    hmac: async (key, data) => hmacJs(key)(data),
+    // PBKDF2-HMAC-SHA-256 (RFC 8018 §5.2), one 32-byte block.
+    pbkdf2: async (password, salt, iterations) => {
+      const prf = hmacJs(password);
+      const first = new Uint8Array(salt.length + 4);
+      first.set(salt);
+      first[salt.length + 3] = 1;
+      let u = prf(first);
+      const t = u.slice();
+      for (let i = 1; i < iterations; i++) {
+        u = prf(u);
+        for (let j = 0; j < 32; j++) t[j] ^= u[j];
+      }
+      return t;
+    },
+  };
+
+  function webCrypto(subtle) {
+    return {
+      digest: async (data) => new Uint8Array(await subtle.digest("SHA-256", data)),
+      hmac: async (key, data) => {
+        const k = await subtle.importKey("raw", key, { name: "HMAC", hash: "SHA-256" }, false, ["sign"]);
+        return new Uint8Array(await subtle.sign("HMAC", k, data));
+      },
+      pbkdf2: async (password, salt, iterations) => {
+        const base = await subtle.importKey("raw", password, "PBKDF2", false, ["deriveBits"]);
+        return new Uint8Array(await subtle.deriveBits({ name: "PBKDF2", hash: "SHA-256", salt, iterations }, base, 256));
+      },
+    };
+  }
 
   function hex(bytes) {
     return Array.from(new Uint8Array(bytes), (b) => b.toString(16).padStart(2, "0")).join("");
@@ -31,60 +142,63 @@
     return out;
   }
 
-  async function hmac(key, parts) {
-    const k = await subtle.importKey("raw", key, { name: "HMAC", hash: "SHA-256" }, false, ["sign"]);
-    return new Uint8Array(await subtle.sign("HMAC", k, concat(parts)));
-  }
+  // The API on one core.
+  function api(core) {
+    const hmac = (key, parts) => core.hmac(key, concat(parts));
 
-  function xor(a, b) {
-    return a.map((x, i) => x ^ b[i]);
-  }
-
-  // The iteration counts a module accepts (protocol/src/auth.rs): the challenge is not signed,
-  // so a forger could ask for a weak count, or one that hangs a phone.
-  const MIN_ITERATIONS = 4096;
-  const MAX_ITERATIONS = 10000000;
-
-  // SaltedPassword, then ClientKey, StoredKey and ServerKey (RFC 5802 §3 with SHA-256).
-  async function deriveKeys(password, salt, iterations) {
-    if (!Number.isInteger(iterations) || iterations < MIN_ITERATIONS || iterations > MAX_ITERATIONS) {
-      throw new Error("the module asked for " + iterations + " iterations: refused");
+    function xor(a, b) {
+      return a.map((x, i) => x ^ b[i]);
     }
-    const base = await subtle.importKey("raw", text.encode(password), "PBKDF2", false, ["deriveBits"]);
-    const salted = new Uint8Array(
-      await subtle.deriveBits({ name: "PBKDF2", hash: "SHA-256", salt, iterations }, base, 256),
-    );
-    const clientKey = await hmac(salted, ["Client Key"]);
-    const storedKey = new Uint8Array(await subtle.digest("SHA-256", clientKey));
-    const serverKey = await hmac(salted, ["Server Key"]);
-    return { clientKey, storedKey, serverKey };
+
+    // The iteration counts a module accepts (protocol/src/auth.rs): the challenge is not signed,
+    // so a forger could ask for a weak count, or one that hangs a phone.
+    const MIN_ITERATIONS = 4096;
+    const MAX_ITERATIONS = 10000000;
+
+    // SaltedPassword, then ClientKey, StoredKey and ServerKey (RFC 5802 §3 with SHA-256).
+    async function deriveKeys(password, salt, iterations) {
+      if (!Number.isInteger(iterations) || iterations < MIN_ITERATIONS || iterations > MAX_ITERATIONS) {
+        throw new Error("the module asked for " + iterations + " iterations: refused");
+      }
+      const salted = await core.pbkdf2(text.encode(password), salt, iterations);
+      const clientKey = await hmac(salted, ["Client Key"]);
+      const storedKey = await core.digest(clientKey);
+      const serverKey = await hmac(salted, ["Server Key"]);
+      return { clientKey, storedKey, serverKey };
+    }
+
+    // ClientProof = ClientKey XOR HMAC(StoredKey, AuthMessage).
+    async function proof(keys, message) {
+      return xor(keys.clientKey, await hmac(keys.storedKey, message));
+    }
+
+    function loginMessage(mac, moduleNonce, pageNonce) {
+      return ["RDAQ web login", mac, moduleNonce, pageNonce];
+    }
+
+    // Whether the module's answer to a login is signed with the ServerKey of this password.
+    async function loginSignatureIsRight(keys, message, session, signature) {
+      const expected = await hmac(keys.serverKey, message.concat([session]));
+      return hex(expected) === hex(signature);
+    }
+
+    async function sessionKey(keys, moduleNonce, pageNonce) {
+      return hmac(keys.clientKey, ["RDAQ web session", moduleNonce, pageNonce]);
+    }
+
+    // HMAC(key, "RDAQ web request\n" METHOD "\n" target "\n" counter "\n" body).
+    async function requestSignature(key, method, target, counter, body) {
+      return hmac(key, ["RDAQ web request\n", method, "\n", target, "\n", String(counter), "\n", body || ""]);
+    }
+
+    return { hex, unhex, deriveKeys, proof, loginMessage, loginSignatureIsRight, sessionKey, requestSignature, core };
   }
 
-  // ClientProof = ClientKey XOR HMAC(StoredKey, AuthMessage).
-  async function proof(keys, message) {
-    return xor(keys.clientKey, await hmac(keys.storedKey, message));
+  if (typeof module !== "undefined" && module.exports) {
+    // node: WebCrypto's, and the plain one as `plain` (test/ checks both).
+    module.exports = api(webCrypto(require("node:crypto").webcrypto.subtle));
+    module.exports.plain = api(plain);
+  } else {
+    root.RdaqAuth = api(root.crypto && root.crypto.subtle ? webCrypto(root.crypto.subtle) : plain);
   }
-
-  function loginMessage(mac, moduleNonce, pageNonce) {
-    return ["RDAQ web login", mac, moduleNonce, pageNonce];
-  }
-
-  // Whether the module's answer to a login is signed with the ServerKey of this password.
-  async function loginSignatureIsRight(keys, message, session, signature) {
-    const expected = await hmac(keys.serverKey, message.concat([session]));
-    return hex(expected) === hex(signature);
-  }
-
-  async function sessionKey(keys, moduleNonce, pageNonce) {
-    return hmac(keys.clientKey, ["RDAQ web session", moduleNonce, pageNonce]);
-  }
-
-  // HMAC(key, "RDAQ web request\n" METHOD "\n" target "\n" counter "\n" body).
-  async function requestSignature(key, method, target, counter, body) {
-    return hmac(key, ["RDAQ web request\n", method, "\n", target, "\n", String(counter), "\n", body || ""]);
-  }
-
-  const api = { hex, unhex, deriveKeys, proof, loginMessage, loginSignatureIsRight, sessionKey, requestSignature };
-  if (typeof module !== "undefined" && module.exports) module.exports = api;
-  else root.RdaqAuth = api;
 })(typeof globalThis !== "undefined" ? globalThis : this);

@@ -31,7 +31,7 @@ use cortex_m::peripheral::NVIC;
 use embassy_executor::{SendSpawner, Spawner};
 use embassy_net::{Ipv4Address, Ipv4Cidr, StackResources, StaticConfigV4};
 use remodaq_lan9118::{Lan9118, Registers};
-use remodaq_shared::backlog::{Backlogged, MODBUS_BACKLOG};
+use remodaq_shared::backlog::{Backlogged, GATES};
 use remodaq_shared::board::{spawn, Board, Effects};
 use remodaq_shared::discovery::Effect;
 use remodaq_shared::embassy_net::EmbassyNet;
@@ -227,10 +227,10 @@ impl Board for QemuBoard {
         // client comes from QEMU's gateway (10.0.2.2), so one source may fill it.
         let held =
             if test_switches::tap() { remodaq_shared::backlog::HELD_PER_SOURCE } else { remodaq_shared::backlog::HELD };
-        MODBUS_BACKLOG.identify(self.mac, running.ip, held);
+        remodaq_shared::backlog::identify(self.mac, running.ip, held);
         static RESOURCES: StaticCell<StackResources<STACK_SOCKETS>> = StaticCell::new();
         let (stack, runner) = embassy_net::new(
-            Backlogged::new(device, &MODBUS_BACKLOG),
+            Backlogged::new(device, GATES),
             config,
             RESOURCES.init(StackResources::new()),
             0x5EED_8300,

@@ -24,7 +24,7 @@ use embassy_stm32::{bind_interrupts, eth, flash, interrupt, peripherals, rng, Co
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Instant, Timer};
-use remodaq_shared::backlog::{Backlogged, MODBUS_BACKLOG};
+use remodaq_shared::backlog::{Backlogged, GATES};
 use remodaq_shared::board::{spawn, Board, Effects};
 use remodaq_shared::discovery::Effect;
 use remodaq_shared::embassy_net::EmbassyNet;
@@ -313,8 +313,8 @@ impl Board for Stm32Board {
     /// identify LED.
     fn start_network(self, spawner: Spawner, net: NetConfig) -> (EmbassyNet<Stm32Effects>, NetConfig) {
         let Stm32Board { eth, seed, led, mac, .. } = self;
-        // Only intact SYNs to this MAC and address wait in the Modbus port's backlog.
-        MODBUS_BACKLOG.identify(mac, net.ip, remodaq_shared::backlog::HELD_PER_SOURCE);
+        // Only intact SYNs to this MAC and address wait in the ports' backlogs.
+        remodaq_shared::backlog::identify(mac, net.ip, remodaq_shared::backlog::HELD_PER_SOURCE);
         let prefix = net.prefix_len().unwrap_or(24);
         let gateway = (net.gateway != [0; 4]).then(|| Ipv4Address::from(net.gateway));
         let config = embassy_net::Config::ipv4_static(StaticConfigV4 {
@@ -323,12 +323,8 @@ impl Board for Stm32Board {
             dns_servers: heapless::Vec::new(),
         });
         static RESOURCES: StaticCell<StackResources<STACK_SOCKETS>> = StaticCell::new();
-        let (stack, runner) = embassy_net::new(
-            Backlogged::new(eth, &MODBUS_BACKLOG),
-            config,
-            RESOURCES.init(StackResources::new()),
-            seed,
-        );
+        let (stack, runner) =
+            embassy_net::new(Backlogged::new(eth, GATES), config, RESOURCES.init(StackResources::new()), seed);
         spawn(spawner, net_task(runner), "net");
         spawn(spawner, identify_task(led), "identify");
         info!("network: {}.{}.{}.{}/{} port {}", net.ip[0], net.ip[1], net.ip[2], net.ip[3], prefix, net.port);

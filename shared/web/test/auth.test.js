@@ -1,17 +1,68 @@
 // The page's authentication (../auth.js) against values computed elsewhere: RFC 7677 §3's
 // SCRAM-SHA-256 example, and a web login and a request signature computed with Python's
 // hashlib and hmac (the same values check the module's side, protocol/src/web.rs).
+// Each check runs twice: on WebCrypto, and on the page's own SHA-256, HMAC and PBKDF2 (what a
+// browser uses on plain http://, where it offers no WebCrypto), which is also checked against
+// FIPS 180-2, RFC 4231 and RFC 7914's published values and against WebCrypto on random input.
 // Run: node shared/web/test/auth.test.js (scripts/test runs it).
 "use strict";
 
 const assert = require("node:assert/strict");
-const auth = require("../auth.js");
-const { hex, unhex } = auth;
+const base = require("../auth.js");
+const { hex, unhex } = base;
+const cores = [
+  ["WebCrypto", base],
+  ["plain JS", base.plain],
+];
 
 const checks = [];
-const check = (name, f) => checks.push([name, f]);
+const check = (name, f) => {
+  for (const [label, auth] of cores) checks.push([`${name} (${label})`, () => f(auth)]);
+};
+const once = (name, f) => checks.push([name, f]);
+const bytes = (s) => new TextEncoder().encode(s);
 
-check("RFC 7677 §3: the proof and the server signature of user/pencil", async () => {
+once("plain SHA-256: FIPS 180-2 appendix B, one and two blocks", async () => {
+  const d = base.plain.core.digest;
+  assert.equal(hex(await d(bytes("abc"))), "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad");
+  assert.equal(
+    hex(await d(bytes("abcdbcdecdefdefgefghfghighijhijkijkljklmklmnlmnomnopnopq"))),
+    "248d6a61d20638b8e5c026930c3e6039a33ce45964ff2167f6ecedd419db06c1",
+  );
+});
+
+once("plain HMAC-SHA-256: RFC 4231 cases 2 and 6 (a key longer than a block)", async () => {
+  const h = base.plain.core.hmac;
+  assert.equal(
+    hex(await h(bytes("Jefe"), bytes("what do ya want for nothing?"))),
+    "5bdcc146bf60754e6a042426089575c75a003f089d2739839dec58b964ec3843",
+  );
+  assert.equal(
+    hex(await h(new Uint8Array(131).fill(0xaa), bytes("Test Using Larger Than Block-Size Key - Hash Key First"))),
+    "60e431591ee0b67f0d8a26aacbf5b77f8e0bc6213728c5140546040f0ee37f54",
+  );
+});
+
+once("plain PBKDF2-HMAC-SHA-256: RFC 7914 §11 (the first 32 bytes), 1 and 80000 iterations", async () => {
+  const p = base.plain.core.pbkdf2;
+  assert.equal(hex(await p(bytes("passwd"), bytes("salt"), 1)), "55ac046e56e3089fec1691c22544b605f94185216dde0465e68b9d57c20dacbc");
+  assert.equal(hex(await p(bytes("Password"), bytes("NaCl"), 80000)), "4ddcd8f60b98be21830cee5ef22701f9641a4418d04c0414aeff08876b34ab56");
+});
+
+once("plain and WebCrypto agree on 200 random inputs of 0-300 bytes, keys of 1-150 (digest, HMAC, PBKDF2)", async () => {
+  const random = (n) => require("node:crypto").randomBytes(n);
+  for (let i = 0; i < 200; i++) {
+    const [data, key] = [random(Math.floor(Math.random() * 300)), random(1 + Math.floor(Math.random() * 150))];
+    assert.equal(hex(await base.plain.core.digest(data)), hex(await base.core.digest(data)), `digest of ${data.length} bytes`);
+    assert.equal(hex(await base.plain.core.hmac(key, data)), hex(await base.core.hmac(key, data)), `hmac ${key.length}/${data.length}`);
+    if (i % 20 === 0) {
+      const n = 1 + Math.floor(Math.random() * 50);
+      assert.equal(hex(await base.plain.core.pbkdf2(key, data, n)), hex(await base.core.pbkdf2(key, data, n)), "pbkdf2");
+    }
+  }
+});
+
+check("RFC 7677 §3: the proof and the server signature of user/pencil", async (auth) => {
   const keys = await auth.deriveKeys("pencil", unhex("5b6d99689d12358eeca04b141236fa81"), 4096);
   const message = [
     "n=user,r=rOprNGfwEbeRWgbNEkqO,r=rOprNGfwEbeRWgbNEkqO%hvYDpWUa2RaTCAfuxFIlj)hNlF$k0," +
@@ -28,7 +79,7 @@ check("RFC 7677 §3: the proof and the server signature of user/pencil", async (
   );
 });
 
-check("a web login as computed with Python: proof, session key, the module's signature", async () => {
+check("a web login as computed with Python: proof, session key, the module's signature", async (auth) => {
   const salt = Uint8Array.from({ length: 16 }, (_, i) => i);
   const keys = await auth.deriveKeys("correct horse battery", salt, 4096);
   assert.equal(hex(keys.storedKey), "0d2391706e1d354c401d3128e412f6d32992a0b82df02f232d9d3d4be5545653");
@@ -49,21 +100,21 @@ check("a web login as computed with Python: proof, session key, the module's sig
   assert.ok(!(await auth.loginSignatureIsRight(keys, message, session, signature)), "a forged answer is seen");
 });
 
-check("a request signature as computed with Python", async () => {
+check("a request signature as computed with Python", async (auth) => {
   const key = Uint8Array.from({ length: 32 }, (_, i) => i);
   const signature = await auth.requestSignature(key, "PUT", "/api/v1/do/0?x=1", 42, '{"on":true}');
   assert.equal(hex(signature), "2fee5c3589aefbefbc31f7fc28dcdec936c9ff5754f1aae3ad59f4752de51e22");
   assert.notEqual(hex(await auth.requestSignature(key, "PUT", "/api/v1/do/0?x=1", 43, '{"on":true}')), hex(signature));
 });
 
-check("an iteration count outside 4096..10000000 is refused", async () => {
+check("an iteration count outside 4096..10000000 is refused", async (auth) => {
   const salt = new Uint8Array(16);
   await assert.rejects(auth.deriveKeys("pencil", salt, 4095));
   await assert.rejects(auth.deriveKeys("pencil", salt, 10000001));
   await assert.rejects(auth.deriveKeys("pencil", salt, "4096"));
 });
 
-check("hex in and out; junk refused", async () => {
+check("hex in and out; junk refused", async (auth) => {
   assert.equal(hex(unhex("00ab1F")), "00ab1f");
   assert.throws(() => unhex("00ab1"));
   assert.throws(() => unhex("zz"));
