@@ -15,7 +15,7 @@
 use std::collections::VecDeque;
 
 use libfuzzer_sys::fuzz_target;
-use remodaq_shared::backlog::{syn_to, Backlog, Peer, Verdict, HANDSHAKE_MS, HELD, HOLD_MS, MAX_SYN_FRAME};
+use remodaq_shared::backlog::{syn_to, ModbusBacklog, Peer, Verdict, HANDSHAKE_MS, HELD, HOLD_MS, MAX_SYN_FRAME};
 use remodaq_shared::modbus::server::SOCKETS;
 
 const PORT: u16 = 8000;
@@ -72,7 +72,7 @@ impl Model {
     }
 
     /// `frame` arrived at `now`, `accepting` tasks listening, and the backlog answered `verdict`.
-    fn arrived(&mut self, backlog: &Backlog, frame: &[u8], now: u64, accepting: usize, verdict: Verdict) {
+    fn arrived(&mut self, backlog: &ModbusBacklog, frame: &[u8], now: u64, accepting: usize, verdict: Verdict) {
         let Some(peer) = syn_to(frame, PORT) else {
             assert_eq!(verdict, Verdict::Pass, "only a SYN to the port is held");
             if let Some(reset) = rst_from(frame) {
@@ -101,7 +101,7 @@ impl Model {
 }
 
 fuzz_target!(|data: &[u8]| {
-    let mut backlog = Backlog::<HELD, SOCKETS>::new();
+    let mut backlog = ModbusBacklog::new();
     let mut model = Model::default();
     let mut now = 0u64;
     let mut accepting = 0usize;
