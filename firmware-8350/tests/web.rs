@@ -1,14 +1,15 @@
 //! The web console's API on the host build (`--http`, docs/web.md), as real HTTP requests over
 //! loopback: logins, signed writes confirmed by Modbus reads, and the attacks of issue #25
-//! (unsigned, stale, replayed, altered and cross-origin requests refused with nothing changed;
-//! GET never changes state; oversized heads and bodies, and a slow client, leave it serving).
+//! (unsigned, stale, replayed, altered, cross-origin and DNS-rebound requests refused with
+//! nothing changed; GET never changes state; oversized heads and bodies, and a slow client,
+//! leave it serving).
 
 use std::io::Write;
 use std::net::{SocketAddr, TcpStream};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use remodaq_board_host::testing::web::{field, log_in, number, request, send_raw, Answer};
+use remodaq_board_host::testing::web::{field, log_in, number, request, request_to_host, send_raw, Answer};
 use remodaq_board_host::testing::SimModule;
 use remodaq_protocol::auth::FACTORY_PASSWORD;
 use remodaq_protocol::m8350::BIT_DO;
@@ -82,6 +83,15 @@ async fn logins_signed_writes_and_the_attacks() {
     let mut foreign = page.sign("PUT", &target, off);
     foreign.push(("Origin", "http://attacker.example".to_string()));
     expect_refused(request(web, "PUT", &target, &foreign, off), "request from another origin", 403);
+    // DNS rebinding: a hostile page under a name the attacker's DNS turned into the module's
+    // address is same-origin to the browser (its Origin and Host both name it): 421, for a
+    // write and for a read.
+    let rebound = "attacker.example";
+    let mut headers = page.sign("PUT", &target, off);
+    headers.push(("Origin", format!("http://{rebound}")));
+    let moved = "reach the module by its address";
+    expect_refused(request_to_host(web, rebound, "PUT", &target, &headers, off), moved, 421);
+    expect_refused(request_to_host(web, rebound, "GET", "/api/v1/do", &[], ""), moved, 421);
     assert_eq!(coils(modbus).await, [false, true, false, false, false, false], "nothing changed");
 
     // GET never changes state: every resource read with the attacker's writes as queries.

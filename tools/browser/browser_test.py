@@ -7,7 +7,11 @@ only), against the host build of both modules, started here with --http.
 
 TARGET_DIR holds firmware-8318 and firmware-8350 (the host build, e.g. target/debug);
 QEMU_IMAGE, an 8350 image of the QEMU board (scripts/qemu build), runs under
-qemu-system-arm (mps2-an386) with its ports forwarded to this PC. Each
+qemu-system-arm (mps2-an386) as a module on a LAN: two network namespaces made here (root
+only; otherwise those checks are not applicable), the module's at 192.0.2.2 (QEMU's ports
+forwarded there), the browser's at 192.0.2.1, joined by a veth pair. The browser reaches the
+module by its address over plain HTTP, as a maintainer's would: no secure context, so no
+WebCrypto, and the page's own PBKDF2 and HMAC log in. Each
 check prints `browser CHECK ... ok` or `... FAILED: why`; the last line is
 `browser: N passed, M failed`. Screenshots of the pages go to SCREENSHOT_DIR (default
 target/browser). Expected values come from the spec (modules.md) and the Modbus reads made
@@ -28,7 +32,8 @@ import urllib.request
 
 FACTORY_PASSWORD = "remodaq"  # protocol/src/auth.rs, the factory credential
 ELEMENT = "element-6066-11e4-a52e-4f735466cecf"  # W3C WebDriver §12: the web element identifier
-LAN_NAME = "module.rdaq.test"  # RFC 2606's reserved .test, mapped to 127.0.0.1 in chromium only
+# The LAN of the QEMU checks (RFC 5737's TEST-NET-1, inside namespaces made for them).
+BROWSER_IP, MODULE_IP = "192.0.2.1", "192.0.2.2"
 
 
 def free_port():
@@ -48,11 +53,7 @@ class WebDriver:
                     "browserName": "chrome",
                     "goog:chromeOptions": {
                         "binary": shutil.which("chromium") or "/usr/bin/chromium",
-                        "args": ["--headless=new", "--no-sandbox", "--disable-gpu", f"--window-size={window}", "--lang=en-US",
-                                 # A name for this PC that is not "localhost": a page from it
-                                 # is no secure context, as a module's http://192.168.x.x is
-                                 # not, and gets no WebCrypto.
-                                 f"--host-resolver-rules=MAP {LAN_NAME} 127.0.0.1"],
+                        "args": ["--headless=new", "--no-sandbox", "--disable-gpu", f"--window-size={window}", "--lang=en-US"],
                     },
                 }
             }
@@ -178,16 +179,13 @@ class QemuModule:
     firmware partition's seed, as tools/qemu-e2e starts it), Modbus and the web console
     forwarded to free ports of this PC."""
 
-    def __init__(self, image):
-        self.modbus = ("127.0.0.1", free_port())
-        web = free_port()
-        # The browser reaches it by a name, as it would a module on the LAN (no secure context).
-        self.web = f"http://{LAN_NAME}:{web}"
-        probe = f"http://127.0.0.1:{web}"
-        nic = (f"user,id=nic0,model=lan9118,hostfwd=tcp:127.0.0.1:{self.modbus[1]}-:8000,"
-               f"hostfwd=tcp:127.0.0.1:{web}-:80")
+    def __init__(self, image, netns):
+        self.modbus = (MODULE_IP, 8000)
+        self.web = f"http://{MODULE_IP}"
+        probe = self.web
+        nic = f"user,id=nic0,model=lan9118,hostfwd=tcp:{MODULE_IP}:8000-:8000,hostfwd=tcp:{MODULE_IP}:80-:80"
         bootloader = os.path.join(os.path.dirname(image), "remodaq-qemu-bootloader")
-        args = ["qemu-system-arm", "-M", "mps2-an386", "-nographic", "-monitor", "none", "-serial", "null",
+        args = ["ip", "netns", "exec", netns, "qemu-system-arm", "-M", "mps2-an386", "-nographic", "-monitor", "none", "-serial", "null",
                 "-semihosting-config", "enable=on,target=native", "-nic", nic,
                 "-kernel", bootloader, "-device", f"loader,file={image}.bin,addr=0x300000"]
         self.log = open(f"{image}.browser.log", "w")
@@ -212,6 +210,7 @@ class Checks:
     def __init__(self):
         self.passed = 0
         self.failed = 0
+        self.not_applicable = 0
 
     def check(self, name, f):
         try:
@@ -223,7 +222,7 @@ class Checks:
             print(f"browser {name} ... FAILED: {e}", flush=True)
 
 
-def every_page(checks, b, module, model, shots, shows):
+def every_page(checks, b, module, model, shots, shows, label=None):
     os.makedirs(shots, exist_ok=True)
     """Loads each page of `module`; each must show the texts `shows` names for it."""
     for page, wanted in shows.items():
@@ -235,7 +234,7 @@ def every_page(checks, b, module, model, shots, shows):
             if "[object" in b.text("main#page"):
                 raise RuntimeError("the page shows an object where text belongs")
             b.screenshot(os.path.join(shots, f"{model}-{page}.png"))
-        checks.check(f"{model} page {page} loads and shows {', '.join(w.replace(chr(10), ' ') for w in wanted)}", load)
+        checks.check(f"{label or model} page {page} loads and shows {', '.join(w.replace(chr(10), ' ') for w in wanted)}", load)
 
 
 def log_in(b, password):
@@ -244,7 +243,108 @@ def log_in(b, password):
     b.click("#login-form button[value=ok]")
 
 
+QEMU_CHECKS = 4  # the checks qemu_checks makes
+
+
+def qemu_checks(checks, b, qemu, shots):
+    """The 8350 image under QEMU, reached at its LAN address: the console on embassy-net's
+    sockets, two connections at once behind the web port's SYN backlog (a page's files wait,
+    never reset)."""
+    every_page(checks, b, qemu, "8350", shots,
+               {"status": ["Firmware\nA100", "Uptime"], "io": ["DI11", "DO5"], "settings": ["DI11", "Host watchdog"]},
+               label="8350 under QEMU at its LAN address:")
+
+    def toggle():
+        b.go(f"{qemu.web}/#io")
+        if b.script("return !!(window.crypto && window.crypto.subtle)"):
+            raise RuntimeError(f"{qemu.web} is a secure context here: the check would not use the page's own crypto")
+        log_in(b, "not the password")
+        b.wait_text("#login-error", "Wrong password")
+        b.type("#password", FACTORY_PASSWORD)
+        b.click("#login-form button[value=ok]")
+        b.wait_text("#message", "Logged in")
+        b.wait_text("button[aria-label=DO4]", "off")
+        b.click("button[aria-label=DO4]")
+        b.wait_text("button[aria-label=DO4]", "on")
+        # Spec §3.1: DO0-DO5 at coils 10h-15h.
+        coils = read_coils(qemu.modbus, 0x10, 6)
+        if coils != [False, False, False, False, True, False]:
+            raise RuntimeError(f"Modbus reads the DOs {coils}")
+        b.screenshot(os.path.join(shots, "8350-io-do4-on.png"))
+    checks.check("8350 under QEMU at its LAN address, plain HTTP (no WebCrypto: the page's own PBKDF2 and HMAC): "
+                 "a wrong then the right password, DO4 toggled, confirmed by a Modbus read", toggle)
+
+
+def qemu_inner(image, shots, module_ns):
+    """Inside the browser's namespace: chromedriver, the image under QEMU in `module_ns`, the
+    checks; the last line `browser-qemu: N passed, M failed`."""
+    subprocess.run(["ip", "link", "set", "lo", "up"], check=True)
+    driver_port = free_port()
+    driver = subprocess.Popen(["chromedriver", f"--port={driver_port}"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    checks = Checks()
+    qemu = None
+    try:
+        time.sleep(1)
+        qemu = QemuModule(image, module_ns)
+        b = WebDriver(driver_port)
+        qemu_checks(checks, b, qemu, shots)
+        b.quit()
+    except Exception as e:
+        print(f"browser QEMU set-up ... FAILED: {e}", flush=True)
+    finally:
+        if qemu:
+            qemu.stop()
+        driver.kill()
+    failed = QEMU_CHECKS - checks.passed
+    print(f"browser-qemu: {checks.passed} passed, {failed} failed", flush=True)
+    return 0 if failed == 0 else 1
+
+
+def qemu_on_a_lan(checks, image, shots):
+    """Two namespaces and a veth pair between them (removed after), then `qemu_inner` in the
+    browser's; its checks added to `checks`."""
+    if os.geteuid() != 0 or not shutil.which("ip"):
+        print(f"browser 8350 under QEMU on a LAN ... not applicable: needs root for network namespaces", flush=True)
+        checks.not_applicable += QEMU_CHECKS
+        return
+    tag = str(os.getpid())
+    pc, mod = f"rdaq-br-pc-{tag}", f"rdaq-br-mod-{tag}"
+    setup = [
+        ["ip", "netns", "add", pc], ["ip", "netns", "add", mod],
+        ["ip", "link", "add", "brpc0", "netns", pc, "type", "veth", "peer", "name", "brmod0", "netns", mod],
+        ["ip", "-n", pc, "addr", "add", f"{BROWSER_IP}/24", "dev", "brpc0"],
+        ["ip", "-n", mod, "addr", "add", f"{MODULE_IP}/24", "dev", "brmod0"],
+        ["ip", "-n", pc, "link", "set", "brpc0", "up"], ["ip", "-n", mod, "link", "set", "brmod0", "up"],
+        ["ip", "-n", mod, "link", "set", "lo", "up"],
+    ]
+    try:
+        for command in setup:
+            subprocess.run(command, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        os.makedirs(shots, exist_ok=True)
+        inner = subprocess.run(["ip", "netns", "exec", pc, sys.executable, os.path.abspath(__file__), "--qemu-inner",
+                                image, shots, mod], stdout=subprocess.PIPE, text=True, timeout=600)
+        counted = False
+        for line in inner.stdout.splitlines():
+            if line.startswith("browser-qemu: "):
+                words = line.split()
+                checks.passed += int(words[1])
+                checks.failed += int(words[3])
+                counted = True
+            else:
+                print(line, flush=True)
+        if not counted:
+            raise RuntimeError(f"the checks inside the namespace ended without a count (exit {inner.returncode})")
+    except Exception as e:
+        print(f"browser QEMU on a LAN ... FAILED: {e}", flush=True)
+        checks.failed += QEMU_CHECKS
+    finally:
+        subprocess.run(["ip", "netns", "del", pc], stderr=subprocess.DEVNULL)
+        subprocess.run(["ip", "netns", "del", mod], stderr=subprocess.DEVNULL)
+
+
 def main():
+    if sys.argv[1:2] == ["--qemu-inner"]:
+        return qemu_inner(*sys.argv[2:5])
     target = sys.argv[1] if len(sys.argv) > 1 else "target/debug"
     shots = sys.argv[2] if len(sys.argv) > 2 else "target/browser"
     qemu_image = sys.argv[3] if len(sys.argv) > 3 else None
@@ -326,33 +426,10 @@ def main():
             b.screenshot(os.path.join(shots, "8318-io-volts.png"))
         checks.check("8318 input type changed to ±2.5 V: 40201 reads 05h, the values turn to mV", input_type)
 
-        if qemu_image:
-            # The 8350 image under QEMU: the console on embassy-net's sockets, two connections
-            # at once behind the web port's SYN backlog (a page's files wait, never reset).
-            qemu = QemuModule(qemu_image)
-            modules.append(qemu)
-            qemu.model = "8350 (QEMU)"
-            every_page(checks, b, qemu, "8350", os.path.join(shots, "qemu"),
-                       {"status": ["Firmware\nA100", "Uptime"], "io": ["DI11", "DO5"], "settings": ["DI11", "Host watchdog"]})
-
-            def qemu_toggle():
-                b.go(f"{qemu.web}/#io")
-                if b.script("return !!(window.crypto && window.crypto.subtle)"):
-                    raise RuntimeError(f"{qemu.web} is a secure context here: the check would not use the page's own crypto")
-                log_in(b, "not the password")
-                b.wait_text("#login-error", "Wrong password")
-                b.type("#password", FACTORY_PASSWORD)
-                b.click("#login-form button[value=ok]")
-                b.wait_text("#message", "Logged in")
-                b.wait_text("button[aria-label=DO4]", "off")
-                b.click("button[aria-label=DO4]")
-                b.wait_text("button[aria-label=DO4]", "on")
-                coils = read_coils(qemu.modbus, 0x10, 6)
-                if coils != [False, False, False, False, True, False]:
-                    raise RuntimeError(f"Modbus reads the DOs {coils}")
-                b.screenshot(os.path.join(shots, "qemu", "8350-io-do4-on.png"))
-            checks.check("8350 under QEMU, at a LAN name (no WebCrypto: the page's own PBKDF2 and HMAC): a wrong then the right password, DO4 toggled, confirmed by a Modbus read", qemu_toggle)
         b.quit()
+        b = None
+        if qemu_image:
+            qemu_on_a_lan(checks, os.path.abspath(qemu_image), os.path.join(os.path.abspath(shots), "qemu"))
     except Exception as e:
         checks.failed += 1
         print(f"browser set-up ... FAILED: {e}", flush=True)
@@ -361,7 +438,8 @@ def main():
             m.stop()
         driver.kill()
         shutil.rmtree(work, ignore_errors=True)
-    print(f"browser: {checks.passed} passed, {checks.failed} failed")
+    na = f", {checks.not_applicable} not applicable" if checks.not_applicable else ""
+    print(f"browser: {checks.passed} passed, {checks.failed} failed{na}")
     return 0 if checks.failed == 0 else 1
 
 

@@ -258,6 +258,12 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess> PathRouterService for Api<'_,
         let parts = request.parts;
         let method = parts.method();
         let target = path.encoded();
+        if !host_is_an_address(header(&parts, "Host")) {
+            // DNS rebinding: a hostile page whose name the attacker's DNS turns into the module's
+            // address sends its requests with its own name as the Host (docs/web.md).
+            let answer = Answer::error(StatusCode::MISDIRECTED_REQUEST, "reach the module by its address", None);
+            return answer.write_to(request.body_connection.finalize().await?, response_writer).await;
+        }
         if let Some((_, kind, gz)) = PAGES.iter().find(|(p, ..)| *p == target).filter(|_| method == "GET") {
             // Every browser takes gzip; the page's files are served as compressed at build time.
             let response = Response::new(StatusCode::OK, *gz)
@@ -305,6 +311,20 @@ fn full_target(path: &str, query: Option<&str>) -> Option<heapless::String<256>>
         t.push_str(q).ok()?;
     }
     Some(t)
+}
+
+/// Whether `host` (a request's `Host`) names the module by an address: an IPv4 address in
+/// dotted decimal or `localhost`, with a port or without. A page served under a DNS name could
+/// be the attacker's, its name rebound to the module's address; the console is reached by the
+/// address the utility's search shows (docs/web.md, "Decisions").
+fn host_is_an_address(host: Option<&str>) -> bool {
+    let Some(host) = host else { return false };
+    let name = match host.rsplit_once(':') {
+        Some((name, port)) if port.parse::<u16>().is_ok() => name,
+        Some(_) => return false,
+        None => host,
+    };
+    name.eq_ignore_ascii_case("localhost") || name.parse::<core::net::Ipv4Addr>().is_ok()
 }
 
 /// Whether `origin` (`http://host[:port]`) is the origin the request was sent to (`Host`).
@@ -795,6 +815,30 @@ impl Pdu {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn only_an_address_is_a_host() {
+        for ok in ["192.168.1.50", "192.168.1.50:80", "127.0.0.1:8080", "10.0.2.15", "localhost", "LOCALHOST:80"] {
+            assert!(host_is_an_address(Some(ok)), "{ok}");
+        }
+        // A name (DNS rebinding), a malformed address or port, none at all.
+        for refused in [
+            "attacker.example",
+            "attacker.example:80",
+            "192.168.1.50.nip.io",
+            "192.168.1",
+            "192.168.1.256",
+            "0300.0250.1.1",
+            "192.168.1.50:",
+            "192.168.1.50:http",
+            "192.168.1.50:65536",
+            "[::1]:80",
+            "",
+        ] {
+            assert!(!host_is_an_address(Some(refused)), "{refused}");
+        }
+        assert!(!host_is_an_address(None));
+    }
 
     #[test]
     fn decimal_numbers_in_hundredths() {

@@ -866,7 +866,7 @@ async fn modbus_during_web_load(modbus: SocketAddr, web: SocketAddr, log: &str) 
         load.push(std::thread::spawn(move || {
             use std::io::Write;
             like_another_machine();
-            let text = b"GET /api/v1/identity HTTP/1.1\r\nHost: x\r\nX-Slow: ";
+            let text = b"GET /api/v1/identity HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: ";
             while !trickle_stop.load(Ordering::Relaxed) {
                 let Ok(mut s) = std::net::TcpStream::connect(web) else { continue };
                 for byte in text.iter().chain(std::iter::repeat(&b'x')) {

@@ -29,9 +29,21 @@ pub fn send_raw(web: SocketAddr, request: &[u8]) -> Answer {
     Answer { status, body }
 }
 
-/// Sends one request with a `Host` and a `Content-Length` header.
+/// Sends one request with a `Host` (the module's address) and a `Content-Length` header.
 pub fn request(web: SocketAddr, method: &str, target: &str, headers: &[(&str, String)], body: &str) -> Answer {
-    let mut text = format!("{method} {target} HTTP/1.1\r\nHost: {web}\r\nContent-Length: {}\r\n", body.len());
+    request_to_host(web, &web.to_string(), method, target, headers, body)
+}
+
+/// [`request`], saying `host` as the `Host`.
+pub fn request_to_host(
+    web: SocketAddr,
+    host: &str,
+    method: &str,
+    target: &str,
+    headers: &[(&str, String)],
+    body: &str,
+) -> Answer {
+    let mut text = format!("{method} {target} HTTP/1.1\r\nHost: {host}\r\nContent-Length: {}\r\n", body.len());
     for (name, value) in headers {
         text += &format!("{name}: {value}\r\n");
     }
