@@ -1,0 +1,335 @@
+#!/usr/bin/env python3
+"""Every answer of the web console's API against docs/openapi.yaml (issue #25: "every response
+follows it"), on the host build of both models started here with --http.
+
+    tools/openapi/check_api.py TARGET_DIR
+
+TARGET_DIR holds firmware-8318 and firmware-8350 (the host build, e.g. target/debug). The
+requests cover every operation of the file (a check fails for an operation never exercised)
+with their answers good and bad: reads, a login (wrong, then right: the page's computation,
+docs/web.md, with Python's hashlib and hmac), signed writes taken and refused, unsigned,
+foreign and rebound requests. Each answer's status must be one the file lists for that
+operation, and its body must follow the schema the file gives for that status (OpenAPI 3.0
+Schema Objects: type, nullable, enum, pattern, minimum, maximum, required, properties,
+additionalProperties, items, oneOf, $ref). One check per operation:
+`openapi METHOD PATH ... ok`; the last line `openapi: N passed, M failed`.
+"""
+import hashlib
+import hmac
+import json
+import os
+import re
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+
+try:
+    import yaml
+except ImportError:  # a fresh machine: PyYAML from PyPI
+    subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "pyyaml"], check=True)
+    import yaml
+
+SPEC = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "docs", "openapi.yaml")
+FACTORY_PASSWORD = "remodaq"  # protocol/src/auth.rs
+
+
+def free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def exchange(web, method, target, headers=(), body=b"", host=None):
+    """One request on its own connection; (status, body bytes)."""
+    host = host or f"{web[0]}:{web[1]}"
+    head = f"{method} {target} HTTP/1.1\r\nHost: {host}\r\nContent-Length: {len(body)}\r\n"
+    head += "".join(f"{k}: {v}\r\n" for k, v in headers) + "\r\n"
+    with socket.create_connection(web, timeout=10) as s:
+        s.sendall(head.encode() + body)
+        data = b""
+        while chunk := s.recv(4096):
+            data += chunk
+    head, _, rest = data.partition(b"\r\n\r\n")
+    status = int(head.split(b" ")[1]) if head.startswith(b"HTTP/1.1 ") else 0
+    return status, rest
+
+
+class Schemas:
+    def __init__(self, spec):
+        self.spec = spec
+
+    def deref(self, node):
+        while isinstance(node, dict) and "$ref" in node:
+            at = self.spec
+            for part in node["$ref"].lstrip("#/").split("/"):
+                at = at[part]
+            node = at
+        return node
+
+    def check(self, schema, value, where="$"):
+        """The first way `value` breaks `schema`, or None."""
+        schema = self.deref(schema)
+        if value is None:
+            return None if schema.get("nullable") else f"{where}: null where it may not be"
+        if "oneOf" in schema:
+            fits = [s for s in schema["oneOf"] if self.check(s, value, where) is None]
+            return None if len(fits) == 1 else f"{where}: {value!r} fits {len(fits)} of oneOf"
+        kind = schema.get("type")
+        python = {"object": dict, "array": list, "string": str, "boolean": bool}
+        if kind in python and not isinstance(value, python[kind]):
+            return f"{where}: {value!r} is not {kind}"
+        if kind == "integer" and (isinstance(value, bool) or not isinstance(value, int)):
+            return f"{where}: {value!r} is not an integer"
+        if kind == "number" and (isinstance(value, bool) or not isinstance(value, (int, float))):
+            return f"{where}: {value!r} is not a number"
+        if "enum" in schema and value not in schema["enum"]:
+            return f"{where}: {value!r} not in {schema['enum']}"
+        if "pattern" in schema and not re.search(schema["pattern"], value):
+            return f"{where}: {value!r} does not match {schema['pattern']}"
+        if "minimum" in schema and value < schema["minimum"]:
+            return f"{where}: {value} below {schema['minimum']}"
+        if "maximum" in schema and value > schema["maximum"]:
+            return f"{where}: {value} above {schema['maximum']}"
+        if kind == "object":
+            for name in schema.get("required", []):
+                if name not in value:
+                    return f"{where}: {name} missing"
+            properties = schema.get("properties", {})
+            for name, v in value.items():
+                if name in properties:
+                    broken = self.check(properties[name], v, f"{where}.{name}")
+                    if broken:
+                        return broken
+                elif schema.get("additionalProperties", True) is False:
+                    return f"{where}: {name} is not in the schema"
+        if kind == "array":
+            for i, v in enumerate(value):
+                broken = self.check(schema.get("items", {}), v, f"{where}[{i}]")
+                if broken:
+                    return broken
+        return None
+
+
+class Api:
+    """The operations of the file, and what was seen of each."""
+
+    def __init__(self, spec):
+        self.spec = spec
+        self.schemas = Schemas(spec)
+        self.seen = {}  # (METHOD, template) -> [problems], one entry per answer
+
+    def template(self, path):
+        for template in self.spec["paths"]:
+            pattern = "^" + re.sub(r"\{[^}]+\}", "[^/]+", template) + "$"
+            if re.match(pattern, path):
+                return template
+        return None
+
+    def answer(self, method, target, status, body):
+        """Checks one answer against the file."""
+        path = target.split("?")[0][len("/api/v1"):]
+        template = self.template(path)
+        op = template and self.spec["paths"][template].get(method.lower())
+        key = (method, template or path)
+        problems = self.seen.setdefault(key, [])
+        if not op:
+            problems.append(f"{method} {target}: no such operation in the file")
+            return
+        response = op["responses"].get(str(status)) or op["responses"].get("default")
+        if response is None:
+            problems.append(f"{method} {target}: status {status} is not listed ({body[:80]!r})")
+            return
+        response = self.schemas.deref(response)
+        content = response.get("content", {}).get("application/json")
+        if content is None:
+            if body:
+                problems.append(f"{method} {target}: {status} has a body the file does not list: {body[:80]!r}")
+            return
+        try:
+            value = json.loads(body)
+        except ValueError:
+            problems.append(f"{method} {target}: {status} body is no JSON: {body[:80]!r}")
+            return
+        broken = self.schemas.check(content["schema"], value)
+        if broken:
+            problems.append(f"{method} {target} {status}: {broken}")
+
+
+class Module:
+    def __init__(self, program, work, scenario):
+        self.web = ("127.0.0.1", free_port())
+        name = os.path.basename(program)
+        scenario_file = os.path.join(work, f"{name}.toml")
+        with open(scenario_file, "w") as f:
+            f.write(scenario)
+        self.process = subprocess.Popen(
+            [program, "--listen", f"127.0.0.1:{free_port()}", "--http", "%s:%d" % self.web,
+             "--discovery", f"127.0.0.1:{free_port()}", "--flash", os.path.join(work, f"{name}.flash"),
+             "--scenario", scenario_file], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        deadline = time.time() + 30
+        while True:
+            try:
+                if exchange(self.web, "GET", "/api/v1/identity")[0] == 200:
+                    break
+            except OSError:
+                pass
+            if time.time() > deadline or self.process.poll() is not None:
+                raise RuntimeError(f"{name} did not start")
+            time.sleep(0.2)
+
+    def stop(self):
+        self.process.kill()
+        self.process.wait()
+
+
+class Client:
+    """Requests to one module, every answer checked; a login as the page makes it."""
+
+    def __init__(self, api, module):
+        self.api, self.web = api, module.web
+        self.session = None
+
+    def call(self, method, target, value=None, headers=(), raw=None, host=None):
+        body = raw if raw is not None else (b"" if value is None else json.dumps({"value": value}).encode())
+        status, answer = exchange(self.web, method, target, headers, body, host)
+        self.api.answer(method, target, status, answer)
+        return status, answer
+
+    def signed(self, method, target, value=None, extra=()):
+        body = b"" if value is None else json.dumps({"value": value}).encode()
+        session, key, counter = self.session
+        counter += 1
+        self.session = (session, key, counter)
+        message = b"RDAQ web request\n" + f"{method}\n{target}\n{counter}\n".encode() + body
+        signature = hmac.new(key, message, hashlib.sha256).hexdigest()
+        headers = [("X-RDAQ-Session", session), ("X-RDAQ-Counter", str(counter)), ("X-RDAQ-Signature", signature)]
+        return self.call(method, target, headers=headers + list(extra), raw=body)
+
+    def log_in(self, password):
+        """docs/web.md, "Authentication": SCRAM-SHA-256's keys, the web login's message."""
+        status, c = self.call("POST", "/api/v1/session/challenge")
+        c = json.loads(c)
+        salted = hashlib.pbkdf2_hmac("sha256", password.encode(), bytes.fromhex(c["salt"]), c["iterations"], 32)
+        client_key = hmac.new(salted, b"Client Key", hashlib.sha256).digest()
+        stored_key = hashlib.sha256(client_key).digest()
+        _, identity = exchange(self.web, "GET", "/api/v1/identity")
+        mac = bytes.fromhex(json.loads(identity)["mac"])
+        page_nonce = os.urandom(16)
+        message = b"RDAQ web login" + mac + bytes.fromhex(c["nonce"]) + page_nonce
+        proof = bytes(a ^ b for a, b in zip(client_key, hmac.new(stored_key, message, hashlib.sha256).digest()))
+        body = json.dumps({"nonce": c["nonce"], "page_nonce": page_nonce.hex(), "proof": proof.hex()}).encode()
+        status, s = self.call("POST", "/api/v1/session", raw=body, headers=[("Content-Type", "application/json")])
+        if status != 200:
+            return status
+        key = hmac.new(client_key, b"RDAQ web session" + bytes.fromhex(c["nonce"]) + page_nonce, hashlib.sha256).digest()
+        self.session = (json.loads(s)["session"], key, 0)
+        return status
+
+
+def exercise_8350(c):
+    c.call("GET", "/api/v1/identity")
+    c.call("GET", "/api/v1/identity", host="attacker.example")  # DNS rebinding: 421
+    if c.log_in("not the password") != 401:
+        raise RuntimeError("a wrong password logged in")
+    if c.log_in(FACTORY_PASSWORD) != 200:
+        raise RuntimeError("the factory password did not log in")
+    c.call("GET", "/api/v1/registers/0?count=10")
+    c.call("GET", "/api/v1/registers/0?count=126")
+    c.call("GET", "/api/v1/registers/0?count=x")
+    c.signed("PUT", "/api/v1/registers/0", 1)  # read-only
+    c.signed("PUT", "/api/v1/registers/304", 50)  # host watchdog timeout (extensions §3), 5 s
+    c.signed("PUT", "/api/v1/registers/304", 0)
+    c.call("GET", "/api/v1/coils/16?count=6")
+    c.call("GET", "/api/v1/coils/16?count=151")
+    c.signed("PUT", "/api/v1/coils/16", True)
+    c.call("PUT", "/api/v1/coils/16", False)  # unsigned: 401
+    c.signed("PUT", "/api/v1/coils/16", False, extra=[("Origin", "http://attacker.example")])  # 403
+    c.signed("PUT", "/api/v1/coils/16", "on")  # not a boolean: 400
+    for target in ["/api/v1/di", "/api/v1/di/0", "/api/v1/di/12", "/api/v1/do", "/api/v1/do/5", "/api/v1/do/6",
+                   "/api/v1/watchdog", "/api/v1/diagnostics", "/api/v1/channels", "/api/v1/channels/0", "/api/v1/inputs"]:
+        c.call("GET", target)
+    c.signed("PUT", "/api/v1/di/0/mode", "counter")
+    c.signed("PUT", "/api/v1/di/0/mode", "sideways")  # 422
+    c.signed("PUT", "/api/v1/di/0/counter", 5)  # read-only: 405
+    c.signed("PUT", "/api/v1/di/12/mode", "normal")  # 404
+    c.signed("PUT", "/api/v1/di/0/clear", True)
+    c.signed("PUT", "/api/v1/do/0/state", True)
+    c.signed("PUT", "/api/v1/do/1/mode", "pulse")
+    c.signed("PUT", "/api/v1/do/1/high_width", 70000)
+    c.signed("PUT", "/api/v1/do/1/low_width", 0)  # 422
+    for target in ["/api/v1/di/0", "/api/v1/do/1", "/api/v1/di"]:  # as written
+        c.call("GET", target)
+    c.signed("PUT", "/api/v1/watchdog/timeout", 6001)  # 422
+    c.signed("PUT", "/api/v1/watchdog/safe_values", 3)
+    c.call("GET", "/api/v1/watchdog")
+    c.signed("PUT", "/api/v1/inputs/type", 5)  # an 8318 resource on the 8350: 404
+    c.call("PUT", "/api/v1/do/0/state", raw=b"{" + b" " * 4000 + b"}")  # too large: 413
+    c.call("GET", "/api/v1/di/0?" + "x" * 300)  # target too long: 414
+    c.signed("DELETE", "/api/v1/session")
+    c.signed("DELETE", "/api/v1/session")  # ended: 401
+
+
+def exercise_8318(c):
+    c.call("GET", "/api/v1/identity")
+    if c.log_in(FACTORY_PASSWORD) != 200:
+        raise RuntimeError("the factory password did not log in")
+    for target in ["/api/v1/channels", "/api/v1/channels/0", "/api/v1/channels/3", "/api/v1/channels/8",
+                   "/api/v1/inputs", "/api/v1/diagnostics", "/api/v1/di", "/api/v1/watchdog"]:
+        c.call("GET", target)
+    c.signed("PUT", "/api/v1/inputs/type", 5)
+    c.call("GET", "/api/v1/channels")
+    c.call("GET", "/api/v1/inputs")
+    c.signed("PUT", "/api/v1/inputs/type", 99)  # 422
+    c.signed("PUT", "/api/v1/inputs/cjc_offset", 1.25)
+    c.signed("PUT", "/api/v1/inputs/cjc_offset", 1.255)  # more than two decimals: 400 or 422
+    c.signed("PUT", "/api/v1/inputs/open_value", "downscale")
+    c.signed("PUT", "/api/v1/inputs/enable_mask", 0x0F)
+    c.call("GET", "/api/v1/channels/5")  # disabled
+    c.signed("PUT", "/api/v1/inputs/cjc", 30)  # read-only: 405
+
+
+def main():
+    target = sys.argv[1] if len(sys.argv) > 1 else "target/debug"
+    with open(SPEC) as f:
+        spec = yaml.safe_load(f)
+    api = Api(spec)
+    work = tempfile.mkdtemp(prefix="rdaq-openapi-")
+    modules, failed_setup = [], 0
+    try:
+        m8350 = Module(os.path.join(target, "firmware-8350"), work, "[di0]\nsquare_hz = 5.0\n")
+        m8318 = Module(os.path.join(target, "firmware-8318"), work,
+                       "cjc_celsius = 25.0\n[ch0]\nmillivolts = 41.276\n[ch3]\nopen = true\n")
+        modules += [m8350, m8318]
+        exercise_8350(Client(api, m8350))
+        exercise_8318(Client(api, m8318))
+    except Exception as e:
+        failed_setup = 1
+        print(f"openapi requests ... FAILED: {e}", flush=True)
+    finally:
+        for m in modules:
+            m.stop()
+    passed, failed = 0, failed_setup
+    for template, item in spec["paths"].items():
+        for method in [m for m in item if m in ("get", "put", "post", "delete")]:
+            problems = api.seen.pop((method.upper(), template), None)
+            name = f"{method.upper()} {template}"
+            if problems is None:
+                failed += 1
+                print(f"openapi {name} ... FAILED: never exercised", flush=True)
+            elif problems:
+                failed += 1
+                print(f"openapi {name} ... FAILED: {'; '.join(problems)}", flush=True)
+            else:
+                passed += 1
+                print(f"openapi {name} ... ok", flush=True)
+    for (method, path), problems in api.seen.items():
+        failed += 1
+        print(f"openapi {method} {path} ... FAILED: {'; '.join(problems) or 'not in the file'}", flush=True)
+    print(f"openapi: {passed} passed, {failed} failed")
+    return 0 if failed == 0 else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
