@@ -44,6 +44,16 @@
       ok: "正常", open: "断线", "over range": "超上限", "under range": "超下限", disabled: "已禁用",
       "front-end fault": "前端故障", "cold-junction fault": "冷端故障",
       thermocouple: "热电偶", voltage: "电压", current: "电流",
+      // The module's error texts (shared/src/web/service.rs).
+      unsigned: "请求未签名。", "no session": "会话已结束，请重新登录。", "stale counter": "过期的请求（重放）。",
+      "bad signature": "签名错误。", "value refused": "模块拒绝了该值。", "not a value of this field": "该字段不接受此值。",
+      "the field is read-only": "该字段只读。", "no such item": "没有该通道。", "no such resource": "没有该资源。",
+      "too many wrong passwords: wait": "密码错误次数过多，请稍候。", "request from another origin": "来自其他来源的请求。",
+      "reach the module by its address": "请使用模块的 IP 地址访问。", "body too large": "请求过大。",
+      "target too long": "请求地址过长。", "refused by the module": "模块拒绝了该请求。",
+      "the module could not apply it": "模块无法执行。", "the module is not ready for logins": "模块尚未准备好登录。",
+      "challenge unknown, used or expired": "登录挑战无效或已过期，请重试。", "address not mapped for this access": "该地址不可访问。",
+      "the module's signature is wrong": "模块的签名错误：可能有人冒充该模块。",
     },
   };
 
@@ -86,7 +96,7 @@
   async function get(path) {
     const r = await fetch("/api/v1/" + path, { cache: "no-store" });
     const body = await r.json().catch(() => ({}));
-    if (!r.ok) throw new Error(body.error || r.status);
+    if (!r.ok) throw new Error(t(body.error || String(r.status)));
     return body;
   }
 
@@ -125,14 +135,14 @@
       session = null;
       translate();
     }
-    const what = (answer.field ? t(answer.field) + ": " : "") + (answer.error || r.status);
+    const what = (answer.field ? t(answer.field) + ": " : "") + t(answer.error || String(r.status));
     say(what, true);
     throw new Error(what);
   }
 
   async function login(password) {
     const c = await (await fetch("/api/v1/session/challenge", { method: "POST" })).json().catch(() => ({}));
-    if (!c.nonce) throw new Error(c.error || "no challenge");
+    if (!c.nonce) throw new Error(t(c.error || "the module is not ready for logins"));
     const keys = await A.deriveKeys(password, A.unhex(c.salt), c.iterations);
     const mac = A.unhex(identity.mac);
     const nonce = A.unhex(c.nonce);
@@ -145,10 +155,10 @@
       body: JSON.stringify({ nonce: c.nonce, page_nonce: A.hex(pageNonce), proof: A.hex(proof) }),
     });
     const s = await r.json().catch(() => ({}));
-    if (r.status !== 200) throw new Error(s.error === "wrong password" ? t("wrong password") : s.error);
+    if (r.status !== 200) throw new Error(t(s.error || String(r.status)));
     // The module proves it knows this password too: a forger on the LAN cannot fake a login.
     if (!(await A.loginSignatureIsRight(keys, message, A.unhex(s.session), A.unhex(s.signature)))) {
-      throw new Error("the module's signature is wrong");
+      throw new Error(t("the module's signature is wrong"));
     }
     session = { id: s.session, key: await A.sessionKey(keys, nonce, pageNonce), counter: 0 };
   }

@@ -399,6 +399,22 @@ def main():
             b.wait_text("nav", "Live I/O")
         checks.check("8350 language switch to Simplified Chinese and back", chinese)
 
+        def phone():
+            # A phone's screen (390 x 844 CSS pixels): the widest page, the 8350's settings, fits
+            # its width (a wide table scrolls inside itself).
+            b.s("POST", "/window/rect", {"width": 390, "height": 844})
+            try:
+                for page in ["io", "settings"]:
+                    b.go(f"{m8350.web}/#{page}")
+                    b.wait_text("main#page", "DO5")
+                    wide = b.script("return [document.documentElement.scrollWidth, window.innerWidth]")
+                    if wide[0] > wide[1]:
+                        raise RuntimeError(f"#{page} is {wide[0]} px wide on a {wide[1]} px screen")
+                    b.screenshot(os.path.join(shots, f"8350-{page}-phone.png"))
+            finally:
+                b.s("POST", "/window/rect", {"width": 1000, "height": 800})
+        checks.check("8350 pages on a phone-sized screen: nothing wider than the screen", phone)
+
         # 8318: pages, then the input type changed on the settings page.
         # The scenario's channel 3 is an open thermocouple (extensions §2: status open).
         every_page(checks, b, m8318, "8318", shots,
