@@ -124,25 +124,37 @@ class WebDriver:
             pass
 
 
-def read_coils(modbus, start, count):
-    """Modbus/TCP function 01, over a plain socket."""
+def modbus_read(modbus, function, start, count):
+    """Modbus/TCP function 01 or 03 over a plain socket: the answer's data bytes."""
     with socket.create_connection(modbus, timeout=5) as s:
-        s.sendall(struct.pack(">HHHBBHH", 1, 0, 6, 1, 1, start, count))
-        answer = s.recv(64)
-    if answer[7] != 1:
+        s.sendall(struct.pack(">HHHBBHH", 1, 0, 6, 1, function, start, count))
+        answer = s.recv(300)
+    if answer[7] != function:
         raise RuntimeError(f"exception {answer[8]}")
-    bits = int.from_bytes(answer[9 : 9 + answer[8]], "little")
+    return answer[9 : 9 + answer[8]]
+
+
+def read_coils(modbus, start, count):
+    bits = int.from_bytes(modbus_read(modbus, 1, start, count), "little")
     return [bool(bits >> i & 1) for i in range(count)]
 
 
 def read_registers(modbus, start, count):
-    """Modbus/TCP function 03."""
-    with socket.create_connection(modbus, timeout=5) as s:
-        s.sendall(struct.pack(">HHHBBHH", 1, 0, 6, 1, 3, start, count))
-        answer = s.recv(300)
-    if answer[7] != 3:
-        raise RuntimeError(f"exception {answer[8]}")
-    return list(struct.unpack(f">{count}H", answer[9 : 9 + 2 * count]))
+    return list(struct.unpack(f">{count}H", modbus_read(modbus, 3, start, count)))
+
+
+def wait_for_identity(web, process, seconds, what):
+    """Until the console at `web` answers its identity (`process` serving it); an error after
+    `seconds`, or when the process ended."""
+    deadline = time.time() + seconds
+    while True:
+        try:
+            urllib.request.urlopen(web + "/api/v1/identity", timeout=2).read()
+            return
+        except Exception:
+            if time.time() > deadline or process.poll() is not None:
+                raise RuntimeError(f"{what} did not start")
+            time.sleep(0.2)
 
 
 class Module:
@@ -159,15 +171,7 @@ class Module:
                 "--discovery", f"127.0.0.1:{free_port()}", "--flash", os.path.join(workdir, f"{name}.flash"),
                 "--scenario", scenario_file]
         self.process = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        deadline = time.time() + 30
-        while True:
-            try:
-                urllib.request.urlopen(self.web + "/api/v1/identity", timeout=2).read()
-                break
-            except Exception:
-                if time.time() > deadline or self.process.poll() is not None:
-                    raise RuntimeError(f"{name} did not start")
-                time.sleep(0.2)
+        wait_for_identity(self.web, self.process, 30, name)
 
     def stop(self):
         self.process.kill()
@@ -182,7 +186,6 @@ class QemuModule:
     def __init__(self, image, netns):
         self.modbus = (MODULE_IP, 8000)
         self.web = f"http://{MODULE_IP}"
-        probe = self.web
         nic = f"user,id=nic0,model=lan9118,hostfwd=tcp:{MODULE_IP}:8000-:8000,hostfwd=tcp:{MODULE_IP}:80-:80"
         bootloader = os.path.join(os.path.dirname(image), "remodaq-qemu-bootloader")
         args = ["ip", "netns", "exec", netns, "qemu-system-arm", "-M", "mps2-an386", "-nographic", "-monitor", "none", "-serial", "null",
@@ -190,15 +193,7 @@ class QemuModule:
                 "-kernel", bootloader, "-device", f"loader,file={image}.bin,addr=0x300000"]
         self.log = open(f"{image}.browser.log", "w")
         self.process = subprocess.Popen(args, stdout=self.log, stderr=subprocess.STDOUT)
-        deadline = time.time() + 60
-        while True:
-            try:
-                urllib.request.urlopen(probe + "/api/v1/identity", timeout=2).read()
-                break
-            except Exception:
-                if time.time() > deadline or self.process.poll() is not None:
-                    raise RuntimeError(f"{image} did not start under QEMU")
-                time.sleep(0.5)
+        wait_for_identity(self.web, self.process, 60, f"{image} under QEMU")
 
     def stop(self):
         self.process.kill()
@@ -258,19 +253,8 @@ def qemu_checks(checks, b, qemu, shots):
         b.go(f"{qemu.web}/#io")
         if b.script("return !!(window.crypto && window.crypto.subtle)"):
             raise RuntimeError(f"{qemu.web} is a secure context here: the check would not use the page's own crypto")
-        log_in(b, "not the password")
-        b.wait_text("#login-error", "Wrong password")
-        b.type("#password", FACTORY_PASSWORD)
-        b.click("#login-form button[value=ok]")
-        b.wait_text("#message", "Logged in")
-        b.wait_text("button[aria-label=DO4]", "off")
-        b.click("button[aria-label=DO4]")
-        b.wait_text("button[aria-label=DO4]", "on")
-        # Spec §3.1: DO0-DO5 at coils 10h-15h.
-        coils = read_coils(qemu.modbus, 0x10, 6)
-        if coils != [False, False, False, False, True, False]:
-            raise RuntimeError(f"Modbus reads the DOs {coils}")
-        b.screenshot(os.path.join(shots, "8350-io-do4-on.png"))
+        wrong_then_right(b)
+        toggle_do(b, qemu, 4, os.path.join(shots, "8350-io-do4-on.png"))
     checks.check("8350 under QEMU at its LAN address, plain HTTP (no WebCrypto: the page's own PBKDF2 and HMAC): "
                  "a wrong then the right password, DO4 toggled, confirmed by a Modbus read", toggle)
 
@@ -342,6 +326,27 @@ def qemu_on_a_lan(checks, image, shots):
         subprocess.run(["ip", "netns", "del", mod], stderr=subprocess.DEVNULL)
 
 
+def wrong_then_right(b):
+    """Logs in with a wrong password (refused), then the factory one."""
+    log_in(b, "not the password")
+    b.wait_text("#login-error", "Wrong password")
+    b.type("#password", FACTORY_PASSWORD)
+    b.click("#login-form button[value=ok]")
+    b.wait_text("#message", "Logged in")
+
+
+def toggle_do(b, module, n, shot):
+    """DO`n` switched on by its button on the live page; a Modbus read must show it on alone."""
+    b.wait_text(f"button[aria-label=DO{n}]", "off")
+    b.click(f"button[aria-label=DO{n}]")
+    b.wait_text(f"button[aria-label=DO{n}]", "on")
+    # Spec §3.1: DO0-DO5 at coils 10h-15h.
+    coils = read_coils(module.modbus, 0x10, 6)
+    if coils != [i == n for i in range(6)]:
+        raise RuntimeError(f"Modbus reads the DOs {coils}")
+    b.screenshot(shot)
+
+
 def main():
     if sys.argv[1:2] == ["--qemu-inner"]:
         return qemu_inner(*sys.argv[2:5])
@@ -367,26 +372,15 @@ def main():
         every_page(checks, b, m8350, "8350", shots,
                    {"status": ["Firmware\nA100", "Uptime"], "io": ["DI11", "DO5"], "settings": ["DI11", "Host watchdog"]})
 
-        def wrong_then_right():
+        def log_in_twice():
             b.go(f"{m8350.web}/#io")
-            log_in(b, "not the password")
-            b.wait_text("#login-error", "Wrong password")
-            b.type("#password", FACTORY_PASSWORD)
-            b.click("#login-form button[value=ok]")
-            b.wait_text("#message", "Logged in")
+            wrong_then_right(b)
             b.wait_text("#login", "Log out")
-        checks.check("8350 log in: a wrong password refused, then the right one", wrong_then_right)
+        checks.check("8350 log in: a wrong password refused, then the right one", log_in_twice)
 
         def toggle():
             b.go(f"{m8350.web}/#io")
-            b.wait_text("button[aria-label=DO2]", "off")
-            b.click("button[aria-label=DO2]")
-            b.wait_text("button[aria-label=DO2]", "on")
-            # Spec §3.1: DO0-DO5 at coils 10h-15h.
-            coils = read_coils(m8350.modbus, 0x10, 6)
-            if coils != [False, False, True, False, False, False]:
-                raise RuntimeError(f"Modbus reads the DOs {coils}")
-            b.screenshot(os.path.join(shots, "8350-io-do2-on.png"))
+            toggle_do(b, m8350, 2, os.path.join(shots, "8350-io-do2-on.png"))
         checks.check("8350 DO2 toggled on the live page, confirmed by a Modbus read", toggle)
 
         def chinese():

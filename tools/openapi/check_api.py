@@ -31,14 +31,10 @@ except ImportError:  # a fresh machine: PyYAML from PyPI
     subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "pyyaml"], check=True)
     import yaml
 
-SPEC = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "docs", "openapi.yaml")
-FACTORY_PASSWORD = "remodaq"  # protocol/src/auth.rs
-
-
-def free_port():
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+HERE = os.path.dirname(os.path.abspath(__file__))
+SPEC = os.path.join(HERE, "..", "..", "docs", "openapi.yaml")
+sys.path.insert(0, os.path.join(HERE, "..", "browser"))
+from browser_test import FACTORY_PASSWORD, Module  # noqa: E402  the simulated module, started with --http
 
 
 def exchange(web, method, target, headers=(), body=b"", host=None):
@@ -157,38 +153,12 @@ class Api:
             problems.append(f"{method} {target} {status}: {broken}")
 
 
-class Module:
-    def __init__(self, program, work, scenario):
-        self.web = ("127.0.0.1", free_port())
-        name = os.path.basename(program)
-        scenario_file = os.path.join(work, f"{name}.toml")
-        with open(scenario_file, "w") as f:
-            f.write(scenario)
-        self.process = subprocess.Popen(
-            [program, "--listen", f"127.0.0.1:{free_port()}", "--http", "%s:%d" % self.web,
-             "--discovery", f"127.0.0.1:{free_port()}", "--flash", os.path.join(work, f"{name}.flash"),
-             "--scenario", scenario_file], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        deadline = time.time() + 30
-        while True:
-            try:
-                if exchange(self.web, "GET", "/api/v1/identity")[0] == 200:
-                    break
-            except OSError:
-                pass
-            if time.time() > deadline or self.process.poll() is not None:
-                raise RuntimeError(f"{name} did not start")
-            time.sleep(0.2)
-
-    def stop(self):
-        self.process.kill()
-        self.process.wait()
-
-
 class Client:
     """Requests to one module, every answer checked; a login as the page makes it."""
 
     def __init__(self, api, module):
-        self.api, self.web = api, module.web
+        host, port = module.web[len("http://"):].rsplit(":", 1)
+        self.api, self.web = api, (host, int(port))
         self.session = None
 
     def call(self, method, target, value=None, headers=(), raw=None, host=None):
