@@ -79,6 +79,19 @@ const ACK: u8 = 0x10;
 /// The client and TCP flags of `frame` if it is an Ethernet II frame carrying a whole IPv4 TCP
 /// segment to `port`.
 fn segment_to(frame: &[u8], port: u16) -> Option<(Peer, u8)> {
+    let (peer, destination, flags) = segment(frame)?;
+    (destination == port).then_some((peer, flags))
+}
+
+/// The destination port of `frame` if it is an Ethernet II frame carrying a whole IPv4 TCP
+/// segment.
+pub fn destination_port(frame: &[u8]) -> Option<u16> {
+    segment(frame).map(|(_, port, _)| port)
+}
+
+/// The client, destination port and TCP flags of `frame` if it is an Ethernet II frame carrying
+/// a whole IPv4 TCP segment.
+fn segment(frame: &[u8]) -> Option<(Peer, u16, u8)> {
     // Ethernet II: destination (6), source (6), EtherType (2) = 0x0800 IPv4.
     let ip = frame.get(14..).filter(|_| frame.get(12..14) == Some(&[0x08, 0x00]))?;
     // IPv4 (RFC 791): version 4, IHL in 32-bit words (at least 5), protocol 6 = TCP, and not
@@ -99,7 +112,7 @@ fn segment_to(frame: &[u8], port: u16) -> Option<(Peer, u8)> {
     let source_port = u16::from_be_bytes([*tcp.first()?, *tcp.get(1)?]);
     let destination_port = u16::from_be_bytes([*tcp.get(2)?, *tcp.get(3)?]);
     let flags = *tcp.get(13)?;
-    (destination_port == port).then_some((Peer { ip: source, port: source_port }, flags))
+    Some((Peer { ip: source, port: source_port }, destination_port, flags))
 }
 
 /// SYNs one source address may have held at once: its newest replaces its oldest.
@@ -395,6 +408,8 @@ pub fn identify(mac: [u8; 6], ip: [u8; 4], per_source: usize) {
 
 /// A port's gate as the connection tasks and the driver wrapper see it.
 pub trait Gate: Sync {
+    /// The port its tasks listen on (0 before the first listens).
+    fn port(&self) -> u16;
     /// A connection task listens on `port` (its socket already in LISTEN): a held SYN may go
     /// to the stack now, so the network runner is woken.
     fn listening(&self, port: u16);
@@ -431,6 +446,10 @@ impl<const H: usize, const S: usize> SynGate<H, S> {
 }
 
 impl<const H: usize, const S: usize> Gate for SynGate<H, S> {
+    fn port(&self) -> u16 {
+        self.with(|backlog, _| backlog.port)
+    }
+
     fn listening(&self, port: u16) {
         let waker = self.with(|backlog, waker| {
             backlog.listening(port);
@@ -479,7 +498,7 @@ mod driver {
 
     use embassy_net_driver::{Capabilities, Driver, HardwareAddress, LinkState, RxToken};
 
-    use super::{Gate, Verdict, MAX_SYN_FRAME};
+    use super::{destination_port, Gate, Verdict, MAX_SYN_FRAME};
 
     use embassy_time::{Instant, Timer};
 
@@ -503,13 +522,11 @@ mod driver {
         }
     }
 
-    /// What the gates make of a frame: held if one holds it (each looks only at its port's).
+    /// What the gates make of a frame: the first gate of its destination port decides (one
+    /// gate for a port, even were two services set to the same one); other frames pass.
     fn arrive(gates: &[&dyn Gate], frame: &[u8], now_ms: u64) -> Verdict {
-        if gates.iter().any(|gate| gate.arrive(frame, now_ms) == Verdict::Hold) {
-            Verdict::Hold
-        } else {
-            Verdict::Pass
-        }
+        let Some(port) = destination_port(frame) else { return Verdict::Pass };
+        gates.iter().find(|gate| gate.port() == port).map_or(Verdict::Pass, |gate| gate.arrive(frame, now_ms))
     }
 
     /// A received frame: the driver's own (the gate looks at it as the stack takes it), or a
@@ -991,5 +1008,22 @@ mod tests {
         WEB.accepted(Some(peer(4)));
         WEB.listening(80);
         assert_eq!(drain(&mut driver, &mut cx), [web_syn(5)]);
+    }
+
+    #[test]
+    fn two_gates_on_one_port_the_first_decides() {
+        // Two services set to the same port: one gate decides for it; the other never holds a
+        // SYN or counts one as promised.
+        static FIRST: SynGate<2, 1> = SynGate::new();
+        static SECOND: SynGate<2, 1> = SynGate::new();
+        static SAME: &[&dyn Gate] = &[&FIRST, &SECOND];
+        let waker = Waker::noop();
+        let mut cx = Context::from_waker(waker);
+        let mut driver = Backlogged::new(Wire { inbox: [syn(1), syn(2)].into_iter().collect() }, SAME);
+        FIRST.listening(PORT);
+        SECOND.listening(PORT);
+        assert_eq!(drain(&mut driver, &mut cx), [syn(1), StdVec::new()]);
+        assert_eq!(FIRST.with(|b, _| (b.held(), b.in_flight.len())), (1, 1));
+        assert_eq!(SECOND.with(|b, _| (b.held(), b.in_flight.len())), (0, 0));
     }
 }

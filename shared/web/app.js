@@ -22,6 +22,7 @@
       pulses: "Pulses (0: continuous)", timeout: "Host watchdog (0.1 s, 0: off)", watchdog: "Host watchdog",
       saved: "Saved.", "need login": "Log in to change anything.", "wrong password": "Wrong password.",
       "logged in": "Logged in.", "logged out": "Logged out.", "not a number": "Not a number: nothing written.",
+      "no answer": "The module does not answer.",
       ok: "ok", open: "open", "over range": "over range", "under range": "under range", disabled: "disabled",
       "front-end fault": "front-end fault", "cold-junction fault": "cold-junction fault",
       thermocouple: "thermocouple", voltage: "voltage", current: "current",
@@ -41,6 +42,7 @@
       pulses: "脉冲数 (0: 连续)", timeout: "主机看门狗 (0.1 s, 0: 关闭)", watchdog: "主机看门狗",
       saved: "已保存。", "need login": "请先登录再修改。", "wrong password": "密码错误。",
       "logged in": "已登录。", "logged out": "已退出登录。", "not a number": "不是数字：未写入。",
+      "no answer": "模块没有应答。",
       ok: "正常", open: "断线", "over range": "超上限", "under range": "超下限", disabled: "已禁用",
       "front-end fault": "前端故障", "cold-junction fault": "冷端故障",
       thermocouple: "热电偶", voltage: "电压", current: "电流",
@@ -93,8 +95,11 @@
     m.className = error ? "error" : "";
   }
 
+  // Every request gives up after 10 s (a module gone quiet must not hold the page).
+  const WAIT = () => AbortSignal.timeout(10000);
+
   async function get(path) {
-    const r = await fetch("/api/v1/" + path, { cache: "no-store" });
+    const r = await fetch("/api/v1/" + path, { cache: "no-store", signal: WAIT() });
     const body = await r.json().catch(() => ({}));
     if (!r.ok) throw new Error(t(body.error || String(r.status)));
     return body;
@@ -106,32 +111,40 @@
   function signed(method, path, value) {
     const run = signing.then(() => signedNow(method, path, value));
     signing = run.catch(() => {});
-    return run;
+    return run.catch((e) => {
+      // A refusal is said by signedNow; a request that got no answer is said here.
+      if (e instanceof TypeError || e.name === "TimeoutError" || e.name === "AbortError") say(t("no answer"), true);
+      throw e;
+    });
   }
 
   // A state-changing request, signed (docs/web.md, "Authentication"); the error's field, if any.
   async function signedNow(method, path, value) {
-    if (!session) {
+    // The session this request is signed in (a logout or login meanwhile does not mix two).
+    const s = session;
+    if (!s) {
       say(t("need login"), true);
       throw new Error("need login");
     }
     const target = "/api/v1/" + path;
     const body = value === undefined ? "" : JSON.stringify({ value });
-    session.counter += 1;
-    const signature = await A.requestSignature(session.key, method, target, session.counter, body);
+    s.counter += 1;
+    const counter = s.counter;
+    const signature = await A.requestSignature(s.key, method, target, counter, body);
     const r = await fetch(target, {
       method,
       body: body || undefined,
+      signal: WAIT(),
       headers: {
         "Content-Type": "application/json",
-        "X-RDAQ-Session": session.id,
-        "X-RDAQ-Counter": String(session.counter),
+        "X-RDAQ-Session": s.id,
+        "X-RDAQ-Counter": String(counter),
         "X-RDAQ-Signature": A.hex(signature),
       },
     });
     if (r.status === 204) return;
     const answer = await r.json().catch(() => ({}));
-    if (r.status === 401 && answer.error === "no session") {
+    if (r.status === 401 && answer.error === "no session" && session === s) {
       session = null;
       translate();
     }
@@ -302,10 +315,11 @@
   // it); the live I/O page again about twice a second, less often while the module does not
   // answer (up to 10 s), not while the tab is hidden. `force`: redraw the settings page even
   // under a control being edited (after a write).
-  let drawing = false, again = false, failures = 0;
+  let drawing = false, again = false, againForced = false, failures = 0;
   async function show(force) {
     if (drawing) {
       again = true;
+      againForced = againForced || force === true;
       return;
     }
     drawing = true;
@@ -332,8 +346,9 @@
     }
     drawing = false;
     if (again) {
-      again = false;
-      show();
+      const forced = againForced;
+      again = againForced = false;
+      show(forced);
     } else if (current() === "io" && !document.hidden) {
       timer = setTimeout(show, Math.min(500 * 2 ** failures, 10000));
     }

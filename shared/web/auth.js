@@ -57,7 +57,8 @@
   }
 
   // SHA-256 of `data`, continuing from `state` after `before` bytes (a multiple of 64).
-  function sha256From(state, before, data) {
+  function sha256From(state, before, bytes) {
+    const data = new Uint8Array(bytes);
     const h = Uint32Array.from(state);
     const total = Math.ceil((data.length + 9) / 64) * 64;
     const m = new Uint8Array(total);
@@ -75,7 +76,8 @@
   }
 
   // HMAC-SHA-256 (RFC 2104) of messages under `key`: the padded key's two blocks once.
-  function hmacJs(key) {
+  function hmacJs(bytes) {
+    const key = new Uint8Array(bytes);
     const k0 = new Uint8Array(64);
     k0.set(key.length > 64 ? sha256From(H0, 0, key) : key);
     const inner = Uint32Array.from(H0), outer = Uint32Array.from(H0);
@@ -91,9 +93,10 @@
     // PBKDF2-HMAC-SHA-256 (RFC 8018 §5.2), one 32-byte block.
     pbkdf2: async (password, salt, iterations) => {
       const prf = hmacJs(password);
-      const first = new Uint8Array(salt.length + 4);
-      first.set(salt);
-      first[salt.length + 3] = 1;
+      const s = new Uint8Array(salt);
+      const first = new Uint8Array(s.length + 4);
+      first.set(s);
+      first[s.length + 3] = 1;
       let u = prf(first);
       const t = u.slice();
       for (let i = 1; i < iterations; i++) {

@@ -218,8 +218,8 @@ class Checks:
 
 
 def every_page(checks, b, module, model, shots, shows, label=None):
-    os.makedirs(shots, exist_ok=True)
     """Loads each page of `module`; each must show the texts `shows` names for it."""
+    os.makedirs(shots, exist_ok=True)
     for page, wanted in shows.items():
         def load(page=page, wanted=wanted):
             b.go(f"{module.web}/#{page}")

@@ -123,6 +123,10 @@ class Api:
                 return template
         return None
 
+    def wrong(self, method, target, problem):
+        path = target.split("?")[0][len("/api/v1"):]
+        self.seen.setdefault((method, self.template(path) or path), []).append(f"{method} {target}: {problem}")
+
     def answer(self, method, target, status, body):
         """Checks one answer against the file."""
         path = target.split("?")[0][len("/api/v1"):]
@@ -161,13 +165,17 @@ class Client:
         self.api, self.web = api, (host, int(port))
         self.session = None
 
-    def call(self, method, target, value=None, headers=(), raw=None, host=None):
+    def call(self, method, target, value=None, headers=(), raw=None, host=None, expect=200):
+        """The request; its answer checked against the file, and its status against `expect`
+        (what the spec and docs/web.md say the module answers)."""
         body = raw if raw is not None else (b"" if value is None else json.dumps({"value": value}).encode())
         status, answer = exchange(self.web, method, target, headers, body, host)
         self.api.answer(method, target, status, answer)
+        if expect is not None and status != expect:
+            self.api.wrong(method, target, f"answered {status}, {expect} expected: {answer[:80]!r}")
         return status, answer
 
-    def signed(self, method, target, value=None, extra=()):
+    def signed(self, method, target, value=None, extra=(), expect=204):
         body = b"" if value is None else json.dumps({"value": value}).encode()
         session, key, counter = self.session
         counter += 1
@@ -175,7 +183,7 @@ class Client:
         message = b"RDAQ web request\n" + f"{method}\n{target}\n{counter}\n".encode() + body
         signature = hmac.new(key, message, hashlib.sha256).hexdigest()
         headers = [("X-RDAQ-Session", session), ("X-RDAQ-Counter", str(counter)), ("X-RDAQ-Signature", signature)]
-        return self.call(method, target, headers=headers + list(extra), raw=body)
+        return self.call(method, target, headers=headers + list(extra), raw=body, expect=expect)
 
     def log_in(self, password):
         """docs/web.md, "Authentication": SCRAM-SHA-256's keys, the web login's message."""
@@ -190,7 +198,8 @@ class Client:
         message = b"RDAQ web login" + mac + bytes.fromhex(c["nonce"]) + page_nonce
         proof = bytes(a ^ b for a, b in zip(client_key, hmac.new(stored_key, message, hashlib.sha256).digest()))
         body = json.dumps({"nonce": c["nonce"], "page_nonce": page_nonce.hex(), "proof": proof.hex()}).encode()
-        status, s = self.call("POST", "/api/v1/session", raw=body, headers=[("Content-Type", "application/json")])
+        status, s = self.call("POST", "/api/v1/session", raw=body, headers=[("Content-Type", "application/json")],
+                              expect=None)
         if status != 200:
             return status
         key = hmac.new(client_key, b"RDAQ web session" + bytes.fromhex(c["nonce"]) + page_nonce, hashlib.sha256).digest()
@@ -200,64 +209,67 @@ class Client:
 
 def exercise_8350(c):
     c.call("GET", "/api/v1/identity")
-    c.call("GET", "/api/v1/identity", host="attacker.example")  # DNS rebinding: 421
+    c.call("GET", "/api/v1/identity", host="attacker.example", expect=421)  # DNS rebinding
     if c.log_in("not the password") != 401:
         raise RuntimeError("a wrong password logged in")
     if c.log_in(FACTORY_PASSWORD) != 200:
         raise RuntimeError("the factory password did not log in")
     c.call("GET", "/api/v1/registers/0?count=10")
-    c.call("GET", "/api/v1/registers/0?count=126")
-    c.call("GET", "/api/v1/registers/0?count=x")
-    c.signed("PUT", "/api/v1/registers/0", 1)  # read-only
+    c.call("GET", "/api/v1/registers/0?count=126", expect=400)  # Modbus's 125 at most
+    c.call("GET", "/api/v1/registers/0?count=x", expect=400)
+    c.signed("PUT", "/api/v1/registers/0", 1, expect=404)  # 40001 is not writable (spec §3.1)
     c.signed("PUT", "/api/v1/registers/304", 50)  # host watchdog timeout (extensions §3), 5 s
     c.signed("PUT", "/api/v1/registers/304", 0)
     c.call("GET", "/api/v1/coils/16?count=6")
-    c.call("GET", "/api/v1/coils/16?count=151")
+    c.call("GET", "/api/v1/coils/16?count=151", expect=400)
     c.signed("PUT", "/api/v1/coils/16", True)
-    c.call("PUT", "/api/v1/coils/16", False)  # unsigned: 401
-    c.signed("PUT", "/api/v1/coils/16", False, extra=[("Origin", "http://attacker.example")])  # 403
-    c.signed("PUT", "/api/v1/coils/16", "on")  # not a boolean: 400
-    for target in ["/api/v1/di", "/api/v1/di/0", "/api/v1/di/12", "/api/v1/do", "/api/v1/do/5", "/api/v1/do/6",
-                   "/api/v1/watchdog", "/api/v1/diagnostics", "/api/v1/channels", "/api/v1/channels/0", "/api/v1/inputs"]:
-        c.call("GET", target)
+    c.call("PUT", "/api/v1/coils/16", False, expect=401)  # unsigned
+    c.signed("PUT", "/api/v1/coils/16", False, extra=[("Origin", "http://attacker.example")], expect=403)
+    c.signed("PUT", "/api/v1/coils/16", "on", expect=400)  # not a boolean
+    for target, status in [("/api/v1/di", 200), ("/api/v1/di/0", 200), ("/api/v1/di/12", 404), ("/api/v1/do", 200),
+                           ("/api/v1/do/5", 200), ("/api/v1/do/6", 404), ("/api/v1/watchdog", 200),
+                           ("/api/v1/diagnostics", 200), ("/api/v1/channels", 404), ("/api/v1/channels/0", 404),
+                           ("/api/v1/inputs", 404)]:
+        c.call("GET", target, expect=status)
     c.signed("PUT", "/api/v1/di/0/mode", "counter")
-    c.signed("PUT", "/api/v1/di/0/mode", "sideways")  # 422
-    c.signed("PUT", "/api/v1/di/0/counter", 5)  # read-only: 405
-    c.signed("PUT", "/api/v1/di/12/mode", "normal")  # 404
+    c.signed("PUT", "/api/v1/di/0/mode", "sideways", expect=422)
+    c.signed("PUT", "/api/v1/di/0/counter", 5, expect=405)  # read-only
+    c.signed("PUT", "/api/v1/di/12/mode", "normal", expect=404)
     c.signed("PUT", "/api/v1/di/0/clear", True)
     c.signed("PUT", "/api/v1/do/0/state", True)
     c.signed("PUT", "/api/v1/do/1/mode", "pulse")
     c.signed("PUT", "/api/v1/do/1/high_width", 70000)
-    c.signed("PUT", "/api/v1/do/1/low_width", 0)  # 422
+    c.signed("PUT", "/api/v1/do/1/low_width", 0, expect=422)
     for target in ["/api/v1/di/0", "/api/v1/do/1", "/api/v1/di"]:  # as written
         c.call("GET", target)
-    c.signed("PUT", "/api/v1/watchdog/timeout", 6001)  # 422
+    c.signed("PUT", "/api/v1/watchdog/timeout", 6001, expect=422)  # 600 s at most
     c.signed("PUT", "/api/v1/watchdog/safe_values", 3)
     c.call("GET", "/api/v1/watchdog")
-    c.signed("PUT", "/api/v1/inputs/type", 5)  # an 8318 resource on the 8350: 404
-    c.call("PUT", "/api/v1/do/0/state", raw=b"{" + b" " * 4000 + b"}")  # too large: 413
-    c.call("GET", "/api/v1/di/0?" + "x" * 300)  # target too long: 414
+    c.signed("PUT", "/api/v1/inputs/type", 5, expect=404)  # an 8318 resource on the 8350
+    c.call("PUT", "/api/v1/do/0/state", raw=b"{" + b" " * 4000 + b"}", expect=413)
+    c.call("GET", "/api/v1/di/0?" + "x" * 300, expect=414)
     c.signed("DELETE", "/api/v1/session")
-    c.signed("DELETE", "/api/v1/session")  # ended: 401
+    c.signed("DELETE", "/api/v1/session", expect=401)  # ended
 
 
 def exercise_8318(c):
     c.call("GET", "/api/v1/identity")
     if c.log_in(FACTORY_PASSWORD) != 200:
         raise RuntimeError("the factory password did not log in")
-    for target in ["/api/v1/channels", "/api/v1/channels/0", "/api/v1/channels/3", "/api/v1/channels/8",
-                   "/api/v1/inputs", "/api/v1/diagnostics", "/api/v1/di", "/api/v1/watchdog"]:
-        c.call("GET", target)
+    for target, status in [("/api/v1/channels", 200), ("/api/v1/channels/0", 200), ("/api/v1/channels/3", 200),
+                           ("/api/v1/channels/8", 404), ("/api/v1/inputs", 200), ("/api/v1/diagnostics", 200),
+                           ("/api/v1/di", 404), ("/api/v1/watchdog", 404)]:
+        c.call("GET", target, expect=status)
     c.signed("PUT", "/api/v1/inputs/type", 5)
     c.call("GET", "/api/v1/channels")
     c.call("GET", "/api/v1/inputs")
-    c.signed("PUT", "/api/v1/inputs/type", 99)  # 422
+    c.signed("PUT", "/api/v1/inputs/type", 99, expect=422)  # no such type (spec §2.2)
     c.signed("PUT", "/api/v1/inputs/cjc_offset", 1.25)
-    c.signed("PUT", "/api/v1/inputs/cjc_offset", 1.255)  # more than two decimals: 400 or 422
+    c.signed("PUT", "/api/v1/inputs/cjc_offset", 1.255, expect=422)  # hundredths of °C at most
     c.signed("PUT", "/api/v1/inputs/open_value", "downscale")
     c.signed("PUT", "/api/v1/inputs/enable_mask", 0x0F)
     c.call("GET", "/api/v1/channels/5")  # disabled
-    c.signed("PUT", "/api/v1/inputs/cjc", 30)  # read-only: 405
+    c.signed("PUT", "/api/v1/inputs/cjc", 30, expect=405)  # read-only
 
 
 def main():

@@ -314,13 +314,20 @@ fn full_target(path: &str, query: Option<&str>) -> Option<heapless::String<256>>
 }
 
 /// Whether `host` (a request's `Host`) names the module by an address: an IPv4 address in
-/// dotted decimal or `localhost`, with a port or without. A page served under a DNS name could
-/// be the attacker's, its name rebound to the module's address; the console is reached by the
-/// address the utility's search shows (docs/web.md, "Decisions").
+/// dotted decimal, an IPv6 address in brackets (the simulator on `[::1]`) or `localhost`, with a
+/// port or without. A page served under a DNS name could be the attacker's, its name rebound to
+/// the module's address; the console is reached by the address the utility's search shows
+/// (docs/web.md, "Decisions").
 fn host_is_an_address(host: Option<&str>) -> bool {
     let Some(host) = host else { return false };
+    let port_is_right = |port: &str| port.bytes().all(|b| b.is_ascii_digit()) && port.parse::<u16>().is_ok();
+    if let Some(rest) = host.strip_prefix('[') {
+        let Some((address, after)) = rest.split_once(']') else { return false };
+        let port_ok = after.is_empty() || after.strip_prefix(':').is_some_and(port_is_right);
+        return port_ok && address.parse::<core::net::Ipv6Addr>().is_ok();
+    }
     let name = match host.rsplit_once(':') {
-        Some((name, port)) if port.parse::<u16>().is_ok() => name,
+        Some((name, port)) if port_is_right(port) => name,
         Some(_) => return false,
         None => host,
     };
@@ -818,7 +825,16 @@ mod tests {
 
     #[test]
     fn only_an_address_is_a_host() {
-        for ok in ["192.168.1.50", "192.168.1.50:80", "127.0.0.1:8080", "10.0.2.15", "localhost", "LOCALHOST:80"] {
+        for ok in [
+            "192.168.1.50",
+            "192.168.1.50:80",
+            "127.0.0.1:8080",
+            "10.0.2.15",
+            "localhost",
+            "LOCALHOST:80",
+            "[::1]:8080",
+            "[fe80::1]",
+        ] {
             assert!(host_is_an_address(Some(ok)), "{ok}");
         }
         // A name (DNS rebinding), a malformed address or port, none at all.
@@ -832,7 +848,10 @@ mod tests {
             "192.168.1.50:",
             "192.168.1.50:http",
             "192.168.1.50:65536",
-            "[::1]:80",
+            "192.168.1.50:+80",
+            "[::1",
+            "[::1]80",
+            "[attacker.example]:80",
             "",
         ] {
             assert!(!host_is_an_address(Some(refused)), "{refused}");
