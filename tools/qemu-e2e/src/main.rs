@@ -741,7 +741,7 @@ async fn run(model: &str, image: &str) -> Report {
             web_console(web, addr).await,
         );
         report.check(
-            "Modbus during a web load: the worst of 1000 requests within 2x alone (2 clients reloading, 1 trickling; stalls of the machine left out; 5 attempts at most)",
+            "Modbus during a web load: the worst of 1000 requests within 2x alone (2 clients reloading, 1 trickling; the time the machine stalled taken off; 5 attempts at most)",
             modbus_during_web_load(addr, web, &format!("{image}.qemu.log")).await,
         );
     }
