@@ -394,15 +394,12 @@ pub fn factory_warning(mac: Mac) -> String {
 
 /// A network in CIDR form.
 pub fn cidr(n: Network) -> String {
-    format!("{}/{}", Ipv4Addr::from(n.ip), n.prefix)
+    n.to_string()
 }
 
 /// Parses `a.b.c.d/n` (a bare address is /32).
 pub fn parse_cidr(s: &str) -> Result<Network, String> {
-    let (ip, prefix) = s.split_once('/').unwrap_or((s, "32"));
-    let ip: Ipv4Addr = ip.parse().map_err(|_| format!("`{s}` is not an IPv4 network (a.b.c.d/n)"))?;
-    let prefix: u8 = prefix.parse().map_err(|_| format!("`{s}`: the prefix is 0 to 32"))?;
-    Network::new(ip.octets(), prefix).ok_or_else(|| format!("`{s}`: the prefix is 0 to 32"))
+    s.parse().map_err(|()| format!("`{s}` is not an IPv4 network (a.b.c.d/n, n from 0 to 32)"))
 }
 
 /// PBKDF2 iterations of a new password (the module accepts 4096 to 10 000 000).

@@ -5,7 +5,9 @@
 //! keeps changes (settings, outputs, the flags Modbus clears by reading), since no fuzzed
 //! request can carry a session's signature. A first byte with bit 7 set fuzzes the JSON of a
 //! write instead: the write request built from a body for a field picked by the second byte
-//! only ever addresses that field's registers, with a function that suits its format.
+//! only ever addresses that field's registers, with a function that suits its format; with
+//! bits 7 and 6 set, the JSON of the network settings and of the allow-list, whose accepted
+//! values must be usable ones.
 //! `cargo +nightly fuzz run web_api` (from the repository root).
 #![no_main]
 
@@ -126,7 +128,12 @@ fn now_ms() -> u64 {
 }
 
 /// Serves one connection carrying `request`; what the module answered.
-fn serve<M: RegisterMap + SettingsAccess>(map: &Mutex<NoopRawMutex, M>, model: u16, request: &[u8]) -> Vec<u8> {
+fn serve<M: RegisterMap + SettingsAccess>(
+    map: &Mutex<NoopRawMutex, M>,
+    store: &Mutex<CriticalSectionRawMutex, SettingsStore<Flash, M::Settings>>,
+    model: u16,
+    request: &[u8],
+) -> Vec<u8> {
     static SESSIONS: SharedSessions = Blocking::new(RefCell::new(Sessions::new()));
     let identity = Identity {
         model,
@@ -135,7 +142,7 @@ fn serve<M: RegisterMap + SettingsAccess>(map: &Mutex<NoopRawMutex, M>, model: u
         mac: [2, 0, 0, 0, 0, 1],
         running: remodaq_protocol::net::NetConfig::FACTORY,
     };
-    let api = Api { map, identity, sessions: &SESSIONS, peer: [127, 0, 0, 1], now_ms };
+    let api = Api { map, store, identity, sessions: &SESSIONS, peer: [127, 0, 0, 1], now_ms };
     let app = Router::from_service(api);
     let mut buffer = [0u8; HTTP_BUFFER];
     let mut output = Vec::new();
@@ -143,6 +150,7 @@ fn serve<M: RegisterMap + SettingsAccess>(map: &Mutex<NoopRawMutex, M>, model: u
     let _ = block_on(
         picoserve::Server::custom(&app, picoserve::time::EmbassyTimer, &CONFIG, &mut buffer).serve(connection),
     );
+    assert!(!remodaq_shared::web::settings::restart_requested(), "a fuzzed request asked for a restart");
     output
 }
 
@@ -172,6 +180,16 @@ fuzz_target!(|data: &[u8]| {
     let Some((&which, rest)) = data.split_first() else { return };
     if !AUTH.is_seeded() {
         AUTH.seed(&[7; 32]);
+    }
+    if which & 0xC0 == 0xC0 {
+        // The JSON of the network settings and of the allow-list: what is taken is usable.
+        if let Ok(net) = remodaq_shared::web::settings::network_of(rest) {
+            assert!(net.is_valid(), "{net:?}");
+        }
+        if let Some(list) = remodaq_shared::web::settings::allow_list_of(rest) {
+            assert!(list.iter().all(|n| n.prefix <= 32));
+        }
+        return;
     }
     if which & 0x80 != 0 {
         // The JSON of a write, for one field of one resource.
@@ -205,7 +223,7 @@ fuzz_target!(|data: &[u8]| {
         let store = store::<Settings>();
         let settings = *block_on(store.lock()).get();
         let map = Mutex::new(remodaq_8318::map::Map8318::new(&store, &settings));
-        check(&serve(&map, 0x8318, rest));
+        check(&serve(&map, &store, 0x8318, rest));
         assert!(*block_on(store.lock()).get() == settings, "a fuzzed request changed a setting");
     } else {
         type Settings = remodaq_8350::settings::Settings;
@@ -218,7 +236,7 @@ fuzz_target!(|data: &[u8]| {
         remodaq_8350::io::with(&io, |s| s.di.process(&[0, 0xFFF, 0, 0xA5A, 0x5A5]));
         let before = remodaq_8350::io::with(&io, |s| (s.di.flags(), s.pulse.do_bits()));
         let map = Mutex::new(remodaq_8350::map::Map8350::new(&store, &settings, &io));
-        check(&serve(&map, 0x8350, rest));
+        check(&serve(&map, &store, 0x8350, rest));
         assert!(*block_on(store.lock()).get() == settings, "a fuzzed request changed a setting");
         let after = remodaq_8350::io::with(&io, |s| (s.di.flags(), s.pulse.do_bits()));
         assert_eq!(before, after, "a fuzzed request changed the outputs or cleared a flag");

@@ -36,6 +36,27 @@ impl Network {
     }
 }
 
+/// `a.b.c.d/n` (a bare address is `/32`), as the utility and the web console write a network.
+impl core::str::FromStr for Network {
+    type Err = ();
+
+    fn from_str(s: &str) -> Result<Self, ()> {
+        let (ip, prefix) = s.split_once('/').unwrap_or((s, "32"));
+        let ip: core::net::Ipv4Addr = ip.parse().map_err(|_| ())?;
+        // A prefix is decimal digits only (u8's parse would take a sign).
+        if prefix.is_empty() || prefix.len() > 2 || !prefix.bytes().all(|b| b.is_ascii_digit()) {
+            return Err(());
+        }
+        Self::new(ip.octets(), prefix.parse().map_err(|_| ())?).ok_or(())
+    }
+}
+
+impl core::fmt::Display for Network {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "{}/{}", core::net::Ipv4Addr::from(self.ip), self.prefix)
+    }
+}
+
 /// The Modbus write allow-list.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -111,6 +132,18 @@ impl AllowList {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn networks_in_text() {
+        assert_eq!("10.1.2.3/8".parse(), Ok(Network { ip: [10, 0, 0, 0], prefix: 8 }));
+        assert_eq!("192.0.2.7".parse(), Ok(Network { ip: [192, 0, 2, 7], prefix: 32 }));
+        assert_eq!("0.0.0.0/0".parse(), Ok(Network { ip: [0; 4], prefix: 0 }));
+        for bad in ["192.0.2.0/33", "192.0.2.0/+8", "192.0.2.0/", "192.0.2/24", "x", "", "192.0.2.0/008"] {
+            assert_eq!(bad.parse::<Network>(), Err(()), "{bad}");
+        }
+        let text = std::format!("{}", Network { ip: [172, 16, 0, 0], prefix: 12 });
+        assert_eq!(text, "172.16.0.0/12");
+    }
 
     #[test]
     fn cidr_matching() {

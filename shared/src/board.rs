@@ -110,12 +110,13 @@ pub trait Network: 'static {
     ) -> !;
     /// Serves the web console's connections, one at a time per task (docs/web.md), forever.
     /// So far only the host board has the console (`--http`); the others wait for ever.
-    async fn serve_web<A: RegisterMap + SettingsAccess>(
+    async fn serve_web<A: RegisterMap + SettingsAccess, F: NorFlash>(
         &'static self,
         map: &'static Shared<A>,
+        store: &'static Store<F, A::Settings>,
         identity: Identity,
     ) -> ! {
-        let _ = (map, identity);
+        let _ = (map, store, identity);
         core::future::pending().await
     }
     /// Whether the network is up (the link, and an address), for the self-test.
@@ -282,7 +283,7 @@ impl<B: Board, M: Module> App<B, M> {
 
     /// Serves web console connections, forever (a board without the console waits for ever).
     pub async fn serve_web(&'static self) -> ! {
-        self.net.serve_web(&self.map, self.identity).await
+        self.net.serve_web(&self.map, self.store, self.identity).await
     }
 
     /// Serves discovery, forever.

@@ -30,6 +30,10 @@ pub struct Identity {
     pub running: NetConfig,
 }
 
+/// Set once new network settings were stored since the start (by discovery or the web
+/// console): they are in force only after a restart.
+pub static NETWORK_STORED: core::sync::atomic::AtomicBool = core::sync::atomic::AtomicBool::new(false);
+
 /// What the board must do after sending the reply.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Effect {
@@ -154,7 +158,13 @@ impl Service {
         now_ms: u64,
     ) -> Status {
         match command {
-            Command::SetNetwork(net) if net.is_valid() => commit(map, store, |s| s.set_net(net)).await,
+            Command::SetNetwork(net) if net.is_valid() => {
+                let status = commit(map, store, |s| s.set_net(net)).await;
+                if status == Status::Ok {
+                    NETWORK_STORED.store(true, core::sync::atomic::Ordering::Relaxed);
+                }
+                status
+            }
             Command::SetNetwork(_) => Status::Invalid,
             Command::Restart => Status::Ok,
             Command::GetAccess => {

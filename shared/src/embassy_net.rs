@@ -129,9 +129,10 @@ impl<E: Effects> Network for EmbassyNet<E> {
     /// Two tasks (issue #25: at most 2 connections, never a Modbus slot), each with its own
     /// socket and buffers; one request per connection, within the service's timeouts.
     #[cfg(feature = "web")]
-    async fn serve_web<A: RegisterMap + SettingsAccess>(
+    async fn serve_web<A: RegisterMap + SettingsAccess, F: NorFlash>(
         &'static self,
         map: &'static Shared<A>,
+        store: &'static Store<F, A::Settings>,
         identity: Identity,
     ) -> ! {
         use crate::web::service::{serve_connection, HTTP_BUFFER, PORT};
@@ -150,8 +151,12 @@ impl<E: Effects> Network for EmbassyNet<E> {
             socket.set_timeout(Some(WEB_IDLE));
             let from = peer(&socket);
             // picoserve closes the connection (or aborts it on an error or a timeout).
-            if serve_connection(map, identity, from, socket, &mut buffer).await.is_err() {
+            if serve_connection(map, store, identity, from, socket, &mut buffer).await.is_err() {
                 debug!("web: a connection ended in an error or a timeout");
+            }
+            // A signed restart request was answered and its connection closed.
+            if crate::web::settings::restart_requested() {
+                self.restart().await;
             }
         }
     }

@@ -192,13 +192,17 @@ impl Network for HostNet {
         core::future::pending().await
     }
 
-    async fn serve_web<A: RegisterMap + SettingsAccess>(
+    async fn serve_web<A: RegisterMap + SettingsAccess, F: NorFlash>(
         &'static self,
         map: &'static Shared<A>,
+        store: &'static remodaq_shared::module::Store<F, A::Settings>,
         identity: Identity,
     ) -> ! {
         match &self.web {
-            Some(listener) => web::connection_task(listener, map, identity).await,
+            Some(listener) => {
+                web::connection_task(listener, map, store, identity).await;
+                self.restart().await
+            }
             None => core::future::pending().await,
         }
     }

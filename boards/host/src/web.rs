@@ -7,12 +7,13 @@ use std::net::{TcpListener, TcpStream};
 
 use async_io::Async;
 use embedded_io_adapters::futures_03::FromFutures;
+use embedded_storage_async::nor_flash::NorFlash;
 use picoserve::io::Socket;
 use picoserve::Timeouts;
 use remodaq_shared::board::Shared;
 use remodaq_shared::discovery::Identity;
 use remodaq_shared::modbus::RegisterMap;
-use remodaq_shared::module::SettingsAccess;
+use remodaq_shared::module::{SettingsAccess, Store};
 pub use remodaq_shared::web::service::CONNECTIONS;
 use remodaq_shared::web::service::{serve_connection, HTTP_BUFFER};
 
@@ -84,16 +85,22 @@ impl Socket<picoserve::EmbassyRuntime> for Connection {
 }
 
 /// One of the web tasks: accept, serve the connection, repeat.
-pub async fn connection_task<M: RegisterMap + SettingsAccess>(
+/// Returns when a signed request asked for a restart (its answer sent, its connection closed).
+pub async fn connection_task<M: RegisterMap + SettingsAccess, F: NorFlash>(
     listener: &Listener,
     map: &Shared<M>,
+    store: &Store<F, M::Settings>,
     identity: Identity,
-) -> ! {
+) {
     let mut buffer = [0u8; HTTP_BUFFER];
     loop {
         let (stream, peer) = accept(listener, "web").await;
-        if let Err(e) = serve_connection(map, identity, ipv4(peer.ip()), Connection(stream), &mut buffer).await {
+        let served = serve_connection(map, store, identity, ipv4(peer.ip()), Connection(stream), &mut buffer).await;
+        if let Err(e) = served {
             log::debug!("web: {peer}: {e:?}");
+        }
+        if remodaq_shared::web::settings::restart_requested() {
+            return;
         }
     }
 }

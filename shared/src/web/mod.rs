@@ -4,5 +4,7 @@
 #[cfg(feature = "web")]
 pub mod service;
 pub mod sessions;
+#[cfg(feature = "web")]
+pub mod settings;
 
 pub use sessions::*;

@@ -28,7 +28,8 @@ use super::{Login, LoginError, Refusal, Sessions, Signed, Verified};
 use crate::discovery::Identity;
 use crate::modbus::pdu::{handle_pdu, MAX_PDU};
 use crate::modbus::RegisterMap;
-use crate::module::{CommonSettings as _, SettingsAccess};
+use crate::module::{CommonSettings as _, SettingsAccess, Store};
+use embedded_storage_async::nor_flash::NorFlash;
 
 /// The sessions of the module's web console (one set for both connections).
 pub type SharedSessions = Blocking<CriticalSectionRawMutex, RefCell<Sessions>>;
@@ -78,14 +79,15 @@ pub async fn write_with_buffer<W: embedded_io_async::Write, F: FnOnce(picoserve:
 
 /// Serves one connection (`socket`, from the client at `peer`) with the module's API, in
 /// `buffer`; every board's connection task calls this.
-pub async fn serve_connection<R: RawMutex, M: RegisterMap + SettingsAccess, S: Socket<EmbassyRuntime>>(
+pub async fn serve_connection<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash, S: Socket<EmbassyRuntime>>(
     map: &Mutex<R, M>,
+    store: &Store<F, M::Settings>,
     identity: Identity,
     peer: [u8; 4],
     socket: S,
     buffer: &mut [u8; HTTP_BUFFER],
 ) -> Result<(), picoserve::Error<S::Error>> {
-    let api = Api { map, identity, sessions: &SESSIONS, peer, now_ms };
+    let api = Api { map, store, identity, sessions: &SESSIONS, peer, now_ms };
     let app = Router::from_service(api);
     let serve = picoserve::Server::custom(&app, picoserve::time::EmbassyTimer, &CONFIG, buffer).serve(socket);
     // picoserve's timeouts bound each read and write, not a client that reads its answer a byte
@@ -130,9 +132,11 @@ const MAX_READ_COILS: u16 = 150;
 
 /// The API of one module to one client (`peer`: its IPv4 address, for the guessing budget, the
 /// challenges and the Modbus allow-list). Built for each connection.
-pub struct Api<'a, R: RawMutex, M> {
+pub struct Api<'a, R: RawMutex, M: SettingsAccess, F: NorFlash> {
     /// The register map, as the Modbus server shares it.
     pub map: &'a Mutex<R, M>,
+    /// The settings store, as discovery shares it.
+    pub store: &'a Store<F, M::Settings>,
     /// The module's identity.
     pub identity: Identity,
     /// The web sessions.
@@ -162,28 +166,28 @@ impl core::fmt::Write for Json {
 }
 
 impl Json {
-    fn push(&mut self, c: char) {
+    pub(super) fn push(&mut self, c: char) {
         let _ = self.write_char(c);
     }
 
-    fn push_str(&mut self, s: &str) {
+    pub(super) fn push_str(&mut self, s: &str) {
         let _ = self.write_str(s);
     }
 }
 
 /// An answer: a status and a JSON text.
 pub struct Answer {
-    status: StatusCode,
-    json: Json,
+    pub(super) status: StatusCode,
+    pub(super) json: Json,
 }
 
 impl Answer {
-    fn new(status: StatusCode) -> Self {
+    pub(super) fn new(status: StatusCode) -> Self {
         Self { status, json: Json::default() }
     }
 
     /// `{"error": what}` (and `"field": field` when one field is at fault).
-    fn error(status: StatusCode, what: &str, field: Option<&str>) -> Self {
+    pub(super) fn error(status: StatusCode, what: &str, field: Option<&str>) -> Self {
         let mut a = Self::new(status);
         let _ = write!(a.json, "{{\"error\":\"{what}\"");
         if let Some(field) = field {
@@ -193,8 +197,15 @@ impl Answer {
         a
     }
 
-    fn no_content() -> Self {
+    pub(super) fn no_content() -> Self {
         Self::new(StatusCode::NO_CONTENT)
+    }
+
+    /// 202: done once the answer is sent (a restart).
+    pub(super) fn accepted() -> Self {
+        let mut a = Self::new(StatusCode::ACCEPTED);
+        a.json.push_str("{\"restarting\":true}");
+        a
     }
 }
 
@@ -246,7 +257,7 @@ enum Seen {
     Value(u32),
 }
 
-impl<R: RawMutex, M: RegisterMap + SettingsAccess> PathRouterService for Api<'_, R, M> {
+impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> PathRouterService for Api<'_, R, M, F> {
     async fn call_path_router_service<Rd: Read, W: ResponseWriter<Error = Rd::Error>>(
         &self,
         _state: &(),
@@ -359,7 +370,7 @@ fn exception_answer(code: u8, field: &str) -> Answer {
     }
 }
 
-impl<R: RawMutex, M: RegisterMap + SettingsAccess> Api<'_, R, M> {
+impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F> {
     async fn route(
         &self,
         method: &str,
@@ -412,7 +423,22 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess> Api<'_, R, M> {
                 }
                 self.write(table == "registers", addr, signed.body).await
             }
-            (_, (Some("identity" | "session" | "registers" | "coils"), _, _)) => {
+            ("GET", (Some("network"), None, None)) => self.network().await,
+            (method @ ("PUT" | "GET"), (Some(name @ ("network" | "access")), None, None))
+            | (method @ "POST", (Some(name @ "restart"), None, None)) => {
+                // Reading the allow-list needs a session too (discovery shows it only with the
+                // password); every other read here is open.
+                if let Err(why) = self.verify(signed).await {
+                    return Answer::error(StatusCode::UNAUTHORIZED, why, None);
+                }
+                match (method, name) {
+                    ("PUT", "network") => self.set_network(signed.body).await,
+                    ("GET", _) => self.access().await,
+                    ("PUT", _) => self.set_access(signed.body).await,
+                    _ => self.restart(),
+                }
+            }
+            (_, (Some("identity" | "session" | "registers" | "coils" | "network" | "access" | "restart"), _, _)) => {
                 Answer::error(StatusCode::METHOD_NOT_ALLOWED, "method not allowed here", None)
             }
             (_, (Some(name), a, b)) => {

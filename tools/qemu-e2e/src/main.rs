@@ -212,7 +212,7 @@ struct Report {
 fn checks_of(model: u16) -> u32 {
     match model {
         0x8318 => 11,
-        0x8350 => 24,
+        0x8350 => 25,
         _ => 0,
     }
 }
@@ -744,6 +744,10 @@ async fn run(model: &str, image: &str) -> Report {
             "Modbus during a web load: the worst of 1000 requests within 2x alone (2 clients reloading, 1 trickling; the time the machine stalled taken off; 5 attempts at most)",
             modbus_during_web_load(addr, web, &format!("{image}.qemu.log")).await,
         );
+        report.check(
+            "web console: 50 connections held open at once, Modbus answering beside them, the console answering once they are gone",
+            fifty_connections(web, addr).await,
+        );
     }
     report.check("diagnostics: injected front-end fault, set and cleared", diagnostics(addr).await);
     let discovery = SocketAddr::from(([127, 0, 0, 1], udp));
@@ -802,6 +806,49 @@ async fn web_console(web: SocketAddr, modbus: SocketAddr) -> Result<(), String> 
         remodaq_board_host::testing::web::request(web, "PUT", "/api/v1/do/5/state", &headers, off)
     })
     .await;
+    Ok(())
+}
+
+/// Issue #25's "50 parallel connections leave the module serving", on the embassy-net path: 50
+/// connections to the web port, each sending half a request and holding it (more than the web
+/// port's backlog holds: the rest are refused or wait). Modbus answers all the while, and the
+/// console answers once they are closed.
+async fn fifty_connections(web: SocketAddr, modbus: SocketAddr) -> Result<(), String> {
+    use remodaq_board_host::testing::web::request;
+    use tokio::io::AsyncWriteExt;
+    let mut held = Vec::new();
+    for _ in 0..50 {
+        // A connection refused outright also counts: the module chose not to take it.
+        if let Ok(Ok(mut s)) = timeout(STEP, tokio::net::TcpStream::connect(web)).await {
+            let _ = s.write_all(b"GET /api/v1/identity HTTP/1.1\r\nHost: ").await;
+            held.push(s);
+        }
+    }
+    let mut ctx = connect(modbus).await?;
+    for i in 0..20 {
+        timeout(STEP, ctx.read_coils(BIT_DO, 6))
+            .await
+            .map_err(|_| format!("Modbus read {i} beside {} held web connections: no answer", held.len()))?
+            .map_err(|e| e.to_string())?
+            .map_err(|e| format!("Modbus read {i}: exception {e:?}"))?;
+    }
+    drop(held);
+    // Each held connection ends at its close, or at the module's timeouts (docs/web.md).
+    let status = tokio::task::spawn_blocking(move || {
+        let back = Instant::now();
+        loop {
+            let status = request(web, "GET", "/api/v1/identity", &[], "").status;
+            if status == 200 || back.elapsed() > Duration::from_secs(60) {
+                return status;
+            }
+            std::thread::sleep(Duration::from_millis(500));
+        }
+    })
+    .await
+    .map_err(|e| e.to_string())?;
+    if status != 200 {
+        return Err(format!("the console after the 50 connections: status {status}"));
+    }
     Ok(())
 }
 

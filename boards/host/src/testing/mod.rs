@@ -145,3 +145,17 @@ impl Drop for SimModule {
         let _ = self.child.wait();
     }
 }
+
+/// The INFO reply of a module's discovery service at `to` to a search from 127.0.0.1 (its
+/// bytes: `remodaq_protocol::discovery::decode_info` reads them).
+pub fn search(to: SocketAddr) -> Vec<u8> {
+    use remodaq_protocol::discovery::{encode_request, Request, MAX_DATAGRAM};
+    let socket = std::net::UdpSocket::bind("127.0.0.1:0").expect("a UDP socket");
+    socket.set_read_timeout(Some(Duration::from_secs(5))).expect("a timeout");
+    let mut request = [0u8; MAX_DATAGRAM];
+    let n = encode_request(1, &Request::Search, &mut request).expect("a search fits");
+    socket.send_to(&request[..n], to).expect("sent");
+    let mut reply = [0u8; MAX_DATAGRAM];
+    let (n, _) = socket.recv_from(&mut reply).expect("an INFO reply");
+    reply[..n].to_vec()
+}

@@ -1,0 +1,210 @@
+//! The module's settings that are no registers, in the web console's API (docs/web.md): the
+//! network settings and the Modbus write allow-list, as discovery shows and sets them
+//! (extensions §4), and the restart that puts new network settings in force. Each change is a
+//! signed request of a logged-in session, committed to flash all or nothing as discovery
+//! commits it (the old settings stay in force when the flash refuses).
+
+use core::fmt::Write as _;
+use core::net::Ipv4Addr;
+use core::sync::atomic::{AtomicBool, Ordering};
+
+use embassy_sync::blocking_mutex::raw::RawMutex;
+use embedded_storage_async::nor_flash::NorFlash;
+use picoserve::response::StatusCode;
+use remodaq_protocol::access::{AllowList, Network, MAX_NETWORKS};
+use remodaq_protocol::net::NetConfig;
+use serde::Deserialize;
+
+use super::service::{Answer, Api};
+use crate::discovery::NETWORK_STORED;
+use crate::modbus::RegisterMap;
+use crate::module::{commit_change, CommonSettings as _, SettingsAccess};
+
+/// Set by a signed `POST /api/v1/restart`; the board restarts once that connection is closed.
+static RESTART: AtomicBool = AtomicBool::new(false);
+
+/// Whether a restart was asked for (and the request forgotten: a board asks once a connection).
+pub fn restart_requested() -> bool {
+    RESTART.swap(false, Ordering::AcqRel)
+}
+
+/// The body of `PUT /api/v1/network`: every field, as `GET` shows them.
+#[derive(Deserialize)]
+struct NetworkBody<'a> {
+    ip: &'a str,
+    mask: &'a str,
+    gateway: &'a str,
+    modbus_port: u16,
+}
+
+/// The body of `PUT /api/v1/access`.
+#[derive(Deserialize)]
+struct AccessBody<'a> {
+    #[serde(borrow)]
+    networks: heapless::Vec<&'a str, MAX_NETWORKS>,
+}
+
+/// Why a network body is refused: the field at fault.
+#[derive(Debug, PartialEq, Eq)]
+pub enum NetworkError {
+    /// The body is no JSON object of the four fields.
+    NotJson,
+    /// This field's value is not usable (an address that is no unicast host address, a mask
+    /// that is not contiguous or leaves no hosts, port 0).
+    Field(&'static str),
+}
+
+/// The network settings of a `PUT /api/v1/network` body, checked as discovery checks them
+/// ([`NetConfig::is_valid`]), the field at fault named.
+pub fn network_of(body: &[u8]) -> Result<NetConfig, NetworkError> {
+    let Ok((b, _)) = serde_json_core::from_slice::<NetworkBody<'_>>(body) else {
+        return Err(NetworkError::NotJson);
+    };
+    let address =
+        |text: &str, field| text.parse::<Ipv4Addr>().map(|a| a.octets()).map_err(|_| NetworkError::Field(field));
+    let net = NetConfig {
+        ip: address(b.ip, "ip")?,
+        mask: address(b.mask, "mask")?,
+        gateway: address(b.gateway, "gateway")?,
+        port: b.modbus_port,
+    };
+    if net.is_valid() {
+        return Ok(net);
+    }
+    // Which of is_valid's conditions failed, in its order.
+    let field = if !net.prefix_len().is_some_and(|p| (1..=30).contains(&p)) {
+        "mask"
+    } else if net.port == 0 {
+        "modbus_port"
+    } else {
+        "ip"
+    };
+    Err(NetworkError::Field(field))
+}
+
+/// The allow-list of a `PUT /api/v1/access` body (`{"networks": [...]}`, at most
+/// [`MAX_NETWORKS`], `a.b.c.d/n` each); `None` when it is not one.
+pub fn allow_list_of(body: &[u8]) -> Option<AllowList> {
+    let (b, _) = serde_json_core::from_slice::<AccessBody<'_>>(body).ok()?;
+    let mut nets: heapless::Vec<Network, MAX_NETWORKS> = heapless::Vec::new();
+    for text in &b.networks {
+        nets.push(text.parse().ok()?).ok()?;
+    }
+    AllowList::of(&nets)
+}
+
+fn write_net(a: &mut Answer, net: &NetConfig) {
+    let _ = write!(
+        a.json,
+        "{{\"ip\":\"{}\",\"mask\":\"{}\",\"gateway\":\"{}\",\"modbus_port\":{}}}",
+        Ipv4Addr::from(net.ip),
+        Ipv4Addr::from(net.mask),
+        Ipv4Addr::from(net.gateway),
+        net.port
+    );
+}
+
+impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F> {
+    /// `GET /api/v1/network`: the stored settings (in force after the next start), those in
+    /// force now, and whether settings were stored since the start (a restart puts them in
+    /// force). Anyone may read them, as discovery's search shows them to anyone.
+    pub(super) async fn network(&self) -> Answer {
+        let stored = self.map.lock().await.settings().net();
+        let mut a = Answer::new(StatusCode::OK);
+        a.json.push_str("{\"stored\":");
+        write_net(&mut a, &stored);
+        a.json.push_str(",\"running\":");
+        write_net(&mut a, &self.identity.running);
+        let _ = write!(a.json, ",\"restart_needed\":{}}}", NETWORK_STORED.load(Ordering::Relaxed));
+        a
+    }
+
+    /// `PUT /api/v1/network` (signed): stores new network settings, in force after a restart.
+    pub(super) async fn set_network(&self, body: &[u8]) -> Answer {
+        match network_of(body) {
+            Ok(net) => {
+                let answer = self.commit(|s| s.set_net(net)).await;
+                if answer.status == StatusCode::NO_CONTENT {
+                    NETWORK_STORED.store(true, Ordering::Relaxed);
+                }
+                answer
+            }
+            Err(NetworkError::NotJson) => {
+                Answer::error(StatusCode::BAD_REQUEST, "expected {ip, mask, gateway, modbus_port}", None)
+            }
+            Err(NetworkError::Field(field)) => {
+                Answer::error(StatusCode::UNPROCESSABLE_ENTITY, "not a usable value", Some(field))
+            }
+        }
+    }
+
+    /// `GET /api/v1/access` (signed: discovery shows the list only with the password).
+    pub(super) async fn access(&self) -> Answer {
+        let list = self.map.lock().await.settings().allow_list();
+        let mut a = Answer::new(StatusCode::OK);
+        a.json.push_str("{\"networks\":[");
+        for (i, net) in list.iter().enumerate() {
+            let _ = write!(a.json, "{}\"{net}\"", if i > 0 { "," } else { "" });
+        }
+        a.json.push_str("]}");
+        a
+    }
+
+    /// `PUT /api/v1/access` (signed): replaces the Modbus write allow-list.
+    pub(super) async fn set_access(&self, body: &[u8]) -> Answer {
+        match allow_list_of(body) {
+            Some(list) => self.commit(|s| s.set_allow_list(list)).await,
+            None => {
+                Answer::error(StatusCode::UNPROCESSABLE_ENTITY, "at most 4 networks, a.b.c.d/n each", Some("networks"))
+            }
+        }
+    }
+
+    /// `POST /api/v1/restart` (signed): the module restarts once this answer is sent.
+    pub(super) fn restart(&self) -> Answer {
+        RESTART.store(true, Ordering::Release);
+        Answer::accepted()
+    }
+
+    async fn commit(&self, change: impl FnOnce(&mut M::Settings)) -> Answer {
+        match commit_change(self.map, self.store, change).await {
+            Ok(()) => Answer::no_content(),
+            Err(_) => Answer::error(StatusCode::SERVICE_UNAVAILABLE, "the settings could not be stored", None),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn network_bodies() {
+        let body = br#"{"ip":"10.0.5.20","mask":"255.255.0.0","gateway":"10.0.0.1","modbus_port":502}"#;
+        let net = network_of(body).expect("usable");
+        assert_eq!(net, NetConfig { ip: [10, 0, 5, 20], mask: [255, 255, 0, 0], gateway: [10, 0, 0, 1], port: 502 });
+        let with = |ip: &str, mask: &str, port: u16| {
+            let body = std::format!(r#"{{"ip":"{ip}","mask":"{mask}","gateway":"0.0.0.0","modbus_port":{port}}}"#);
+            network_of(body.as_bytes())
+        };
+        assert_eq!(with("10.0.0.300", "255.0.0.0", 502), Err(NetworkError::Field("ip")));
+        assert_eq!(with("127.0.0.5", "255.0.0.0", 502), Err(NetworkError::Field("ip")));
+        assert_eq!(with("224.0.0.1", "255.0.0.0", 502), Err(NetworkError::Field("ip")));
+        assert_eq!(with("10.0.0.1", "255.0.255.0", 502), Err(NetworkError::Field("mask")));
+        assert_eq!(with("10.0.0.1", "255.255.255.254", 502), Err(NetworkError::Field("mask")));
+        assert_eq!(with("10.0.0.1", "255.0.0.0", 0), Err(NetworkError::Field("modbus_port")));
+        assert_eq!(network_of(br#"{"ip":"10.0.0.1"}"#), Err(NetworkError::NotJson));
+    }
+
+    #[test]
+    fn allow_list_bodies() {
+        let list = allow_list_of(br#"{"networks":["192.0.2.0/24","10.1.2.3"]}"#).expect("a list");
+        let nets: std::vec::Vec<Network> = list.iter().collect();
+        assert_eq!(nets, [Network { ip: [192, 0, 2, 0], prefix: 24 }, Network { ip: [10, 1, 2, 3], prefix: 32 }]);
+        assert_eq!(allow_list_of(br#"{"networks":[]}"#), Some(AllowList::EMPTY));
+        let five = br#"{"networks":["1.0.0.0/8","2.0.0.0/8","3.0.0.0/8","4.0.0.0/8","5.0.0.0/8"]}"#;
+        assert_eq!(allow_list_of(five), None);
+        assert_eq!(allow_list_of(br#"{"networks":["192.0.2.0/40"]}"#), None);
+        assert_eq!(allow_list_of(br#"{"networks":"192.0.2.0/24"}"#), None);
+    }
+}
