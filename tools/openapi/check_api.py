@@ -175,8 +175,8 @@ class Client:
             self.api.wrong(method, target, f"answered {status}, {expect} expected: {answer[:80]!r}")
         return status, answer
 
-    def signed(self, method, target, value=None, extra=(), expect=204):
-        body = b"" if value is None else json.dumps({"value": value}).encode()
+    def signed(self, method, target, value=None, extra=(), expect=204, raw=None):
+        body = raw if raw is not None else (b"" if value is None else json.dumps({"value": value}).encode())
         session, key, counter = self.session
         counter += 1
         self.session = (session, key, counter)
@@ -248,8 +248,30 @@ def exercise_8350(c):
     c.signed("PUT", "/api/v1/inputs/type", 5, expect=404)  # an 8318 resource on the 8350
     c.call("PUT", "/api/v1/do/0/state", raw=b"{" + b" " * 4000 + b"}", expect=413)
     c.call("GET", "/api/v1/di/0?" + "x" * 300, expect=414)
+    exercise_settings(c)
     c.signed("DELETE", "/api/v1/session")
     c.signed("DELETE", "/api/v1/session", expect=401)  # ended
+
+
+def exercise_settings(c):
+    """The network settings, the allow-list and the restart (both modules; logged in)."""
+    c.call("GET", "/api/v1/network")
+    net = {"ip": "192.0.2.10", "mask": "255.255.255.0", "gateway": "192.0.2.1", "modbus_port": 8000}
+    c.call("PUT", "/api/v1/network", raw=json.dumps(net).encode(), expect=401)  # unsigned
+    c.signed("PUT", "/api/v1/network", raw=json.dumps(dict(net, mask="255.0.255.0")).encode(), expect=422)
+    c.signed("PUT", "/api/v1/network", raw=json.dumps(dict(net, ip="127.0.0.2")).encode(), expect=422)
+    c.signed("PUT", "/api/v1/network", raw=b'{"ip":"192.0.2.10"}', expect=400)
+    c.signed("PUT", "/api/v1/network", raw=json.dumps(net).encode())
+    c.call("GET", "/api/v1/network")
+    c.call("GET", "/api/v1/access", expect=401)  # shown to a session only
+    c.signed("GET", "/api/v1/access", expect=200)
+    c.signed("PUT", "/api/v1/access", raw=json.dumps({"networks": ["10.0.0.0/33"]}).encode(), expect=422)
+    five = {"networks": [f"10.{i}.0.0/16" for i in range(5)]}
+    c.signed("PUT", "/api/v1/access", raw=json.dumps(five).encode(), expect=422)
+    c.signed("PUT", "/api/v1/access", raw=json.dumps({"networks": ["127.0.0.0/8", "192.0.2.7"]}).encode())
+    c.signed("GET", "/api/v1/access", expect=200)
+    c.signed("PUT", "/api/v1/access", raw=json.dumps({"networks": []}).encode())
+    c.call("POST", "/api/v1/restart", expect=401)
 
 
 def exercise_8318(c):
@@ -270,6 +292,9 @@ def exercise_8318(c):
     c.signed("PUT", "/api/v1/inputs/enable_mask", 0x0F)
     c.call("GET", "/api/v1/channels/5")  # disabled
     c.signed("PUT", "/api/v1/inputs/cjc", 30, expect=405)  # read-only
+    exercise_settings(c)
+    # Last: the module restarts (stopped after this by the checker).
+    c.signed("POST", "/api/v1/restart", expect=202)
 
 
 def main():
