@@ -26,6 +26,13 @@
       ok: "ok", open: "open", "over range": "over range", "under range": "under range", disabled: "disabled",
       "front-end fault": "front-end fault", "cold-junction fault": "cold-junction fault",
       thermocouple: "thermocouple", voltage: "voltage", current: "current",
+      network: "Network", security: "Security", ip: "IP address", mask: "Subnet mask", gateway: "Gateway",
+      modbus_port: "Modbus/TCP port", stored: "Stored settings", running: "In force now", save: "Save",
+      restart: "Restart the module", "restart needed": "New settings are stored: they take effect after a restart.",
+      restarting: "The module restarts. Open it again at its new address if you changed it.",
+      "allow-list": "Modbus write allow-list", networks: "Networks (a.b.c.d/n), empty: any client may write",
+      "login to see": "Log in to see and change the allow-list.",
+      "password-utility": "The configuration password is changed with the RemoDAQ utility (remodaq password): it is sent sealed, never in clear.",
     },
     zh: {
       status: "状态", io: "实时 I/O", settings: "设置", login: "登录", logout: "退出登录",
@@ -46,6 +53,15 @@
       ok: "正常", open: "断线", "over range": "超上限", "under range": "超下限", disabled: "已禁用",
       "front-end fault": "前端故障", "cold-junction fault": "冷端故障",
       thermocouple: "热电偶", voltage: "电压", current: "电流",
+      network: "网络", security: "安全", ip: "IP 地址", mask: "子网掩码", gateway: "网关",
+      modbus_port: "Modbus/TCP 端口", stored: "已保存的设置", running: "当前生效", save: "保存",
+      restart: "重启模块", "restart needed": "新设置已保存，重启后生效。",
+      restarting: "模块正在重启。如已更改地址，请用新地址重新打开。",
+      "allow-list": "Modbus 写入白名单", networks: "网络 (a.b.c.d/n)，为空时任何客户端都可写入",
+      "login to see": "登录后可查看和修改白名单。",
+      "password-utility": "配置密码请用 RemoDAQ 工具修改 (remodaq password)：密码加密传送，绝不明文。",
+      "not a usable value": "该值不可用。", "at most 4 networks, a.b.c.d/n each": "最多 4 个网络，格式 a.b.c.d/n。",
+      "the settings could not be stored": "设置无法保存。",
       // The module's error texts (shared/src/web/service.rs).
       unsigned: "请求未签名。", "no session": "会话已结束，请重新登录。", "stale counter": "过期的请求（重放）。",
       "bad signature": "签名错误。", "value refused": "模块拒绝了该值。", "not a value of this field": "该字段不接受此值。",
@@ -108,8 +124,8 @@
   // Signed requests go one after the other: each counter must reach the module after the one
   // before it (a later one arriving first would make the earlier one stale).
   let signing = Promise.resolve();
-  function signed(method, path, value) {
-    const run = signing.then(() => signedNow(method, path, value));
+  function signed(method, path, value, whole) {
+    const run = signing.then(() => signedNow(method, path, value, whole));
     signing = run.catch(() => {});
     return run.catch((e) => {
       // A refusal is said by signedNow; a request that got no answer is said here.
@@ -118,8 +134,9 @@
     });
   }
 
-  // A state-changing request, signed (docs/web.md, "Authentication"); the error's field, if any.
-  async function signedNow(method, path, value) {
+  // A signed request (docs/web.md, "Authentication"): the body is {value} or, for a resource
+  // written whole, `whole`. Resolves to the answer's JSON (null for none); a refusal is said.
+  async function signedNow(method, path, value, whole) {
     // The session this request is signed in (a logout or login meanwhile does not mix two).
     const s = session;
     if (!s) {
@@ -127,7 +144,7 @@
       throw new Error("need login");
     }
     const target = "/api/v1/" + path;
-    const body = value === undefined ? "" : JSON.stringify({ value });
+    const body = whole !== undefined ? JSON.stringify(whole) : value === undefined ? "" : JSON.stringify({ value });
     s.counter += 1;
     const counter = s.counter;
     const signature = await A.requestSignature(s.key, method, target, counter, body);
@@ -142,8 +159,9 @@
         "X-RDAQ-Signature": A.hex(signature),
       },
     });
-    if (r.status === 204) return;
+    if (r.status === 204) return null;
     const answer = await r.json().catch(() => ({}));
+    if (r.ok) return answer;
     if (r.status === 401 && answer.error === "no session" && session === s) {
       session = null;
       translate();
@@ -215,6 +233,12 @@
   function uptime(s) {
     const d = Math.floor(s / 86400), h = Math.floor(s / 3600) % 24, m = Math.floor(s / 60) % 60;
     return (d ? d + " d " : "") + h + " h " + m + " min";
+  }
+
+  // A text field of a form written whole.
+  function textField(form, name, value) {
+    form[name] = el("input", { "aria-label": name, value: value, spellcheck: "false", autocomplete: "off" });
+    return el("label", {}, t(name) + " ", form[name]);
   }
 
   const PAGES = {
@@ -289,7 +313,51 @@
         el("label", {}, t("timeout") + " ", field("watchdog/timeout", w.timeout, "number")),
       ];
     },
+
+    // Stored network settings (in force after a restart), as the utility's discovery sets them.
+    async network() {
+      const n = await get("network");
+      const form = {};
+      const keys = ["ip", "mask", "gateway", "modbus_port"];
+      const save = () => {
+        const net = Object.fromEntries(keys.map((k) => [k, form[k].value.trim()]));
+        net.modbus_port = Number(net.modbus_port);
+        signed("PUT", "network", undefined, net).then(() => { say(t("saved")); show(true); }, () => {});
+      };
+      const r = n.running;
+      return [
+        el("h2", {}, t("stored")),
+        keys.map((k) => textField(form, k, n.stored[k])),
+        el("button", { onclick: save }, t("save")),
+        n.restart_needed ? el("p", { class: "error" }, t("restart needed")) : null,
+        el("h2", {}, t("running")),
+        el("p", {}, r.ip + " / " + r.mask + ", " + t("gateway") + " " + r.gateway + ", " + t("modbus_port") + " " + r.modbus_port),
+        el("button", { onclick: () => signed("POST", "restart").then(() => say(t("restarting")), () => {}) }, t("restart")),
+      ].flat().filter((e) => e);
+    },
+
+    // The Modbus write allow-list (shown to a session only, as discovery shows it with the
+    // password); the password is changed with the utility.
+    async security() {
+      const parts = [el("h2", {}, t("allow-list"))];
+      if (!session) {
+        parts.push(el("p", {}, t("login to see")));
+      } else {
+        const a = await signed("GET", "access");
+        const form = {};
+        const save = () => {
+          const networks = form.networks.value.split(/[\s,]+/).filter((x) => x);
+          signed("PUT", "access", undefined, { networks }).then(() => { say(t("saved")); show(true); }, () => {});
+        };
+        parts.push(textField(form, "networks", a.networks.join(", ")), el("button", { onclick: save }, t("save")));
+      }
+      parts.push(el("h2", {}, t("password")), el("p", {}, t("password-utility")));
+      return parts;
+    },
   };
+
+  // Pages of controls: not redrawn under a control being edited.
+  const FORMS = ["settings", "network", "security"];
 
   function current() {
     const name = location.hash.slice(1);
@@ -334,7 +402,7 @@
       } else if (name === "io" && page.dataset.shows === "io" && page.childNodes.length === content.length) {
         const olds = Array.from(page.childNodes);
         content.forEach((c, i) => patch(olds[i], c));
-      } else if (name !== "settings" || force === true || !page.contains(document.activeElement)) {
+      } else if (!FORMS.includes(name) || force === true || !page.contains(document.activeElement)) {
         // A control being edited is not redrawn under the user's hands.
         page.replaceChildren(...content);
         page.dataset.shows = name;
@@ -381,6 +449,7 @@
       session = null;
       say(t("logged out"));
       translate();
+      show(true);
       return;
     }
     $("login-error").textContent = "";
@@ -396,6 +465,7 @@
       $("login-dialog").close();
       say(t("logged in"));
       translate();
+      show(true);
     } catch (err) {
       $("login-error").textContent = String(err.message || err);
     }

@@ -134,6 +134,14 @@ def modbus_read(modbus, function, start, count):
     return answer[9 : 9 + answer[8]]
 
 
+def write_coil(modbus, address, on):
+    """Modbus/TCP function 05: None when written, else the exception code."""
+    with socket.create_connection(modbus, timeout=5) as s:
+        s.sendall(struct.pack(">HHHBBHH", 1, 0, 6, 1, 5, address, 0xFF00 if on else 0))
+        answer = s.recv(300)
+    return None if answer[7] == 5 else answer[8]
+
+
 def read_coils(modbus, start, count):
     bits = int.from_bytes(modbus_read(modbus, 1, start, count), "little")
     return [bool(bits >> i & 1) for i in range(count)]
@@ -370,7 +378,8 @@ def main():
         # 8350: every page loads.
         # What each page must show (spec: firmware version A100h, 12 DI, 6 DO; extensions §3).
         every_page(checks, b, m8350, "8350", shots,
-                   {"status": ["Firmware\nA100", "Uptime"], "io": ["DI11", "DO5"], "settings": ["DI11", "Host watchdog"]})
+                   {"status": ["Firmware\nA100", "Uptime"], "io": ["DI11", "DO5"], "settings": ["DI11", "Host watchdog"],
+                    "network": ["Stored settings", "In force now"], "security": ["Modbus write allow-list", "Log in to see"]})
 
         def log_in_twice():
             b.go(f"{m8350.web}/#io")
@@ -409,10 +418,48 @@ def main():
                 b.s("POST", "/window/rect", {"width": 1000, "height": 800})
         checks.check("8350 pages on a phone-sized screen: nothing wider than the screen", phone)
 
+        def allow_list():
+            # Extensions §4: a list without this PC's network refuses its Modbus writes
+            # (exception 01); emptied, writes are served again.
+            b.go(f"{m8350.web}/#security")
+            b.type('input[aria-label="networks"]', "192.0.2.0/24, 10.9.8.7")
+            b.click("main#page button")
+            b.wait_text("#message", "Saved")
+            # Drawn again from the module's answer: the bare address as /32.
+            shown, deadline = "", time.time() + 10
+            while shown != "192.0.2.0/24, 10.9.8.7/32" and time.time() < deadline:
+                time.sleep(0.1)
+                shown = b.script('const e = document.querySelector(\'input[aria-label="networks"]\'); return e ? e.value : ""')
+            if shown != "192.0.2.0/24, 10.9.8.7/32":
+                raise RuntimeError(f"the page shows the list {shown!r}")
+            b.screenshot(os.path.join(shots, "8350-security-allow-list.png"))
+            if write_coil(m8350.modbus, 0x10, False) != 1:
+                raise RuntimeError("a Modbus write from outside the list was not refused with exception 01")
+            b.type('input[aria-label="networks"]', "")
+            b.click("main#page button")
+            b.wait_text("#message", "Saved")
+            if write_coil(m8350.modbus, 0x10, False) is not None:
+                raise RuntimeError("a Modbus write was refused with the list emptied")
+        checks.check("8350 allow-list set on the security page: a Modbus write from outside it refused "
+                     "(exception 01), served again once emptied", allow_list)
+
+        def network():
+            b.go(f"{m8350.web}/#network")
+            b.type('input[aria-label="ip"]', "192.0.2.20")
+            b.click("main#page button")
+            b.wait_text("#message", "Saved")
+            b.wait_text("main#page", "take effect after a restart")
+            stored = json.loads(urllib.request.urlopen(m8350.web + "/api/v1/network", timeout=5).read())["stored"]
+            if stored["ip"] != "192.0.2.20":
+                raise RuntimeError(f"the module stored {stored}")
+            b.screenshot(os.path.join(shots, "8350-network-stored.png"))
+        checks.check("8350 network address changed on the network page: stored, a restart asked for", network)
+
         # 8318: pages, then the input type changed on the settings page.
         # The scenario's channel 3 is an open thermocouple (extensions §2: status open).
         every_page(checks, b, m8318, "8318", shots,
-                   {"status": ["Firmware\nA100", "Uptime"], "io": ["open", "°C"], "settings": ["Input type", "Cold junction: 25"]})
+                   {"status": ["Firmware\nA100", "Uptime"], "io": ["open", "°C"], "settings": ["Input type", "Cold junction: 25"],
+                    "network": ["Stored settings", "In force now"], "security": ["Modbus write allow-list"]})
 
         def input_type():
             b.go(f"{m8318.web}/#io")
