@@ -308,12 +308,29 @@ async fn network_settings_allow_list_and_restart() {
     let shown = request(web, "GET", "/api/v1/network", &[], "");
     assert!(shown.body.contains(r#""restart_needed":true"#), "{}", shown.body);
 
+    // Not with the factory password, which anyone knows (as discovery: docs/security.md).
+    let list = r#"{"networks":["192.0.2.0/24","10.9.8.7"]}"#;
+    let factory = request(web, "PUT", "/api/v1/access", &page.sign("PUT", "/api/v1/access", list), list);
+    expect_refused(factory, "set a password first", 403);
+    assert_eq!(stored().1 & info_flags::WRITES_RESTRICTED, 0);
+    // A password change: without the module's key first, refused; then sealed and stored, and
+    // the session of the old password ends.
+    let early = request(web, "PUT", "/api/v1/password", &page.sign("PUT", "/api/v1/password", "{}"), "{}");
+    assert_eq!(early.status, 400);
+    assert_eq!(page.change_password(web, "correct horse", [3; 16]).status, 204);
+    expect_refused(
+        request(web, "GET", "/api/v1/access", &page.sign("GET", "/api/v1/access", ""), ""),
+        "no session",
+        401,
+    );
+    assert_eq!(log_in(web, FACTORY_PASSWORD).err().map(|a| a.status), Some(401), "the old password is gone");
+    assert_eq!(stored().1 & info_flags::FACTORY_PASSWORD, 0, "discovery no longer warns of the factory password");
+    let mut page = log_in(web, "correct horse").unwrap_or_else(|a| panic!("login: {} {}", a.status, a.body));
     // The allow-list: five networks are too many (422, nothing stored); one that leaves this
     // PC out restricts its Modbus writes (exception 01, extensions §4).
     let five = r#"{"networks":["10.0.0.0/8","10.1.0.0/16","10.2.0.0/16","10.3.0.0/16","10.4.0.0/16"]}"#;
     let refused = request(web, "PUT", "/api/v1/access", &page.sign("PUT", "/api/v1/access", five), five);
     assert_eq!((refused.status, field(&refused.body, "field")), (422, "networks"), "{}", refused.body);
-    let list = r#"{"networks":["192.0.2.0/24","10.9.8.7"]}"#;
     let set = request(web, "PUT", "/api/v1/access", &page.sign("PUT", "/api/v1/access", list), list);
     assert_eq!(set.status, 204, "{}", set.body);
     let shown = request(web, "GET", "/api/v1/access", &page.sign("GET", "/api/v1/access", ""), "");

@@ -15,8 +15,23 @@
 //!    the path with its query, a counter and the body. The module accepts a counter only if it
 //!    is above the last one it accepted in that session, so a recorded request cannot be
 //!    replayed, and an altered one does not verify.
+//! 4. A new password crosses the wire sealed, as discovery seals it: the module makes an
+//!    ephemeral X25519 key for the session and proves it with [`agreement_proof`] (a page knows
+//!    the key is the module's); the page seals the new credential (never the password) with
+//!    [`crate::auth::seal`] under the key both derive, [`PASSWORD_SEAL_LABEL`] and the
+//!    module's public key as context. A sniffer who knows the old password (the factory one is
+//!    public) still cannot unseal it.
 
 use crate::auth::{hmac, KEY_LEN, NONCE_LEN};
+
+/// The context label of a new credential sealed by a page (the module's public key follows).
+pub const PASSWORD_SEAL_LABEL: &[u8] = b"RDAQ web new credential";
+
+/// HMAC(session key, "RDAQ web agreement" || the module's ephemeral public key): signs the key
+/// the module offers a session for a password change.
+pub fn agreement_proof(session_key: &[u8; KEY_LEN], public: &[u8; KEY_LEN]) -> [u8; KEY_LEN] {
+    hmac(session_key, &[b"RDAQ web agreement", public])
+}
 
 /// Bytes of a session id.
 pub const SESSION_ID_LEN: usize = 8;

@@ -32,7 +32,12 @@
       restarting: "The module restarts. Open it again at its new address if you changed it.",
       "allow-list": "Modbus write allow-list", networks: "Networks (a.b.c.d/n), empty: any client may write",
       "login to see": "Log in to see and change the allow-list.",
-      "password-utility": "The configuration password is changed with the RemoDAQ utility (remodaq password): it is sent sealed, never in clear.",
+      new_password: "New password", repeat_password: "Repeat it", change_password: "Change the password",
+      "password-sealed": "The password never leaves this page: the module receives only its salted keys, sealed with a key agreed for this change.",
+      "too short": "At least 8 characters.", "not the same": "The two passwords differ.",
+      "password changed": "Password changed: log in again with the new one.",
+      "login first": "Log in to change the password.",
+      "set a password first": "Set a password of your own first: the factory one, which anyone knows, may not restrict writes.",
     },
     zh: {
       status: "状态", io: "实时 I/O", settings: "设置", login: "登录", logout: "退出登录",
@@ -59,7 +64,12 @@
       restarting: "模块正在重启。如已更改地址，请用新地址重新打开。",
       "allow-list": "Modbus 写入白名单", networks: "网络 (a.b.c.d/n)，为空时任何客户端都可写入",
       "login to see": "登录后可查看和修改白名单。",
-      "password-utility": "配置密码请用 RemoDAQ 工具修改 (remodaq password)：密码加密传送，绝不明文。",
+      new_password: "新密码", repeat_password: "再输入一次", change_password: "修改密码",
+      "password-sealed": "密码不会离开本页面：模块只收到加盐后的密钥，并以本次协商的密钥加密。",
+      "too short": "至少 8 个字符。", "not the same": "两次输入的密码不一致。",
+      "password changed": "密码已修改，请用新密码重新登录。", "login first": "登录后可修改密码。",
+      "set a password first": "请先修改出厂密码。", "ask for the module's key first": "请重试修改密码。",
+      "not a usable password": "模块不接受该密码。",
       "not a usable value": "该值不可用。", "at most 4 networks, a.b.c.d/n each": "最多 4 个网络，格式 a.b.c.d/n。",
       "the settings could not be stored": "设置无法保存。",
       // The module's error texts (shared/src/web/service.rs).
@@ -349,9 +359,41 @@
           const networks = form.networks.value.split(/[\s,]+/).filter((x) => x);
           signed("PUT", "access", undefined, { networks }).then(() => { say(t("saved")); show(true); }, () => {});
         };
-        parts.push(textField(form, "networks", a.networks.join(", ")), el("button", { onclick: save }, t("save")));
+        parts.push(textField(form, "networks", a.networks.join(", ")), el("button", { id: "save-access", onclick: save }, t("save")));
       }
-      parts.push(el("h2", {}, t("password")), el("p", {}, t("password-utility")));
+      parts.push(el("h2", {}, t("password")));
+      if (!session) {
+        parts.push(el("p", {}, t("login first")));
+        return parts;
+      }
+      const pw = {};
+      const input = (name) => (pw[name] = el("input", { type: "password", "aria-label": name, autocomplete: "new-password" }));
+      const change = async () => {
+        const [first, second] = [pw.new_password.value, pw.repeat_password.value];
+        if (first.length < 8) return say(t("too short"), true);
+        if (first !== second) return say(t("not the same"), true);
+        try {
+          const s = session;
+          const offer = await signed("POST", "password/key");
+          // The page's ephemeral key and a fresh salt; 100000 iterations, as the utility sets.
+          const sealed = await A.sealPassword(s.key, A.unhex(offer.public), A.unhex(offer.proof), first,
+            crypto.getRandomValues(new Uint8Array(32)), crypto.getRandomValues(new Uint8Array(16)), 100000)
+            .catch((e) => {
+              say(e.message, true);
+              throw e;
+            });
+          await signed("PUT", "password", undefined, sealed);
+          if (session === s) session = null;
+          translate();
+          say(t("password changed"));
+          show(true);
+        } catch (e) {
+          // Said where it failed.
+        }
+      };
+      parts.push(el("label", {}, t("new_password") + " ", input("new_password")),
+        el("label", {}, t("repeat_password") + " ", input("repeat_password")),
+        el("button", { id: "change-password", onclick: change }, t("change_password")), el("p", {}, t("password-sealed")));
       return parts;
     },
   };

@@ -145,6 +145,47 @@
     return out;
   }
 
+  // X25519 (RFC 7748 §5) on BigInts: the page's ephemeral key for a password change. Not
+  // constant-time; the key lives for one change on the administrator's own PC.
+  function x25519(scalar, u) {
+    const P = (1n << 255n) - 19n;
+    const mod = (a) => ((a % P) + P) % P;
+    const little = (bytes) => bytes.reduceRight((n, b) => (n << 8n) | BigInt(b), 0n);
+    const k = Uint8Array.from(scalar);
+    k[0] &= 248;
+    k[31] &= 127;
+    k[31] |= 64;
+    const uBytes = Uint8Array.from(u);
+    uBytes[31] &= 127;
+    const n = little(k), x1 = little(uBytes) % P;
+    let x2 = 1n, z2 = 0n, x3 = x1, z3 = 1n, swap = 0n;
+    for (let t = 254n; t >= 0n; t--) {
+      const bit = (n >> t) & 1n;
+      if (swap ^ bit) [x2, x3, z2, z3] = [x3, x2, z3, z2];
+      swap = bit;
+      const a = mod(x2 + z2), aa = (a * a) % P, b = mod(x2 - z2), bb = (b * b) % P, e = mod(aa - bb);
+      const c = mod(x3 + z3), d = mod(x3 - z3), da = (d * a) % P, cb = (c * b) % P;
+      x3 = mod((da + cb) * (da + cb));
+      z3 = mod(x1 * mod((da - cb) * (da - cb)));
+      x2 = (aa * bb) % P;
+      z2 = mod(e * (aa + 121665n * e));
+    }
+    if (swap) [x2, x3, z2, z3] = [x3, x2, z3, z2];
+    // z2^(p-2) is its inverse (Fermat).
+    let inverse = 1n, base = z2, exp = P - 2n;
+    while (exp > 0n) {
+      if (exp & 1n) inverse = (inverse * base) % P;
+      base = (base * base) % P;
+      exp >>= 1n;
+    }
+    let r = (x2 * inverse) % P;
+    const out = new Uint8Array(32);
+    for (let i = 0; i < 32; i++, r >>= 8n) out[i] = Number(r & 255n);
+    return out;
+  }
+
+  const BASE_POINT = Uint8Array.from({ length: 32 }, (_, i) => (i === 0 ? 9 : 0));
+
   // The API on one core.
   function api(core) {
     const hmac = (key, parts) => core.hmac(key, concat(parts));
@@ -194,7 +235,40 @@
       return hmac(key, ["RDAQ web request\n", method, "\n", target, "\n", String(counter), "\n", body || ""]);
     }
 
-    return { hex, unhex, deriveKeys, proof, loginMessage, loginSignatureIsRight, sessionKey, requestSignature, core };
+    // protocol/src/auth.rs `seal`: XOR with HMAC(HMAC(shared, context), "RDAQ seal" || block).
+    async function seal(shared, context, data) {
+      const key = await hmac(shared, context);
+      const out = Uint8Array.from(data);
+      for (let block = 0; block * 32 < out.length; block++) {
+        const stream = await hmac(key, ["RDAQ seal", [block]]);
+        for (let i = 0; i < 32 && block * 32 + i < out.length; i++) out[block * 32 + i] ^= stream[i];
+      }
+      return out;
+    }
+
+    // What the module stores of a password (protocol/src/auth.rs `Credential::encode`): salt,
+    // iterations (big-endian), StoredKey, ServerKey.
+    async function credential(password, salt, iterations) {
+      const keys = await deriveKeys(password, salt, iterations);
+      const count = [iterations >>> 24, (iterations >>> 16) & 255, (iterations >>> 8) & 255, iterations & 255];
+      return concat([salt, count, keys.storedKey, keys.serverKey]);
+    }
+
+    // A password change (docs/web.md): the module's ephemeral key, checked against its proof
+    // under the session key; the new credential sealed under the key agreed with a fresh one of
+    // the page's. `secret` and `salt` are random (the caller's).
+    async function sealPassword(sessionKey, modulePublic, proofOfKey, password, secret, salt, iterations) {
+      const expected = await hmac(sessionKey, ["RDAQ web agreement", modulePublic]);
+      if (hex(expected) !== hex(proofOfKey)) throw new Error("the module's key is not signed by this session");
+      const shared = x25519(secret, modulePublic);
+      const sealed = await seal(shared, ["RDAQ web new credential", modulePublic], await credential(password, salt, iterations));
+      return { public: hex(x25519(secret, BASE_POINT)), sealed: hex(sealed) };
+    }
+
+    return {
+      hex, unhex, deriveKeys, proof, loginMessage, loginSignatureIsRight, sessionKey, requestSignature, core,
+      x25519, BASE_POINT, seal, credential, sealPassword,
+    };
   }
 
   if (typeof module !== "undefined" && module.exports) {

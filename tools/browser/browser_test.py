@@ -418,12 +418,32 @@ def main():
                 b.s("POST", "/window/rect", {"width": 1000, "height": 800})
         checks.check("8350 pages on a phone-sized screen: nothing wider than the screen", phone)
 
+        def password():
+            # The factory password may not set the allow-list (docs/security.md): refused,
+            # then the password changed on the page, and the new one logs in.
+            b.go(f"{m8350.web}/#security")
+            b.type('input[aria-label="networks"]', "192.0.2.0/24")
+            b.click("#save-access")
+            b.wait_text("#message", "Set a password of your own first")
+            b.type('input[aria-label="new_password"]', "correct horse battery")
+            b.type('input[aria-label="repeat_password"]', "correct horse battery")
+            b.click("#change-password")
+            b.wait_text("#message", "Password changed", wait=30)
+            b.wait_text("#login", "Log in")
+            log_in(b, FACTORY_PASSWORD)
+            b.wait_text("#login-error", "Wrong password")
+            b.type("#password", "correct horse battery")
+            b.click("#login-form button[value=ok]")
+            b.wait_text("#message", "Logged in", wait=30)
+        checks.check("8350 password changed on the security page (the factory one may not set the allow-list); "
+                     "the old one refused, the new one logs in", password)
+
         def allow_list():
             # Extensions §4: a list without this PC's network refuses its Modbus writes
             # (exception 01); emptied, writes are served again.
             b.go(f"{m8350.web}/#security")
             b.type('input[aria-label="networks"]', "192.0.2.0/24, 10.9.8.7")
-            b.click("main#page button")
+            b.click("#save-access")
             b.wait_text("#message", "Saved")
             # Drawn again from the module's answer: the bare address as /32.
             shown, deadline = "", time.time() + 10
@@ -436,7 +456,7 @@ def main():
             if write_coil(m8350.modbus, 0x10, False) != 1:
                 raise RuntimeError("a Modbus write from outside the list was not refused with exception 01")
             b.type('input[aria-label="networks"]', "")
-            b.click("main#page button")
+            b.click("#save-access")
             b.wait_text("#message", "Saved")
             if write_coil(m8350.modbus, 0x10, False) is not None:
                 raise RuntimeError("a Modbus write was refused with the list emptied")

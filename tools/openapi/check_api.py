@@ -253,8 +253,64 @@ def exercise_8350(c):
     c.signed("DELETE", "/api/v1/session", expect=401)  # ended
 
 
+def x25519(k, u):
+    """RFC 7748 §5 (the page's and the utility's side of a password change)."""
+    p = 2**255 - 19
+    k = bytearray(k)
+    k[0] &= 248
+    k[31] = (k[31] & 127) | 64
+    n, x1 = int.from_bytes(k, "little"), int.from_bytes(u, "little") & ((1 << 255) - 1)
+    x2, z2, x3, z3, swap = 1, 0, x1, 1, 0
+    for t in range(254, -1, -1):
+        bit = (n >> t) & 1
+        if swap ^ bit:
+            x2, x3, z2, z3 = x3, x2, z3, z2
+        swap = bit
+        a, b = (x2 + z2) % p, (x2 - z2) % p
+        aa, bb = a * a % p, b * b % p
+        e = (aa - bb) % p
+        da, cb = (x3 - z3) * a % p, (x3 + z3) * b % p
+        x3, z3 = (da + cb) ** 2 % p, x1 * (da - cb) ** 2 % p
+        x2, z2 = aa * bb % p, e * (aa + 121665 * e) % p
+    if swap:
+        x2, z2 = x3, z3
+    return (x2 * pow(z2, p - 2, p) % p).to_bytes(32, "little")
+
+
+def seal(shared, context, data):
+    """protocol/src/auth.rs `seal`."""
+    key = hmac.new(shared, context, hashlib.sha256).digest()
+    out = bytearray(data)
+    for block in range((len(out) + 31) // 32):
+        stream = hmac.new(key, b"RDAQ seal" + bytes([block]), hashlib.sha256).digest()
+        for i in range(32):
+            if block * 32 + i < len(out):
+                out[block * 32 + i] ^= stream[i]
+    return bytes(out)
+
+
+def change_password(c, new):
+    """docs/web.md: the module's key (its proof checked), the credential sealed, stored."""
+    status, offer = c.signed("POST", "/api/v1/password/key", expect=200)
+    offer = json.loads(offer)
+    module = bytes.fromhex(offer["public"])
+    proof = hmac.new(c.session[1], b"RDAQ web agreement" + module, hashlib.sha256).hexdigest()
+    if proof != offer["proof"]:
+        raise RuntimeError("the module's key is not signed by the session")
+    salt, iterations, secret = os.urandom(16), 4096, os.urandom(32)
+    salted = hashlib.pbkdf2_hmac("sha256", new.encode(), salt, iterations, 32)
+    client_key = hmac.new(salted, b"Client Key", hashlib.sha256).digest()
+    credential = (salt + iterations.to_bytes(4, "big") + hashlib.sha256(client_key).digest()
+                  + hmac.new(salted, b"Server Key", hashlib.sha256).digest())
+    sealed = seal(x25519(secret, module), b"RDAQ web new credential" + module, credential)
+    public = x25519(secret, (9).to_bytes(32, "little"))
+    body = json.dumps({"public": public.hex(), "sealed": sealed.hex()}).encode()
+    c.signed("PUT", "/api/v1/password", raw=body)
+
+
 def exercise_settings(c):
-    """The network settings, the allow-list and the restart (both modules; logged in)."""
+    """The network settings, the allow-list, the password and the restart (both modules;
+    logged in with the factory password)."""
     c.call("GET", "/api/v1/network")
     net = {"ip": "192.0.2.10", "mask": "255.255.255.0", "gateway": "192.0.2.1", "modbus_port": 8000}
     c.call("PUT", "/api/v1/network", raw=json.dumps(net).encode(), expect=401)  # unsigned
@@ -265,10 +321,22 @@ def exercise_settings(c):
     c.call("GET", "/api/v1/network")
     c.call("GET", "/api/v1/access", expect=401)  # shown to a session only
     c.signed("GET", "/api/v1/access", expect=200)
+    allow = json.dumps({"networks": ["127.0.0.0/8", "192.0.2.7"]}).encode()
+    c.signed("PUT", "/api/v1/access", raw=allow, expect=403)  # not with the factory password
+    # The password: no key asked for (409), junk, a credential that does not unseal (422).
+    c.signed("PUT", "/api/v1/password", raw=json.dumps({"public": "00" * 32, "sealed": "00" * 84}).encode(), expect=409)
+    c.signed("PUT", "/api/v1/password", raw=b'{"public":"00"}', expect=400)
+    c.signed("POST", "/api/v1/password/key", expect=200)
+    c.signed("PUT", "/api/v1/password", raw=json.dumps({"public": "11" * 32, "sealed": "22" * 84}).encode(), expect=422)
+    c.call("PUT", "/api/v1/password", raw=b"{}", expect=401)  # unsigned
+    change_password(c, "correct horse battery")
+    c.signed("GET", "/api/v1/access", expect=401)  # the session of the old password ended
+    if c.log_in("correct horse battery") != 200:
+        raise RuntimeError("the new password did not log in")
     c.signed("PUT", "/api/v1/access", raw=json.dumps({"networks": ["10.0.0.0/33"]}).encode(), expect=422)
     five = {"networks": [f"10.{i}.0.0/16" for i in range(5)]}
     c.signed("PUT", "/api/v1/access", raw=json.dumps(five).encode(), expect=422)
-    c.signed("PUT", "/api/v1/access", raw=json.dumps({"networks": ["127.0.0.0/8", "192.0.2.7"]}).encode())
+    c.signed("PUT", "/api/v1/access", raw=allow)
     c.signed("GET", "/api/v1/access", expect=200)
     c.signed("PUT", "/api/v1/access", raw=json.dumps({"networks": []}).encode())
     c.call("POST", "/api/v1/restart", expect=401)

@@ -424,23 +424,39 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
                 self.write(table == "registers", addr, signed.body).await
             }
             ("GET", (Some("network"), None, None)) => self.network().await,
-            (method @ ("PUT" | "GET"), (Some(name @ ("network" | "access")), None, None))
-            | (method @ "POST", (Some(name @ "restart"), None, None)) => {
+            (method @ ("PUT" | "GET"), (Some(name @ ("network" | "access" | "password")), None, None))
+            | (method @ "POST", (Some(name @ ("restart" | "password")), None | Some("key"), None)) => {
                 // Reading the allow-list needs a session too (discovery shows it only with the
                 // password); every other read here is open.
-                if let Err(why) = self.verify(signed).await {
-                    return Answer::error(StatusCode::UNAUTHORIZED, why, None);
-                }
-                match (method, name) {
-                    ("PUT", "network") => self.set_network(signed.body).await,
-                    ("GET", _) => self.access().await,
-                    ("PUT", _) => self.set_access(signed.body).await,
-                    _ => self.restart(),
+                let verified = match self.verify(signed).await {
+                    Ok(verified) => verified,
+                    Err(why) => return Answer::error(StatusCode::UNAUTHORIZED, why, None),
+                };
+                match (method, name, resource.1) {
+                    ("PUT", "network", _) => self.set_network(signed.body).await,
+                    ("GET", "access", _) => self.access().await,
+                    // As discovery: the factory password, which anyone knows, does not restrict
+                    // who may write (docs/security.md).
+                    ("PUT", "access", _) if verified.factory => {
+                        Answer::error(StatusCode::FORBIDDEN, "set a password first", None)
+                    }
+                    ("PUT", "access", _) => self.set_access(signed.body).await,
+                    ("POST", "password", Some(_)) => self.password_key(&verified),
+                    ("PUT", "password", _) => self.set_password(&verified, signed.body).await,
+                    ("POST", "restart", None) => self.restart(),
+                    _ => Answer::error(StatusCode::METHOD_NOT_ALLOWED, "method not allowed here", None),
                 }
             }
-            (_, (Some("identity" | "session" | "registers" | "coils" | "network" | "access" | "restart"), _, _)) => {
-                Answer::error(StatusCode::METHOD_NOT_ALLOWED, "method not allowed here", None)
-            }
+            (
+                _,
+                (
+                    Some(
+                        "identity" | "session" | "registers" | "coils" | "network" | "access" | "restart" | "password",
+                    ),
+                    _,
+                    _,
+                ),
+            ) => Answer::error(StatusCode::METHOD_NOT_ALLOWED, "method not allowed here", None),
             (_, (Some(name), a, b)) => {
                 let Some(r) = resources::of(self.identity.model).iter().find(|r| r.name == name) else {
                     return Answer::error(StatusCode::NOT_FOUND, "no such resource", None);

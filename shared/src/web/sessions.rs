@@ -100,6 +100,10 @@ pub enum Refusal {
 pub struct Verified {
     /// The session was opened with the factory password (which allows less, docs/security.md).
     pub factory: bool,
+    /// The session's id.
+    pub session: [u8; SESSION_ID_LEN],
+    /// The session's key (to prove what the module answers to it).
+    pub key: [u8; KEY_LEN],
 }
 
 #[derive(Clone, Copy)]
@@ -210,7 +214,7 @@ impl Sessions {
         }
         session.counter = counter;
         session.last_ms = now_ms;
-        Ok(Verified { factory: session.factory })
+        Ok(Verified { factory: session.factory, session: session.id, key: session.key })
     }
 
     /// Ends session `id` (a signed logout; also when the password changes: [`end_all`](Self::end_all)).

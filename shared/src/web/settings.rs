@@ -1,21 +1,27 @@
 //! The module's settings that are no registers, in the web console's API (docs/web.md): the
-//! network settings and the Modbus write allow-list, as discovery shows and sets them
-//! (extensions §4), and the restart that puts new network settings in force. Each change is a
+//! network settings, the Modbus write allow-list and the configuration password, as discovery
+//! shows and sets them (extensions §4), and the restart that puts new network settings in
+//! force. Each change is a
 //! signed request of a logged-in session, committed to flash all or nothing as discovery
 //! commits it (the old settings stay in force when the flash refuses).
 
+use core::cell::Cell;
 use core::fmt::Write as _;
 use core::net::Ipv4Addr;
 use core::sync::atomic::{AtomicBool, Ordering};
 
-use embassy_sync::blocking_mutex::raw::RawMutex;
+use embassy_sync::blocking_mutex::raw::{CriticalSectionRawMutex, RawMutex};
+use embassy_sync::blocking_mutex::Mutex as Blocking;
 use embedded_storage_async::nor_flash::NorFlash;
 use picoserve::response::StatusCode;
 use remodaq_protocol::access::{AllowList, Network, MAX_NETWORKS};
+use remodaq_protocol::auth::{seal, x25519, Credential, BASE_POINT, CREDENTIAL_LEN, KEY_LEN};
 use remodaq_protocol::net::NetConfig;
+use remodaq_protocol::web::{agreement_proof, hex, unhex, PASSWORD_SEAL_LABEL, SESSION_ID_LEN};
 use serde::Deserialize;
 
 use super::service::{Answer, Api};
+use super::Verified;
 use crate::discovery::NETWORK_STORED;
 use crate::modbus::RegisterMap;
 use crate::module::{commit_change, CommonSettings as _, SettingsAccess};
@@ -26,6 +32,18 @@ static RESTART: AtomicBool = AtomicBool::new(false);
 /// Whether a restart was asked for (and the request forgotten: a board asks once a connection).
 pub fn restart_requested() -> bool {
     RESTART.swap(false, Ordering::AcqRel)
+}
+
+/// The ephemeral X25519 key offered for a password change: its secret, its public key and the
+/// session it was offered to. One at a time; used once.
+type Agreement = ([u8; KEY_LEN], [u8; KEY_LEN], [u8; SESSION_ID_LEN]);
+static AGREEMENT: Blocking<CriticalSectionRawMutex, Cell<Option<Agreement>>> = Blocking::new(Cell::new(None));
+
+/// The body of `PUT /api/v1/password`: the page's public key and the sealed credential.
+#[derive(Deserialize)]
+struct PasswordBody<'a> {
+    public: &'a str,
+    sealed: &'a str,
 }
 
 /// The body of `PUT /api/v1/network`: every field, as `GET` shows them.
@@ -158,6 +176,52 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
                 Answer::error(StatusCode::UNPROCESSABLE_ENTITY, "at most 4 networks, a.b.c.d/n each", Some("networks"))
             }
         }
+    }
+
+    /// `POST /api/v1/password/key` (signed): a new ephemeral key for this session's password
+    /// change, proved with the session key.
+    pub(super) fn password_key(&self, verified: &Verified) -> Answer {
+        let mut secret = [0u8; KEY_LEN];
+        crate::password::AUTH.random(&(self.now_ms)().to_le_bytes(), &mut secret);
+        let public = x25519(&secret, &BASE_POINT);
+        AGREEMENT.lock(|a| a.set(Some((secret, public, verified.session))));
+        let (mut key, mut proof) = ([0u8; 2 * KEY_LEN], [0u8; 2 * KEY_LEN]);
+        let mut a = Answer::new(StatusCode::OK);
+        let _ = write!(
+            a.json,
+            "{{\"public\":\"{}\",\"proof\":\"{}\"}}",
+            hex(&public, &mut key).unwrap_or(""),
+            hex(&agreement_proof(&verified.key, &public), &mut proof).unwrap_or("")
+        );
+        a
+    }
+
+    /// `PUT /api/v1/password` (signed): the new credential, sealed under the key agreed with
+    /// this session's ephemeral key (used once). Every session ends with the old password.
+    pub(super) async fn set_password(&self, verified: &Verified, body: &[u8]) -> Answer {
+        let Ok((b, _)) = serde_json_core::from_slice::<PasswordBody<'_>>(body) else {
+            return Answer::error(StatusCode::BAD_REQUEST, "expected {public, sealed}", None);
+        };
+        let (Some(public), Some(mut bytes)) = (unhex::<KEY_LEN>(b.public), unhex::<CREDENTIAL_LEN>(b.sealed)) else {
+            return Answer::error(StatusCode::BAD_REQUEST, "the public key is 64 hex digits, the credential 168", None);
+        };
+        let Some((secret, module_public, _)) =
+            AGREEMENT.lock(|a| a.take()).filter(|(.., session)| *session == verified.session)
+        else {
+            return Answer::error(StatusCode::CONFLICT, "ask for the module's key first", None);
+        };
+        let shared = x25519(&secret, &public);
+        seal(&shared, &[PASSWORD_SEAL_LABEL, &module_public], &mut bytes);
+        let new = Credential::decode(&bytes);
+        if !new.is_acceptable() || new.is_factory() {
+            return Answer::error(StatusCode::UNPROCESSABLE_ENTITY, "not a usable password", Some("sealed"));
+        }
+        let answer = self.commit(|s| s.set_password(new)).await;
+        if answer.status == StatusCode::NO_CONTENT {
+            crate::diagnostics::DIAGNOSTICS.factory_password(false);
+            crate::info!("web: password changed");
+        }
+        answer
     }
 
     /// `POST /api/v1/restart` (signed): the module restarts once this answer is sent.

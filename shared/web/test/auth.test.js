@@ -114,6 +114,44 @@ check("an iteration count outside 4096..10000000 is refused", async (auth) => {
   await assert.rejects(auth.deriveKeys("pencil", salt, "4096"));
 });
 
+once("X25519: RFC 7748 §5.2's first vector and §6.1's Diffie-Hellman", async () => {
+  const x = base.x25519;
+  assert.equal(
+    hex(x(unhex("a546e36bf0527c9d3b16154b82465edd62144c0ac1fc5a18506a2244ba449ac4"),
+      unhex("e6db6867583030db3594c1a424b15f7c726624ec26b3353b10a903a6d0ab1c4c"))),
+    "c3da55379de9c6908e94ea4df28d084f32eccf03491c71f754b4075577a28552",
+  );
+  const alice = unhex("77076d0a7318a57d3c16c17251b26645df4c2f87ebc0992ab177fba51db92c2a");
+  const bob = unhex("5dab087e624a8a4b79e17f8b83800ee66f3bb1292618b6fd1c2f8b27ff88e0eb");
+  const [alicePublic, bobPublic] = [x(alice, base.BASE_POINT), x(bob, base.BASE_POINT)];
+  assert.equal(hex(alicePublic), "8520f0098930a754748b7ddcb43ef75a0dbf3a0d26381af4eba4a98eaa9b4e6a");
+  assert.equal(hex(bobPublic), "de9edb7d7b7dc1b4d35b61c2ece435373f8343c85b78674dadfc7e146f882b4f");
+  const shared = "4a5d9d5ba4ce2de1728e3bf480350f25e07e21c947d19e3376f09b3c1e161742";
+  assert.equal(hex(x(alice, bobPublic)), shared);
+  assert.equal(hex(x(bob, alicePublic)), shared);
+});
+
+check("a sealed credential as computed with Python: the seal, the credential, the key's proof", async (auth) => {
+  const shared = Uint8Array.from({ length: 32 }, (_, i) => i);
+  const modulePublic = new Uint8Array(32).fill(0x42);
+  const data = Uint8Array.from({ length: 84 }, (_, i) => 100 + i);
+  const sealed = await auth.seal(shared, ["RDAQ web new credential", modulePublic], data);
+  assert.equal(hex(sealed), "2fe610d1451620860e15f40eeee171f4780a94d41804571326568b2078ccd9009856c66f567b17524e10bd85c6a2608b"
+    + "aa2b6e0b4b85aba4b89b34bf1fc608e1e64b1edb3f1a6d6230672252ce289fb6924bbdc9");
+  const credential = await auth.credential("correct horse", bytes("0123456789abcdef"), 4096);
+  assert.equal(hex(credential), "3031323334353637383961626364656600001000b5281eb63616e5242537323124028caf2b83187f129f0e6859c8f5"
+    + "78e5b467226db67574932061868a291d5f535a061e4589ce2f4e418e3253c16e92c6b5b7bd");
+  // The module's key must carry its proof under the session key (Python: b0e3e9...).
+  const session = new Uint8Array(32).fill(7);
+  const proof = unhex("b0e3e936321dd6307ed58076dccb96c71ad1405c59d0a9b2f885c6a3100bf13d");
+  const secret = new Uint8Array(32).fill(9);
+  const done = await auth.sealPassword(session, modulePublic, proof, "correct horse", secret, bytes("0123456789abcdef"), 4096);
+  assert.equal(done.public, hex(base.x25519(secret, base.BASE_POINT)));
+  const forged = Uint8Array.from(proof);
+  forged[0] ^= 1;
+  await assert.rejects(auth.sealPassword(session, modulePublic, forged, "correct horse", secret, bytes("0123456789abcdef"), 4096));
+});
+
 check("hex in and out; junk refused", async (auth) => {
   assert.equal(hex(unhex("00ab1F")), "00ab1f");
   assert.throws(() => unhex("00ab1"));

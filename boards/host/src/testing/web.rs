@@ -5,8 +5,12 @@ use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpStream};
 use std::time::Duration;
 
-use remodaq_protocol::auth::{client_proof, derive, server_signature, KEY_LEN, NONCE_LEN};
-use remodaq_protocol::web::{hex, login_message, request_signature, session_key, unhex, SESSION_ID_LEN};
+use remodaq_protocol::auth::{
+    client_proof, derive, seal, server_signature, x25519, BASE_POINT, CREDENTIAL_LEN, KEY_LEN, NONCE_LEN,
+};
+use remodaq_protocol::web::{
+    agreement_proof, hex, login_message, request_signature, session_key, unhex, PASSWORD_SEAL_LABEL, SESSION_ID_LEN,
+};
 
 /// An HTTP answer: status, body.
 pub struct Answer {
@@ -82,6 +86,30 @@ impl Page {
             ("X-RDAQ-Counter", self.counter.to_string()),
             ("X-RDAQ-Signature", hex(&signature, &mut sig).unwrap_or("").to_string()),
         ]
+    }
+}
+
+impl Page {
+    /// Changes the password as a page does (docs/web.md): the module's ephemeral key, its proof
+    /// checked; the new credential (salt `salt`, 4096 iterations) sealed under the agreed key.
+    /// The answer to the `PUT`.
+    pub fn change_password(&mut self, web: SocketAddr, new: &str, salt: [u8; 16]) -> Answer {
+        let offer = request(web, "POST", "/api/v1/password/key", &self.sign("POST", "/api/v1/password/key", ""), "");
+        assert_eq!(offer.status, 200, "{}", offer.body);
+        let module: [u8; KEY_LEN] = unhex(field(&offer.body, "public")).expect("the module's key");
+        let proof: [u8; KEY_LEN] = unhex(field(&offer.body, "proof")).expect("its proof");
+        assert_eq!(proof, agreement_proof(&self.key, &module), "the key is signed by this session");
+        let secret = [0x5A; KEY_LEN];
+        let (_, credential) = derive(new.as_bytes(), &salt, 4096);
+        let mut sealed = credential.encode();
+        seal(&x25519(&secret, &module), &[PASSWORD_SEAL_LABEL, &module], &mut sealed);
+        let (mut p, mut s) = ([0u8; 64], [0u8; 2 * CREDENTIAL_LEN]);
+        let body = format!(
+            "{{\"public\":\"{}\",\"sealed\":\"{}\"}}",
+            hex(&x25519(&secret, &BASE_POINT), &mut p).unwrap_or(""),
+            hex(&sealed, &mut s).unwrap_or("")
+        );
+        request(web, "PUT", "/api/v1/password", &self.sign("PUT", "/api/v1/password", &body), &body)
     }
 }
 
