@@ -281,13 +281,13 @@ async fn network_settings_allow_list_and_restart() {
     assert!(
         shown
             .body
-            .contains(r#""stored":{"ip":"192.168.0.1","mask":"255.255.255.0","gateway":"0.0.0.0","modbus_port":8000}"#),
+            .contains(r#""stored":{"ip":"192.168.0.1","mask":"255.255.255.0","gateway":"0.0.0.0","modbus_port":8000,"http_port":80}"#),
         "{}",
         shown.body
     );
     assert!(shown.body.contains(r#""restart_needed":false"#), "{}", shown.body);
 
-    let new = r#"{"ip":"192.0.2.10","mask":"255.255.255.0","gateway":"192.0.2.1","modbus_port":8000}"#;
+    let new = r#"{"ip":"192.0.2.10","mask":"255.255.255.0","gateway":"192.0.2.1","modbus_port":8000,"http_port":8080}"#;
     // Unsigned: refused, nothing stored. The allow-list is not shown without a session.
     expect_refused(request(web, "PUT", "/api/v1/network", &[], new), "unsigned", 401);
     assert_eq!(request(web, "GET", "/api/v1/access", &[], "").status, 401);
@@ -296,10 +296,15 @@ async fn network_settings_allow_list_and_restart() {
 
     let mut page = log_in(web, FACTORY_PASSWORD).unwrap_or_else(|a| panic!("login: {} {}", a.status, a.body));
     // A mask that is not contiguous: 422 naming it, nothing stored.
-    let bad = r#"{"ip":"192.0.2.10","mask":"255.0.255.0","gateway":"192.0.2.1","modbus_port":8000}"#;
+    let bad = r#"{"ip":"192.0.2.10","mask":"255.0.255.0","gateway":"192.0.2.1","modbus_port":8000,"http_port":8080}"#;
     let refused = request(web, "PUT", "/api/v1/network", &page.sign("PUT", "/api/v1/network", bad), bad);
     assert_eq!((refused.status, field(&refused.body, "field")), (422, "mask"), "{}", refused.body);
     assert_eq!(stored().0, NetConfig::FACTORY);
+    // The console's port on Modbus's: 422 naming it.
+    let clash =
+        r#"{"ip":"192.0.2.10","mask":"255.255.255.0","gateway":"192.0.2.1","modbus_port":8000,"http_port":8000}"#;
+    let refused = request(web, "PUT", "/api/v1/network", &page.sign("PUT", "/api/v1/network", clash), clash);
+    assert_eq!((refused.status, field(&refused.body, "field")), (422, "http_port"), "{}", refused.body);
     // A usable one: stored (discovery shows it), in force after a restart.
     let changed = request(web, "PUT", "/api/v1/network", &page.sign("PUT", "/api/v1/network", new), new);
     assert_eq!(changed.status, 204, "{}", changed.body);
@@ -307,6 +312,7 @@ async fn network_settings_allow_list_and_restart() {
     assert_eq!(stored().0, expected);
     let shown = request(web, "GET", "/api/v1/network", &[], "");
     assert!(shown.body.contains(r#""restart_needed":true"#), "{}", shown.body);
+    assert!(shown.body.contains(r#""modbus_port":8000,"http_port":8080}"#), "{}", shown.body);
 
     // Not with the factory password, which anyone knows (as discovery: docs/security.md).
     let list = r#"{"networks":["192.0.2.0/24","10.9.8.7"]}"#;

@@ -183,8 +183,9 @@ fuzz_target!(|data: &[u8]| {
     }
     if which & 0xC0 == 0xC0 {
         // The JSON of the network settings and of the allow-list: what is taken is usable.
-        if let Ok(net) = remodaq_shared::web::settings::network_of(rest) {
+        if let Ok((net, http_port)) = remodaq_shared::web::settings::network_of(rest) {
             assert!(net.is_valid(), "{net:?}");
+            assert!(http_port != 0 && http_port != net.port, "{http_port}");
         }
         if let Some(list) = remodaq_shared::web::settings::allow_list_of(rest) {
             assert!(list.iter().all(|n| n.prefix <= 32));

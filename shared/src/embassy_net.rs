@@ -135,7 +135,11 @@ impl<E: Effects> Network for EmbassyNet<E> {
         store: &'static Store<F, A::Settings>,
         identity: Identity,
     ) -> ! {
-        use crate::web::service::{serve_connection, HTTP_BUFFER, PORT};
+        use crate::module::CommonSettings as _;
+        use crate::web::service::{serve_connection, HTTP_BUFFER};
+        // The stored port, in force from the start (a change takes effect at a restart).
+        let port = store.lock().await.get().http_port();
+        crate::web::settings::serving_on(port);
         let mut rx = [0u8; WEB_RX];
         let mut tx = [0u8; WEB_TX];
         let mut buffer = [0u8; HTTP_BUFFER];
@@ -143,7 +147,7 @@ impl<E: Effects> Network for EmbassyNet<E> {
             let mut socket = TcpSocket::new(self.stack, &mut rx, &mut tx);
             // Through the web port's backlog: a browser's parallel connections wait for a task
             // instead of being reset.
-            if let Err(e) = accept(&mut socket, PORT, &crate::backlog::WEB_BACKLOG).await {
+            if let Err(e) = accept(&mut socket, port, &crate::backlog::WEB_BACKLOG).await {
                 debug!("web: accept failed: {:?}", e);
                 continue;
             }

@@ -24,6 +24,10 @@ pub trait CommonSettings: Schema + Copy {
     fn allow_list(&self) -> AllowList;
     /// Changes the Modbus write allow-list.
     fn set_allow_list(&mut self, list: AllowList);
+    /// The web console's TCP port (in force after the next start).
+    fn http_port(&self) -> u16;
+    /// Changes it.
+    fn set_http_port(&mut self, port: u16);
     /// The firmware update security counters (anti-rollback).
     fn update_counter(&self) -> crate::update::Counter;
     /// Changes them.
@@ -118,7 +122,7 @@ where
 }
 
 /// Implements [`CommonSettings`] for a settings struct with the fields `net: NetConfig`,
-/// `password: Credential`, `allow: AllowList` and `update: update::Counter`.
+/// `password: Credential`, `allow: AllowList`, `http_port: u16` and `update: update::Counter`.
 #[macro_export]
 macro_rules! impl_common_settings {
     ($settings:ty) => {
@@ -140,6 +144,12 @@ macro_rules! impl_common_settings {
             }
             fn set_allow_list(&mut self, list: $crate::protocol::access::AllowList) {
                 self.allow = list;
+            }
+            fn http_port(&self) -> u16 {
+                self.http_port
+            }
+            fn set_http_port(&mut self, port: u16) {
+                self.http_port = port;
             }
             fn update_counter(&self) -> $crate::update::Counter {
                 self.update

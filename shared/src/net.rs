@@ -11,6 +11,21 @@ mod tag {
     pub const MASK: u8 = 2;
     pub const GATEWAY: u8 = 3;
     pub const PORT: u8 = 4;
+    pub const HTTP_PORT: u8 = 10;
+}
+
+/// The web console's port from the factory (issue #25: port 80).
+pub const HTTP_PORT: u16 = 80;
+
+/// The web console's port in a settings record.
+pub fn encode_http_port(port: u16, w: &mut RecordWriter<'_>) {
+    w.put_u16(tag::HTTP_PORT, port);
+}
+
+/// The web console's port of a settings record; the factory port if absent (a record of an
+/// image before it) or 0.
+pub fn decode_http_port(r: &RecordReader<'_>) -> u16 {
+    r.u16(tag::HTTP_PORT).filter(|p| *p != 0).unwrap_or(HTTP_PORT)
 }
 
 /// The network settings' fields in a settings record.

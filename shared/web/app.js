@@ -27,7 +27,7 @@
       "front-end fault": "front-end fault", "cold-junction fault": "cold-junction fault",
       thermocouple: "thermocouple", voltage: "voltage", current: "current",
       network: "Network", security: "Security", ip: "IP address", mask: "Subnet mask", gateway: "Gateway",
-      modbus_port: "Modbus/TCP port", stored: "Stored settings", running: "In force now", save: "Save",
+      modbus_port: "Modbus/TCP port", http_port: "Web console port", stored: "Stored settings", running: "In force now", save: "Save",
       restart: "Restart the module", "restart needed": "New settings are stored: they take effect after a restart.",
       restarting: "The module restarts. Open it again at its new address if you changed it.",
       "allow-list": "Modbus write allow-list", networks: "Networks (a.b.c.d/n), empty: any client may write",
@@ -59,7 +59,7 @@
       "front-end fault": "前端故障", "cold-junction fault": "冷端故障",
       thermocouple: "热电偶", voltage: "电压", current: "电流",
       network: "网络", security: "安全", ip: "IP 地址", mask: "子网掩码", gateway: "网关",
-      modbus_port: "Modbus/TCP 端口", stored: "已保存的设置", running: "当前生效", save: "保存",
+      modbus_port: "Modbus/TCP 端口", http_port: "网页控制台端口", stored: "已保存的设置", running: "当前生效", save: "保存",
       restart: "重启模块", "restart needed": "新设置已保存，重启后生效。",
       restarting: "模块正在重启。如已更改地址，请用新地址重新打开。",
       "allow-list": "Modbus 写入白名单", networks: "网络 (a.b.c.d/n)，为空时任何客户端都可写入",
@@ -328,10 +328,11 @@
     async network() {
       const n = await get("network");
       const form = {};
-      const keys = ["ip", "mask", "gateway", "modbus_port"];
+      const keys = ["ip", "mask", "gateway", "modbus_port", "http_port"];
       const save = () => {
         const net = Object.fromEntries(keys.map((k) => [k, form[k].value.trim()]));
         net.modbus_port = Number(net.modbus_port);
+        net.http_port = Number(net.http_port);
         signed("PUT", "network", undefined, net).then(() => { say(t("saved")); show(true); }, () => {});
       };
       const r = n.running;
@@ -341,7 +342,8 @@
         el("button", { onclick: save }, t("save")),
         n.restart_needed ? el("p", { class: "error" }, t("restart needed")) : null,
         el("h2", {}, t("running")),
-        el("p", {}, r.ip + " / " + r.mask + ", " + t("gateway") + " " + r.gateway + ", " + t("modbus_port") + " " + r.modbus_port),
+        el("p", {}, r.ip + " / " + r.mask + ", " + t("gateway") + " " + r.gateway + ", " + t("modbus_port") + " "
+          + r.modbus_port + ", " + t("http_port") + " " + r.http_port),
         el("button", { onclick: () => signed("POST", "restart").then(() => say(t("restarting")), () => {}) }, t("restart")),
       ].flat().filter((e) => e);
     },

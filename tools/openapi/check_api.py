@@ -312,10 +312,11 @@ def exercise_settings(c):
     """The network settings, the allow-list, the password and the restart (both modules;
     logged in with the factory password)."""
     c.call("GET", "/api/v1/network")
-    net = {"ip": "192.0.2.10", "mask": "255.255.255.0", "gateway": "192.0.2.1", "modbus_port": 8000}
+    net = {"ip": "192.0.2.10", "mask": "255.255.255.0", "gateway": "192.0.2.1", "modbus_port": 8000, "http_port": 8080}
     c.call("PUT", "/api/v1/network", raw=json.dumps(net).encode(), expect=401)  # unsigned
     c.signed("PUT", "/api/v1/network", raw=json.dumps(dict(net, mask="255.0.255.0")).encode(), expect=422)
     c.signed("PUT", "/api/v1/network", raw=json.dumps(dict(net, ip="127.0.0.2")).encode(), expect=422)
+    c.signed("PUT", "/api/v1/network", raw=json.dumps(dict(net, http_port=8301)).encode(), expect=422)
     c.signed("PUT", "/api/v1/network", raw=b'{"ip":"192.0.2.10"}', expect=400)
     c.signed("PUT", "/api/v1/network", raw=json.dumps(net).encode())
     c.call("GET", "/api/v1/network")

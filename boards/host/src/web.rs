@@ -93,6 +93,10 @@ pub async fn connection_task<M: RegisterMap + SettingsAccess, F: NorFlash>(
     identity: Identity,
 ) {
     let mut buffer = [0u8; HTTP_BUFFER];
+    // The host build serves where its command line says, not at the stored port.
+    if let Ok(addr) = listener.get_ref().local_addr() {
+        remodaq_shared::web::settings::serving_on(addr.port());
+    }
     loop {
         let (stream, peer) = accept(listener, "web").await;
         let served = serve_connection(map, store, identity, ipv4(peer.ip()), Connection(stream), &mut buffer).await;

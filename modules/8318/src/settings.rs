@@ -26,6 +26,8 @@ pub struct Settings {
     pub downscale: bool,
     /// Modbus write allow-list (extensions §4).
     pub allow: AllowList,
+    /// The web console's TCP port (docs/web.md), in force after a restart.
+    pub http_port: u16,
     /// Firmware update security counters (anti-rollback, docs/update.md).
     pub update: remodaq_shared::update::Counter,
 }
@@ -51,6 +53,7 @@ impl Schema for Settings {
             enable_mask: 0xFF,
             downscale: false,
             allow: AllowList::EMPTY,
+            http_port: remodaq_shared::net::HTTP_PORT,
             update: remodaq_shared::update::Counter::default(),
         }
     }
@@ -63,6 +66,7 @@ impl Schema for Settings {
         w.put(tag::ENABLE_MASK, &[self.enable_mask]);
         w.put(tag::OPEN_VALUE, &[u8::from(self.downscale)]);
         access::encode(&self.allow, w);
+        remodaq_shared::net::encode_http_port(self.http_port, w);
         self.update.encode(w);
     }
 
@@ -84,6 +88,7 @@ impl Schema for Settings {
             enable_mask: r.array::<1>(tag::ENABLE_MASK).map(|[m]| m).unwrap_or(d.enable_mask),
             downscale: r.array::<1>(tag::OPEN_VALUE).is_some_and(|[v]| v == 1),
             allow: access::decode(r),
+            http_port: remodaq_shared::net::decode_http_port(r),
             update: remodaq_shared::update::Counter::decode(r),
         }
     }

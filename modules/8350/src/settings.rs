@@ -32,6 +32,8 @@ pub struct Settings {
     pub power_on: u8,
     /// Modbus write allow-list (extensions §4).
     pub allow: AllowList,
+    /// The web console's TCP port (docs/web.md), in force after a restart.
+    pub http_port: u16,
     /// Firmware update security counters (anti-rollback, docs/update.md).
     pub update: remodaq_shared::update::Counter,
 }
@@ -95,6 +97,7 @@ impl Schema for Settings {
             safe: 0,
             power_on: 0,
             allow: AllowList::EMPTY,
+            http_port: remodaq_shared::net::HTTP_PORT,
             update: remodaq_shared::update::Counter::default(),
         }
     }
@@ -112,6 +115,7 @@ impl Schema for Settings {
         w.put(tag::SAFE, &[self.safe]);
         w.put(tag::POWER_ON, &[self.power_on]);
         access::encode(&self.allow, w);
+        remodaq_shared::net::encode_http_port(self.http_port, w);
         self.update.encode(w);
     }
 
@@ -142,6 +146,7 @@ impl Schema for Settings {
         s.safe = values(tag::SAFE);
         s.power_on = values(tag::POWER_ON);
         s.allow = access::decode(r);
+        s.http_port = remodaq_shared::net::decode_http_port(r);
         s.update = remodaq_shared::update::Counter::decode(r);
         s
     }

@@ -41,9 +41,6 @@ pub static SESSIONS: SharedSessions = Blocking::new(RefCell::new(Sessions::new()
 /// Modbus slot).
 pub const CONNECTIONS: usize = 2;
 
-/// The TCP port of the console on a module (issue #25: port 80).
-pub const PORT: u16 = 80;
-
 /// The request head and body together must fit (a larger head: 431 and closed; a larger
 /// body: 413). A login is about 300 bytes of head and 150 of body.
 pub const HTTP_BUFFER: usize = 1536;
@@ -441,8 +438,9 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
                         Answer::error(StatusCode::FORBIDDEN, "set a password first", None)
                     }
                     ("PUT", "access", _) => self.set_access(signed.body).await,
-                    ("POST", "password", Some(_)) => self.password_key(&verified),
-                    ("PUT", "password", _) => self.set_password(&verified, signed.body).await,
+                    // A verified request names its session.
+                    ("POST", "password", Some(_)) => self.password_key(signed.session.unwrap_or_default()),
+                    ("PUT", "password", _) => self.set_password(signed.session.unwrap_or_default(), signed.body).await,
                     ("POST", "restart", None) => self.restart(),
                     _ => Answer::error(StatusCode::METHOD_NOT_ALLOWED, "method not allowed here", None),
                 }
@@ -651,6 +649,9 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
         }
         let mut values = values.iter();
         for n in items {
+            // The executor is shared with Modbus: formatting a long list gives way between
+            // items, so that a Modbus answer waits for one item at most (docs/web.md).
+            embassy_futures::yield_now().await;
             if n > 0 && list {
                 a.json.push(',');
             }

@@ -100,10 +100,6 @@ pub enum Refusal {
 pub struct Verified {
     /// The session was opened with the factory password (which allows less, docs/security.md).
     pub factory: bool,
-    /// The session's id.
-    pub session: [u8; SESSION_ID_LEN],
-    /// The session's key (to prove what the module answers to it).
-    pub key: [u8; KEY_LEN],
 }
 
 #[derive(Clone, Copy)]
@@ -214,7 +210,12 @@ impl Sessions {
         }
         session.counter = counter;
         session.last_ms = now_ms;
-        Ok(Verified { factory: session.factory, session: session.id, key: session.key })
+        Ok(Verified { factory: session.factory })
+    }
+
+    /// The key of live session `id` (to prove what the module answers to it).
+    pub fn key(&self, id: &[u8; SESSION_ID_LEN]) -> Option<[u8; KEY_LEN]> {
+        self.sessions.iter().flatten().find(|s| s.id == *id).map(|s| s.key)
     }
 
     /// Ends session `id` (a signed logout; also when the password changes: [`end_all`](Self::end_all)).

@@ -8,7 +8,7 @@
 use core::cell::Cell;
 use core::fmt::Write as _;
 use core::net::Ipv4Addr;
-use core::sync::atomic::{AtomicBool, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicU16, Ordering};
 
 use embassy_sync::blocking_mutex::raw::{CriticalSectionRawMutex, RawMutex};
 use embassy_sync::blocking_mutex::Mutex as Blocking;
@@ -21,13 +21,21 @@ use remodaq_protocol::web::{agreement_proof, hex, unhex, PASSWORD_SEAL_LABEL, SE
 use serde::Deserialize;
 
 use super::service::{Answer, Api};
-use super::Verified;
 use crate::discovery::NETWORK_STORED;
 use crate::modbus::RegisterMap;
 use crate::module::{commit_change, CommonSettings as _, SettingsAccess};
 
 /// Set by a signed `POST /api/v1/restart`; the board restarts once that connection is closed.
 static RESTART: AtomicBool = AtomicBool::new(false);
+
+/// The port the console is served on since the start (0 until a board serves it).
+static RUNNING_PORT: AtomicU16 = AtomicU16::new(0);
+
+/// Says which port the board serves the console on (the stored one at its start, or the host
+/// build's `--http`).
+pub fn serving_on(port: u16) {
+    RUNNING_PORT.store(port, Ordering::Relaxed);
+}
 
 /// Whether a restart was asked for (and the request forgotten: a board asks once a connection).
 pub fn restart_requested() -> bool {
@@ -53,6 +61,7 @@ struct NetworkBody<'a> {
     mask: &'a str,
     gateway: &'a str,
     modbus_port: u16,
+    http_port: u16,
 }
 
 /// The body of `PUT /api/v1/access`.
@@ -72,9 +81,10 @@ pub enum NetworkError {
     Field(&'static str),
 }
 
-/// The network settings of a `PUT /api/v1/network` body, checked as discovery checks them
-/// ([`NetConfig::is_valid`]), the field at fault named.
-pub fn network_of(body: &[u8]) -> Result<NetConfig, NetworkError> {
+/// The network settings and the console's port of a `PUT /api/v1/network` body, checked as
+/// discovery checks them ([`NetConfig::is_valid`]; the console's port neither 0 nor one of the
+/// module's other TCP ports), the field at fault named.
+pub fn network_of(body: &[u8]) -> Result<(NetConfig, u16), NetworkError> {
     let Ok((b, _)) = serde_json_core::from_slice::<NetworkBody<'_>>(body) else {
         return Err(NetworkError::NotJson);
     };
@@ -87,7 +97,11 @@ pub fn network_of(body: &[u8]) -> Result<NetConfig, NetworkError> {
         port: b.modbus_port,
     };
     if net.is_valid() {
-        return Ok(net);
+        return match b.http_port {
+            0 | remodaq_protocol::update::PORT => Err(NetworkError::Field("http_port")),
+            port if port == net.port => Err(NetworkError::Field("http_port")),
+            port => Ok((net, port)),
+        };
     }
     // Which of is_valid's conditions failed, in its order.
     let field = if !net.prefix_len().is_some_and(|p| (1..=30).contains(&p)) {
@@ -111,14 +125,15 @@ pub fn allow_list_of(body: &[u8]) -> Option<AllowList> {
     AllowList::of(&nets)
 }
 
-fn write_net(a: &mut Answer, net: &NetConfig) {
+fn write_net(a: &mut Answer, net: &NetConfig, http_port: u16) {
     let _ = write!(
         a.json,
-        "{{\"ip\":\"{}\",\"mask\":\"{}\",\"gateway\":\"{}\",\"modbus_port\":{}}}",
+        "{{\"ip\":\"{}\",\"mask\":\"{}\",\"gateway\":\"{}\",\"modbus_port\":{},\"http_port\":{}}}",
         Ipv4Addr::from(net.ip),
         Ipv4Addr::from(net.mask),
         Ipv4Addr::from(net.gateway),
-        net.port
+        net.port,
+        http_port
     );
 }
 
@@ -127,12 +142,15 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
     /// force now, and whether settings were stored since the start (a restart puts them in
     /// force). Anyone may read them, as discovery's search shows them to anyone.
     pub(super) async fn network(&self) -> Answer {
-        let stored = self.map.lock().await.settings().net();
+        let (stored, http_port) = {
+            let map = self.map.lock().await;
+            (map.settings().net(), map.settings().http_port())
+        };
         let mut a = Answer::new(StatusCode::OK);
         a.json.push_str("{\"stored\":");
-        write_net(&mut a, &stored);
+        write_net(&mut a, &stored, http_port);
         a.json.push_str(",\"running\":");
-        write_net(&mut a, &self.identity.running);
+        write_net(&mut a, &self.identity.running, RUNNING_PORT.load(Ordering::Relaxed));
         let _ = write!(a.json, ",\"restart_needed\":{}}}", NETWORK_STORED.load(Ordering::Relaxed));
         a
     }
@@ -140,15 +158,20 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
     /// `PUT /api/v1/network` (signed): stores new network settings, in force after a restart.
     pub(super) async fn set_network(&self, body: &[u8]) -> Answer {
         match network_of(body) {
-            Ok(net) => {
-                let answer = self.commit(|s| s.set_net(net)).await;
+            Ok((net, http_port)) => {
+                let answer = self
+                    .commit(|s| {
+                        s.set_net(net);
+                        s.set_http_port(http_port);
+                    })
+                    .await;
                 if answer.status == StatusCode::NO_CONTENT {
                     NETWORK_STORED.store(true, Ordering::Relaxed);
                 }
                 answer
             }
             Err(NetworkError::NotJson) => {
-                Answer::error(StatusCode::BAD_REQUEST, "expected {ip, mask, gateway, modbus_port}", None)
+                Answer::error(StatusCode::BAD_REQUEST, "expected {ip, mask, gateway, modbus_port, http_port}", None)
             }
             Err(NetworkError::Field(field)) => {
                 Answer::error(StatusCode::UNPROCESSABLE_ENTITY, "not a usable value", Some(field))
@@ -180,25 +203,28 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
 
     /// `POST /api/v1/password/key` (signed): a new ephemeral key for this session's password
     /// change, proved with the session key.
-    pub(super) fn password_key(&self, verified: &Verified) -> Answer {
+    pub(super) fn password_key(&self, session: [u8; SESSION_ID_LEN]) -> Answer {
+        let Some(session_key) = self.sessions.lock(|s| s.borrow().key(&session)) else {
+            return Answer::error(StatusCode::UNAUTHORIZED, "no session", None);
+        };
         let mut secret = [0u8; KEY_LEN];
         crate::password::AUTH.random(&(self.now_ms)().to_le_bytes(), &mut secret);
         let public = x25519(&secret, &BASE_POINT);
-        AGREEMENT.lock(|a| a.set(Some((secret, public, verified.session))));
+        AGREEMENT.lock(|a| a.set(Some((secret, public, session))));
         let (mut key, mut proof) = ([0u8; 2 * KEY_LEN], [0u8; 2 * KEY_LEN]);
         let mut a = Answer::new(StatusCode::OK);
         let _ = write!(
             a.json,
             "{{\"public\":\"{}\",\"proof\":\"{}\"}}",
             hex(&public, &mut key).unwrap_or(""),
-            hex(&agreement_proof(&verified.key, &public), &mut proof).unwrap_or("")
+            hex(&agreement_proof(&session_key, &public), &mut proof).unwrap_or("")
         );
         a
     }
 
     /// `PUT /api/v1/password` (signed): the new credential, sealed under the key agreed with
     /// this session's ephemeral key (used once). Every session ends with the old password.
-    pub(super) async fn set_password(&self, verified: &Verified, body: &[u8]) -> Answer {
+    pub(super) async fn set_password(&self, session: [u8; SESSION_ID_LEN], body: &[u8]) -> Answer {
         let Ok((b, _)) = serde_json_core::from_slice::<PasswordBody<'_>>(body) else {
             return Answer::error(StatusCode::BAD_REQUEST, "expected {public, sealed}", None);
         };
@@ -206,7 +232,7 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
             return Answer::error(StatusCode::BAD_REQUEST, "the public key is 64 hex digits, the credential 168", None);
         };
         let Some((secret, module_public, _)) =
-            AGREEMENT.lock(|a| a.take()).filter(|(.., session)| *session == verified.session)
+            AGREEMENT.lock(|a| a.take()).filter(|(.., offered_to)| *offered_to == session)
         else {
             return Answer::error(StatusCode::CONFLICT, "ask for the module's key first", None);
         };
@@ -244,13 +270,22 @@ mod tests {
 
     #[test]
     fn network_bodies() {
-        let body = br#"{"ip":"10.0.5.20","mask":"255.255.0.0","gateway":"10.0.0.1","modbus_port":502}"#;
+        let body =
+            br#"{"ip":"10.0.5.20","mask":"255.255.0.0","gateway":"10.0.0.1","modbus_port":502,"http_port":8080}"#;
         let net = network_of(body).expect("usable");
-        assert_eq!(net, NetConfig { ip: [10, 0, 5, 20], mask: [255, 255, 0, 0], gateway: [10, 0, 0, 1], port: 502 });
-        let with = |ip: &str, mask: &str, port: u16| {
-            let body = std::format!(r#"{{"ip":"{ip}","mask":"{mask}","gateway":"0.0.0.0","modbus_port":{port}}}"#);
+        let expected = NetConfig { ip: [10, 0, 5, 20], mask: [255, 255, 0, 0], gateway: [10, 0, 0, 1], port: 502 };
+        assert_eq!(net, (expected, 8080));
+        let with_ports = |ip: &str, mask: &str, port: u16, http: u16| {
+            let body = std::format!(
+                r#"{{"ip":"{ip}","mask":"{mask}","gateway":"0.0.0.0","modbus_port":{port},"http_port":{http}}}"#
+            );
             network_of(body.as_bytes())
         };
+        let with = |ip: &str, mask: &str, port: u16| with_ports(ip, mask, port, 80);
+        // The console's port: not 0, not Modbus's, not the update service's (8301).
+        for http in [0, 502, 8301] {
+            assert_eq!(with_ports("10.0.0.1", "255.0.0.0", 502, http), Err(NetworkError::Field("http_port")), "{http}");
+        }
         assert_eq!(with("10.0.0.300", "255.0.0.0", 502), Err(NetworkError::Field("ip")));
         assert_eq!(with("127.0.0.5", "255.0.0.0", 502), Err(NetworkError::Field("ip")));
         assert_eq!(with("224.0.0.1", "255.0.0.0", 502), Err(NetworkError::Field("ip")));

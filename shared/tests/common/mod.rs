@@ -126,6 +126,7 @@ pub struct S {
     pub net: NetConfig,
     pub password: remodaq_shared::password::Credential,
     pub allow: AllowList,
+    pub http_port: u16,
     pub update: remodaq_shared::update::Counter,
 }
 
@@ -136,6 +137,7 @@ impl Schema for S {
             net: NetConfig::FACTORY,
             password: remodaq_shared::password::Credential::FACTORY,
             allow: AllowList::EMPTY,
+            http_port: remodaq_shared::net::HTTP_PORT,
             update: Default::default(),
         }
     }
@@ -143,6 +145,7 @@ impl Schema for S {
         self.net.encode(w);
         remodaq_shared::password::encode(&self.password, w);
         remodaq_shared::access::encode(&self.allow, w);
+        remodaq_shared::net::encode_http_port(self.http_port, w);
         self.update.encode(w);
     }
     fn decode(version: u8, r: &RecordReader<'_>) -> Self {
@@ -150,6 +153,7 @@ impl Schema for S {
             net: NetConfig::decode(r),
             password: remodaq_shared::password::decode(version, r),
             allow: remodaq_shared::access::decode(r),
+            http_port: remodaq_shared::net::decode_http_port(r),
             update: remodaq_shared::update::Counter::decode(r),
         }
     }
