@@ -26,7 +26,9 @@ impl NetConfig {
         (m.checked_shl(len).unwrap_or(0) == 0).then_some(len as u8)
     }
 
-    /// A usable configuration: contiguous mask, unicast address, non-zero port.
+    /// A usable configuration: contiguous mask, unicast address, a Modbus port that is neither
+    /// 0 nor the firmware update service's (two services on one TCP port would take each
+    /// other's connections).
     pub fn is_valid(&self) -> bool {
         let ip = u32::from_be_bytes(self.ip);
         self.prefix_len().is_some_and(|p| (1..=30).contains(&p))
@@ -34,6 +36,7 @@ impl NetConfig {
             && self.ip[0] < 224
             && self.ip[0] != 127
             && self.port != 0
+            && self.port != crate::update::PORT
     }
 
     /// Whether `ip` is on this configuration's subnet.
@@ -55,5 +58,6 @@ mod tests {
         assert_eq!(bad.prefix_len(), None);
         assert!(!bad.is_valid());
         assert!(!NetConfig { port: 0, ..NetConfig::FACTORY }.is_valid());
+        assert!(!NetConfig { port: 8301, ..NetConfig::FACTORY }.is_valid(), "the update service's port");
     }
 }

@@ -158,7 +158,8 @@ impl Service {
         now_ms: u64,
     ) -> Status {
         match command {
-            Command::SetNetwork(net) if net.is_valid() => {
+            // Not on the console's port either (the web console's own check: web::settings).
+            Command::SetNetwork(net) if net.is_valid() && net.port != current.http_port() => {
                 let status = commit(map, store, |s| s.set_net(net)).await;
                 if status == Status::Ok {
                     NETWORK_STORED.store(true, core::sync::atomic::Ordering::Relaxed);

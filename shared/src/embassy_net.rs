@@ -155,11 +155,12 @@ impl<E: Effects> Network for EmbassyNet<E> {
             socket.set_timeout(Some(WEB_IDLE));
             let from = peer(&socket);
             // picoserve closes the connection (or aborts it on an error or a timeout).
-            if serve_connection(map, store, identity, from, socket, &mut buffer).await.is_err() {
+            let served = serve_connection(map, store, identity, from, socket, &mut buffer).await;
+            if served.result.is_err() {
                 debug!("web: a connection ended in an error or a timeout");
             }
             // A signed restart request was answered and its connection closed.
-            if crate::web::settings::restart_requested() {
+            if served.restart {
                 self.restart().await;
             }
         }

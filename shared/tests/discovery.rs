@@ -304,6 +304,14 @@ fn invalid_settings_and_failed_commits() {
     let (mut service, mut module) = setup();
     let bad = NetConfig { mask: [255, 0, 255, 0], ..NEW_NET };
     assert_eq!(status_of(run(&mut service, &mut module, ADMIN, 0, "remodaq", Ask::SetNetwork(bad))), Status::Invalid);
+    // Modbus on another service's TCP port: the update service's (8301), the console's (its
+    // factory port 80).
+    for port in [8301, 80] {
+        let clash = NetConfig { port, ..NEW_NET };
+        let answer = run(&mut service, &mut module, ADMIN, 10, "remodaq", Ask::SetNetwork(clash));
+        assert_eq!(status_of(answer), Status::Invalid, "port {port}");
+    }
+    assert_eq!(module.settings().net, SPEC_FACTORY);
     module.fail_commits();
     let failed = run(&mut service, &mut module, ADMIN, 100, "remodaq", Ask::SetNetwork(NEW_NET));
     assert_eq!(status_of(failed), Status::StoreFailed);

@@ -370,10 +370,13 @@
       }
       const pw = {};
       const input = (name) => (pw[name] = el("input", { type: "password", "aria-label": name, autocomplete: "new-password" }));
-      const change = async () => {
+      const change = async (event) => {
         const [first, second] = [pw.new_password.value, pw.repeat_password.value];
         if (first.length < 8) return say(t("too short"), true);
         if (first !== second) return say(t("not the same"), true);
+        // One change at a time: a second would replace the module's key the first sealed for.
+        const button = event.currentTarget;
+        button.disabled = true;
         try {
           const s = session;
           const offer = await signed("POST", "password/key");
@@ -391,6 +394,8 @@
           show(true);
         } catch (e) {
           // Said where it failed.
+        } finally {
+          button.disabled = false;
         }
       };
       parts.push(el("label", {}, t("new_password") + " ", input("new_password")),

@@ -262,7 +262,7 @@
       if (hex(expected) !== hex(proofOfKey)) throw new Error("the module's key is not signed by this session");
       const shared = x25519(secret, modulePublic);
       const sealed = await seal(shared, ["RDAQ web new credential", modulePublic], await credential(password, salt, iterations));
-      return { public: hex(x25519(secret, BASE_POINT)), sealed: hex(sealed) };
+      return { module: hex(modulePublic), public: hex(x25519(secret, BASE_POINT)), sealed: hex(sealed) };
     }
 
     return {

@@ -304,7 +304,7 @@ def change_password(c, new):
                   + hmac.new(salted, b"Server Key", hashlib.sha256).digest())
     sealed = seal(x25519(secret, module), b"RDAQ web new credential" + module, credential)
     public = x25519(secret, (9).to_bytes(32, "little"))
-    body = json.dumps({"public": public.hex(), "sealed": sealed.hex()}).encode()
+    body = json.dumps({"module": module.hex(), "public": public.hex(), "sealed": sealed.hex()}).encode()
     c.signed("PUT", "/api/v1/password", raw=body)
 
 
@@ -325,10 +325,14 @@ def exercise_settings(c):
     allow = json.dumps({"networks": ["127.0.0.0/8", "192.0.2.7"]}).encode()
     c.signed("PUT", "/api/v1/access", raw=allow, expect=403)  # not with the factory password
     # The password: no key asked for (409), junk, a credential that does not unseal (422).
-    c.signed("PUT", "/api/v1/password", raw=json.dumps({"public": "00" * 32, "sealed": "00" * 84}).encode(), expect=409)
+    junk = {"module": "00" * 32, "public": "11" * 32, "sealed": "22" * 84}
+    c.signed("PUT", "/api/v1/password", raw=json.dumps(junk).encode(), expect=409)
     c.signed("PUT", "/api/v1/password", raw=b'{"public":"00"}', expect=400)
-    c.signed("POST", "/api/v1/password/key", expect=200)
-    c.signed("PUT", "/api/v1/password", raw=json.dumps({"public": "11" * 32, "sealed": "22" * 84}).encode(), expect=422)
+    offer = json.loads(c.signed("POST", "/api/v1/password/key", expect=200)[1])
+    # Sealed for another key than the one offered (an older offer's): refused, the offer kept.
+    c.signed("PUT", "/api/v1/password", raw=json.dumps(junk).encode(), expect=409)
+    junk["module"] = offer["public"]
+    c.signed("PUT", "/api/v1/password", raw=json.dumps(junk).encode(), expect=422)
     c.call("PUT", "/api/v1/password", raw=b"{}", expect=401)  # unsigned
     change_password(c, "correct horse battery")
     c.signed("GET", "/api/v1/access", expect=401)  # the session of the old password ended

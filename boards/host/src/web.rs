@@ -100,10 +100,10 @@ pub async fn connection_task<M: RegisterMap + SettingsAccess, F: NorFlash>(
     loop {
         let (stream, peer) = accept(listener, "web").await;
         let served = serve_connection(map, store, identity, ipv4(peer.ip()), Connection(stream), &mut buffer).await;
-        if let Err(e) = served {
+        if let Err(e) = served.result {
             log::debug!("web: {peer}: {e:?}");
         }
-        if remodaq_shared::web::settings::restart_requested() {
+        if served.restart {
             return;
         }
     }

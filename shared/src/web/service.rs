@@ -5,7 +5,7 @@
 //! all-or-nothing commits, so the API and Modbus cannot disagree. Every state-changing request
 //! needs a session and a signature ([`super::Sessions::verify`]).
 
-use core::cell::RefCell;
+use core::cell::{Cell, RefCell};
 use core::fmt::Write as _;
 
 use embassy_sync::blocking_mutex::raw::{CriticalSectionRawMutex, RawMutex};
@@ -74,6 +74,15 @@ pub async fn write_with_buffer<W: embedded_io_async::Write, F: FnOnce(picoserve:
     writer.write_all(buffer.filled()).await.map(|()| output)
 }
 
+/// How a connection ended.
+pub struct Served<E: embedded_io_async::Error> {
+    /// A signed restart request of this connection was answered: restart now (the connection
+    /// is closed; the other connection's requests never set this).
+    pub restart: bool,
+    /// The connection's end: an error or a timeout of picoserve's.
+    pub result: Result<(), picoserve::Error<E>>,
+}
+
 /// Serves one connection (`socket`, from the client at `peer`) with the module's API, in
 /// `buffer`; every board's connection task calls this.
 pub async fn serve_connection<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash, S: Socket<EmbassyRuntime>>(
@@ -83,16 +92,18 @@ pub async fn serve_connection<R: RawMutex, M: RegisterMap + SettingsAccess, F: N
     peer: [u8; 4],
     socket: S,
     buffer: &mut [u8; HTTP_BUFFER],
-) -> Result<(), picoserve::Error<S::Error>> {
-    let api = Api { map, store, identity, sessions: &SESSIONS, peer, now_ms };
+) -> Served<S::Error> {
+    let restart = Cell::new(false);
+    let api = Api { map, store, identity, sessions: &SESSIONS, peer, now_ms, restart: &restart };
     let app = Router::from_service(api);
     let serve = picoserve::Server::custom(&app, picoserve::time::EmbassyTimer, &CONFIG, buffer).serve(socket);
     // picoserve's timeouts bound each read and write, not a client that reads its answer a byte
     // at a time: the whole connection is bounded too (dropping it closes the socket).
-    match embassy_time::with_timeout(CONNECTION_MAX, serve).await {
+    let result = match embassy_time::with_timeout(CONNECTION_MAX, serve).await {
         Ok(served) => served.map(|_| ()),
         Err(_) => Ok(()),
-    }
+    };
+    Served { restart: restart.get(), result }
 }
 
 /// The longest a connection is served: one request (5 s to start, 3 s to arrive), its answer,
@@ -142,6 +153,9 @@ pub struct Api<'a, R: RawMutex, M: SettingsAccess, F: NorFlash> {
     pub peer: [u8; 4],
     /// The milliseconds since start, now.
     pub now_ms: fn() -> u64,
+    /// Set by a signed restart request: the connection's task restarts the module once its
+    /// answer is sent.
+    pub restart: &'a Cell<bool>,
 }
 
 /// A JSON text being written: once a piece did not fit, it is marked cut (and answered as an

@@ -8,7 +8,7 @@
 use core::cell::Cell;
 use core::fmt::Write as _;
 use core::net::Ipv4Addr;
-use core::sync::atomic::{AtomicBool, AtomicU16, Ordering};
+use core::sync::atomic::{AtomicU16, Ordering};
 
 use embassy_sync::blocking_mutex::raw::{CriticalSectionRawMutex, RawMutex};
 use embassy_sync::blocking_mutex::Mutex as Blocking;
@@ -25,9 +25,6 @@ use crate::discovery::NETWORK_STORED;
 use crate::modbus::RegisterMap;
 use crate::module::{commit_change, CommonSettings as _, SettingsAccess};
 
-/// Set by a signed `POST /api/v1/restart`; the board restarts once that connection is closed.
-static RESTART: AtomicBool = AtomicBool::new(false);
-
 /// The port the console is served on since the start (0 until a board serves it).
 static RUNNING_PORT: AtomicU16 = AtomicU16::new(0);
 
@@ -37,19 +34,16 @@ pub fn serving_on(port: u16) {
     RUNNING_PORT.store(port, Ordering::Relaxed);
 }
 
-/// Whether a restart was asked for (and the request forgotten: a board asks once a connection).
-pub fn restart_requested() -> bool {
-    RESTART.swap(false, Ordering::AcqRel)
-}
-
 /// The ephemeral X25519 key offered for a password change: its secret, its public key and the
 /// session it was offered to. One at a time; used once.
 type Agreement = ([u8; KEY_LEN], [u8; KEY_LEN], [u8; SESSION_ID_LEN]);
 static AGREEMENT: Blocking<CriticalSectionRawMutex, Cell<Option<Agreement>>> = Blocking::new(Cell::new(None));
 
-/// The body of `PUT /api/v1/password`: the page's public key and the sealed credential.
+/// The body of `PUT /api/v1/password`: the module's ephemeral key it was sealed for, the
+/// page's public key and the sealed credential.
 #[derive(Deserialize)]
 struct PasswordBody<'a> {
+    module: &'a str,
     public: &'a str,
     sealed: &'a str,
 }
@@ -76,8 +70,9 @@ struct AccessBody<'a> {
 pub enum NetworkError {
     /// The body is no JSON object of the four fields.
     NotJson,
-    /// This field's value is not usable (an address that is no unicast host address, a mask
-    /// that is not contiguous or leaves no hosts, port 0).
+    /// This field's value is not usable (an address that is 0.0.0.0, loopback or multicast,
+    /// a mask that is not contiguous or leaves fewer than 2 host bits, a port that is 0 or
+    /// another service's).
     Field(&'static str),
 }
 
@@ -106,7 +101,7 @@ pub fn network_of(body: &[u8]) -> Result<(NetConfig, u16), NetworkError> {
     // Which of is_valid's conditions failed, in its order.
     let field = if !net.prefix_len().is_some_and(|p| (1..=30).contains(&p)) {
         "mask"
-    } else if net.port == 0 {
+    } else if net.port == 0 || net.port == remodaq_protocol::update::PORT {
         "modbus_port"
     } else {
         "ip"
@@ -226,15 +221,25 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
     /// this session's ephemeral key (used once). Every session ends with the old password.
     pub(super) async fn set_password(&self, session: [u8; SESSION_ID_LEN], body: &[u8]) -> Answer {
         let Ok((b, _)) = serde_json_core::from_slice::<PasswordBody<'_>>(body) else {
-            return Answer::error(StatusCode::BAD_REQUEST, "expected {public, sealed}", None);
+            return Answer::error(StatusCode::BAD_REQUEST, "expected {module, public, sealed}", None);
         };
-        let (Some(public), Some(mut bytes)) = (unhex::<KEY_LEN>(b.public), unhex::<CREDENTIAL_LEN>(b.sealed)) else {
-            return Answer::error(StatusCode::BAD_REQUEST, "the public key is 64 hex digits, the credential 168", None);
-        };
-        let Some((secret, module_public, _)) =
-            AGREEMENT.lock(|a| a.take()).filter(|(.., offered_to)| *offered_to == session)
+        let (Some(sealed_for), Some(public), Some(mut bytes)) =
+            (unhex::<KEY_LEN>(b.module), unhex::<KEY_LEN>(b.public), unhex::<CREDENTIAL_LEN>(b.sealed))
         else {
-            return Answer::error(StatusCode::CONFLICT, "ask for the module's key first", None);
+            return Answer::error(StatusCode::BAD_REQUEST, "the keys are 64 hex digits, the credential 168", None);
+        };
+        // Only the key offered to this session, and only for a credential sealed for that very
+        // key: one sealed for an earlier key would open to random bytes, a password nobody
+        // knows. Another session's request leaves the key in place.
+        let offered = AGREEMENT.lock(|a| match a.get() {
+            Some((secret, module_public, offered_to)) if offered_to == session && module_public == sealed_for => {
+                a.set(None);
+                Some((secret, module_public))
+            }
+            _ => None,
+        });
+        let Some((secret, module_public)) = offered else {
+            return Answer::error(StatusCode::CONFLICT, "ask for the module's key first", Some("module"));
         };
         let shared = x25519(&secret, &public);
         seal(&shared, &[PASSWORD_SEAL_LABEL, &module_public], &mut bytes);
@@ -250,9 +255,10 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
         answer
     }
 
-    /// `POST /api/v1/restart` (signed): the module restarts once this answer is sent.
+    /// `POST /api/v1/restart` (signed): the module restarts once this answer is sent and the
+    /// connection closed (by this connection's task: see [`super::service::Served`]).
     pub(super) fn restart(&self) -> Answer {
-        RESTART.store(true, Ordering::Release);
+        self.restart.set(true);
         Answer::accepted()
     }
 
@@ -292,6 +298,7 @@ mod tests {
         assert_eq!(with("10.0.0.1", "255.0.255.0", 502), Err(NetworkError::Field("mask")));
         assert_eq!(with("10.0.0.1", "255.255.255.254", 502), Err(NetworkError::Field("mask")));
         assert_eq!(with("10.0.0.1", "255.0.0.0", 0), Err(NetworkError::Field("modbus_port")));
+        assert_eq!(with("10.0.0.1", "255.0.0.0", 8301), Err(NetworkError::Field("modbus_port")));
         assert_eq!(network_of(br#"{"ip":"10.0.0.1"}"#), Err(NetworkError::NotJson));
     }
 

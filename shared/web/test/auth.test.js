@@ -147,6 +147,7 @@ check("a sealed credential as computed with Python: the seal, the credential, th
   const secret = new Uint8Array(32).fill(9);
   const done = await auth.sealPassword(session, modulePublic, proof, "correct horse", secret, bytes("0123456789abcdef"), 4096);
   assert.equal(done.public, hex(base.x25519(secret, base.BASE_POINT)));
+  assert.equal(done.module, hex(modulePublic), "says which of the module's keys it was sealed for");
   const forged = Uint8Array.from(proof);
   forged[0] ^= 1;
   await assert.rejects(auth.sealPassword(session, modulePublic, forged, "correct horse", secret, bytes("0123456789abcdef"), 4096));

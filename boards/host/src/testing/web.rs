@@ -94,18 +94,31 @@ impl Page {
     /// checked; the new credential (salt `salt`, 4096 iterations) sealed under the agreed key.
     /// The answer to the `PUT`.
     pub fn change_password(&mut self, web: SocketAddr, new: &str, salt: [u8; 16]) -> Answer {
+        let module = self.password_key(web);
+        self.put_password(web, &module, new, salt)
+    }
+
+    /// The module's ephemeral key for a password change (`POST /api/v1/password/key`), its
+    /// proof checked against this session's key.
+    pub fn password_key(&mut self, web: SocketAddr) -> [u8; KEY_LEN] {
         let offer = request(web, "POST", "/api/v1/password/key", &self.sign("POST", "/api/v1/password/key", ""), "");
         assert_eq!(offer.status, 200, "{}", offer.body);
         let module: [u8; KEY_LEN] = unhex(field(&offer.body, "public")).expect("the module's key");
         let proof: [u8; KEY_LEN] = unhex(field(&offer.body, "proof")).expect("its proof");
         assert_eq!(proof, agreement_proof(&self.key, &module), "the key is signed by this session");
+        module
+    }
+
+    /// `PUT /api/v1/password`: the new credential sealed for the module's key `module`.
+    pub fn put_password(&mut self, web: SocketAddr, module: &[u8; KEY_LEN], new: &str, salt: [u8; 16]) -> Answer {
         let secret = [0x5A; KEY_LEN];
         let (_, credential) = derive(new.as_bytes(), &salt, 4096);
         let mut sealed = credential.encode();
-        seal(&x25519(&secret, &module), &[PASSWORD_SEAL_LABEL, &module], &mut sealed);
-        let (mut p, mut s) = ([0u8; 64], [0u8; 2 * CREDENTIAL_LEN]);
+        seal(&x25519(&secret, module), &[PASSWORD_SEAL_LABEL, module], &mut sealed);
+        let (mut m, mut p, mut s) = ([0u8; 64], [0u8; 64], [0u8; 2 * CREDENTIAL_LEN]);
         let body = format!(
-            "{{\"public\":\"{}\",\"sealed\":\"{}\"}}",
+            "{{\"module\":\"{}\",\"public\":\"{}\",\"sealed\":\"{}\"}}",
+            hex(module, &mut m).unwrap_or(""),
             hex(&x25519(&secret, &BASE_POINT), &mut p).unwrap_or(""),
             hex(&sealed, &mut s).unwrap_or("")
         );
