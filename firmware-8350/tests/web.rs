@@ -13,6 +13,7 @@ use remodaq_board_host::testing::web::{field, log_in, number, request, request_t
 use remodaq_board_host::testing::SimModule;
 use remodaq_protocol::auth::FACTORY_PASSWORD;
 use remodaq_protocol::m8350::BIT_DO;
+use remodaq_protocol::update::HEADER_LEN;
 use tokio_modbus::client::{tcp, Reader, Writer as _};
 
 const BIN: &str = env!("CARGO_BIN_EXE_firmware-8350");
@@ -318,6 +319,10 @@ async fn network_settings_allow_list_and_restart() {
     let list = r#"{"networks":["192.0.2.0/24","10.9.8.7"]}"#;
     let factory = request(web, "PUT", "/api/v1/access", &page.sign("PUT", "/api/v1/access", list), list);
     expect_refused(factory, "set a password first", 403);
+    // Nor a firmware upload (as the update service: docs/update.md).
+    let header = "h".repeat(HEADER_LEN);
+    let upload = request(web, "POST", "/api/v1/firmware", &page.sign("POST", "/api/v1/firmware", &header), &header);
+    expect_refused(upload, "set a password first", 403);
     assert_eq!(stored().1 & info_flags::WRITES_RESTRICTED, 0);
     // A password change: without the module's key first, refused; then sealed and stored, and
     // the session of the old password ends.
@@ -359,6 +364,18 @@ async fn network_settings_allow_list_and_restart() {
     let cleared = request(web, "PUT", "/api/v1/access", &page.sign("PUT", "/api/v1/access", empty), empty);
     assert_eq!(cleared.status, 204);
     assert_eq!(stored().1 & info_flags::WRITES_RESTRICTED, 0);
+
+    // Firmware: anyone sees the version; an upload needs a signature; the host build has no
+    // update partition (the QEMU board's upload: tools/browser).
+    let firmware = request(web, "GET", "/api/v1/firmware", &[], "");
+    assert_eq!((firmware.status, firmware.body.as_str()), (200, r#"{"firmware":"A100","updates":false,"chunk":512}"#));
+    expect_refused(request(web, "POST", "/api/v1/firmware", &[], &header), "unsigned", 401);
+    let short = request(web, "POST", "/api/v1/firmware", &page.sign("POST", "/api/v1/firmware", "h"), "h");
+    assert_eq!((short.status, field(&short.body, "field")), (400, "header"), "{}", short.body);
+    let upload = request(web, "POST", "/api/v1/firmware", &page.sign("POST", "/api/v1/firmware", &header), &header);
+    expect_refused(upload, "this module takes no updates here", 503);
+    let chunk = request(web, "PUT", "/api/v1/firmware/0", &page.sign("PUT", "/api/v1/firmware/0", "x"), "x");
+    expect_refused(chunk, "no upload of this session", 409);
 
     // A signed restart: answered, then the module starts again, the stored settings in force
     // (the host build listens where its command line says, not at the stored address).

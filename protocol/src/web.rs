@@ -36,6 +36,11 @@ pub fn agreement_proof(session_key: &[u8; KEY_LEN], public: &[u8; KEY_LEN]) -> [
 /// Bytes of a session id.
 pub const SESSION_ID_LEN: usize = 8;
 
+/// Firmware bytes in one chunk of an upload through the web console (`PUT
+/// /api/v1/firmware/{offset}`): with a browser's request head, within the module's 1536-byte
+/// request buffer.
+pub const FIRMWARE_CHUNK: usize = 512;
+
 /// The request header that names the session (16 hex digits).
 pub const HEADER_SESSION: &str = "X-RDAQ-Session";
 /// The request header with the request's counter (decimal, above the session's last one).

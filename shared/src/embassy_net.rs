@@ -110,10 +110,40 @@ impl<E: Effects> Network for EmbassyNet<E> {
         // Bounded: one session at a time, through these buffers and the service's 1 KiB chunk.
         let mut rx = [0u8; 2048];
         let mut tx = [0u8; 64];
+        // An upload through the web console under way: its header and the bytes written.
+        #[cfg(feature = "web")]
+        let mut upload = None;
         loop {
             let mut socket = TcpSocket::new(self.stack, &mut rx, &mut tx);
-            if !accept_one(&mut socket, crate::update::PORT, "update").await {
+            // The web console's steps are taken between two sessions.
+            #[cfg(feature = "web")]
+            let accepted = {
+                let accepting = accept_one(&mut socket, crate::update::PORT, "update");
+                match embassy_futures::select::select(accepting, crate::update::WEB.next()).await {
+                    embassy_futures::select::Either::First(accepted) => accepted,
+                    embassy_futures::select::Either::Second(step) => {
+                        let done = service.web_step(&step, &mut upload, map, store, target).await;
+                        let updated = matches!(done, Ok(crate::update::WebDone::Updated(_)));
+                        crate::update::WEB.answer(done);
+                        // The console's connection restarts the module once it answered; if it
+                        // cannot, this does, a little later.
+                        if updated {
+                            Timer::after(Duration::from_secs(3)).await;
+                            self.restart().await;
+                        }
+                        continue;
+                    }
+                }
+            };
+            #[cfg(not(feature = "web"))]
+            let accepted = accept_one(&mut socket, crate::update::PORT, "update").await;
+            if !accepted {
                 continue;
+            }
+            // A session of the service rewrites the partition: an upload under way ends.
+            #[cfg(feature = "web")]
+            {
+                upload = None;
             }
             let now_ms = embassy_time::Instant::now().as_millis();
             let from = peer(&socket);

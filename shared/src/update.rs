@@ -193,21 +193,7 @@ impl UpdateService {
             }
             offset += n as u32;
         }
-        let verified = match target.verify(&header).await {
-            // The counter of the image to come, kept until it confirms itself.
-            Ok(()) => match crate::module::commit_change(map, store, |s| {
-                let mut c = s.update_counter();
-                c.pending = header.counter;
-                s.set_update_counter(c);
-            })
-            .await
-            {
-                Ok(()) => target.mark(&header).await,
-                Err(_) => Err(Status::StoreFailed),
-            },
-            Err(status) => Err(status),
-        };
-        match verified {
+        match finish(&header, map, store, target).await {
             Ok(()) => {
                 crate::info!("update: version {:04X} verified and marked", header.version);
                 // Marked: the bootloader swaps it in at the next start, answer sent or not.
@@ -263,17 +249,211 @@ impl UpdateService {
             crate::warn!("update: refused, the factory password is in force");
             return Err(Refused::Late(Status::SetPasswordFirst));
         }
+        self.check_header(header, settings).map_err(Refused::Late)
+    }
+
+    /// An image header, checked: for this model, of a length the update partition holds, and
+    /// its security counter not below the module's (`Downgrade`); `Invalid` otherwise.
+    fn check_header<S: CommonSettings>(&self, header: &[u8; HEADER_LEN], settings: &S) -> Result<Header, Status> {
         match Header::decode(header) {
             Some(h) if h.model == self.model && h.length > 0 && h.length <= self.capacity => {
                 let confirmed = settings.update_counter().confirmed;
                 if h.counter < confirmed {
                     crate::warn!("update: refused, counter {} below the module's {}", h.counter, confirmed);
-                    return Err(Refused::Late(Status::Downgrade));
+                    return Err(Status::Downgrade);
                 }
                 Ok(h)
             }
-            _ => Err(Refused::Late(Status::Invalid)),
+            _ => Err(Status::Invalid),
         }
+    }
+
+    /// Carries out one step of an upload through the web console (its request signed by a
+    /// session of a password that is not the factory one: `web::firmware`), as a session of
+    /// this service would: the header checked and the partition made ready, the firmware
+    /// written a chunk at a time in order, then verified and marked. `upload` is the upload
+    /// under way (its header and the bytes written); a session of this service ends it.
+    #[cfg(feature = "web")]
+    pub async fn web_step<R, A, F, U>(
+        &mut self,
+        step: &WebStep,
+        upload: &mut Option<(Header, u32)>,
+        map: &Mutex<R, A>,
+        store: &Store<F, A::Settings>,
+        target: &mut U,
+    ) -> Result<WebDone, Status>
+    where
+        R: RawMutex,
+        A: SettingsAccess,
+        F: NorFlash,
+        U: UpdateTarget,
+    {
+        match step {
+            WebStep::Begin(bytes) => {
+                *upload = None;
+                let settings = *map.lock().await.settings();
+                let header = self.check_header(bytes, &settings)?;
+                target.begin().await?;
+                crate::info!("update: receiving {} bytes from the web console", header.length);
+                *upload = Some((header, 0));
+                Ok(WebDone::Begun(header))
+            }
+            WebStep::Write { offset, len, data } => {
+                let Some((header, written)) = upload.as_mut() else { return Err(Status::Invalid) };
+                let expected = ((header.length - *written) as usize).min(WEB_CHUNK);
+                if *offset != *written || *len != expected {
+                    return Err(Status::Invalid);
+                }
+                let mut padded = [0xFFu8; WEB_CHUNK];
+                padded[..*len].copy_from_slice(&data[..*len]);
+                let end = len.next_multiple_of(U::WRITE_SIZE).min(WEB_CHUNK);
+                if let Err(status) = target.write(*offset, &padded[..end]).await {
+                    *upload = None;
+                    return Err(status);
+                }
+                *written += *len as u32;
+                Ok(WebDone::Written(*written))
+            }
+            WebStep::Finish => {
+                let Some((header, written)) = upload.take() else { return Err(Status::Invalid) };
+                if written != header.length {
+                    *upload = Some((header, written));
+                    return Err(Status::Invalid);
+                }
+                finish(&header, map, store, target).await?;
+                crate::info!("update: version {:04X} verified and marked (web console)", header.version);
+                Ok(WebDone::Updated(header))
+            }
+        }
+    }
+}
+
+/// Verifies an image written whole, keeps its counter until it confirms itself, and marks it
+/// for the bootloader.
+async fn finish<R, A, F, U>(
+    header: &Header,
+    map: &Mutex<R, A>,
+    store: &Store<F, A::Settings>,
+    target: &mut U,
+) -> Result<(), Status>
+where
+    R: RawMutex,
+    A: SettingsAccess,
+    F: NorFlash,
+    U: UpdateTarget,
+{
+    target.verify(header).await?;
+    // The counter of the image to come, kept until it confirms itself.
+    crate::module::commit_change(map, store, |s| {
+        let mut c = s.update_counter();
+        c.pending = header.counter;
+        s.set_update_counter(c);
+    })
+    .await
+    .map_err(|_| Status::StoreFailed)?;
+    target.mark(header).await
+}
+
+/// Firmware bytes of one chunk of an upload through the web console (`PUT
+/// /api/v1/firmware/{offset}`): a request's head and this fit the console's buffer.
+#[cfg(feature = "web")]
+pub const WEB_CHUNK: usize = remodaq_protocol::web::FIRMWARE_CHUNK;
+
+/// A step of an upload through the web console, for the update task ([`WEB`]).
+#[cfg(feature = "web")]
+pub enum WebStep {
+    /// A new upload: the image's header.
+    Begin([u8; HEADER_LEN]),
+    /// `len` bytes of firmware at `offset`.
+    Write {
+        /// Where in the image.
+        offset: u32,
+        /// How many bytes of `data`.
+        len: usize,
+        /// The bytes.
+        data: [u8; WEB_CHUNK],
+    },
+    /// The whole image is sent: verify and mark it.
+    Finish,
+}
+
+/// What a step did.
+#[cfg(feature = "web")]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WebDone {
+    /// The upload of this image began (the partition ready).
+    Begun(Header),
+    /// Bytes written so far.
+    Written(u32),
+    /// The image is verified and marked: restart into it.
+    Updated(Header),
+}
+
+/// The web console's way to the update task: one step at a time (a lock), carried out between
+/// two sessions of the update service.
+#[cfg(feature = "web")]
+pub struct WebLink {
+    lock: Mutex<embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex, ()>,
+    steps: embassy_sync::channel::Channel<embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex, WebStep, 1>,
+    done: embassy_sync::channel::Channel<
+        embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex,
+        Result<WebDone, Status>,
+        1,
+    >,
+    served: core::sync::atomic::AtomicBool,
+}
+
+/// The link of this module.
+#[cfg(feature = "web")]
+pub static WEB: WebLink = WebLink {
+    lock: Mutex::new(()),
+    steps: embassy_sync::channel::Channel::new(),
+    done: embassy_sync::channel::Channel::new(),
+    served: core::sync::atomic::AtomicBool::new(false),
+};
+
+/// How long a step may take: a sector erase of the STM32 within a chunk's write (a 128 KiB
+/// sector takes 1 to 2 s, the datasheet's flash characteristics), or a whole image's
+/// verification.
+#[cfg(feature = "web")]
+pub const WEB_STEP: Duration = Duration::from_secs(8);
+
+#[cfg(feature = "web")]
+impl WebLink {
+    /// Whether an update task takes steps (a board with a bootloader, its image confirmed).
+    pub fn is_served(&self) -> bool {
+        self.served.load(core::sync::atomic::Ordering::Acquire)
+    }
+
+    /// Has the update task carry out `step`; `None` when no task takes it in time.
+    pub async fn ask(&self, step: WebStep) -> Option<Result<WebDone, Status>> {
+        if !self.is_served() {
+            return None;
+        }
+        let _one = self.lock.lock().await;
+        // An answer to a step whose asker gave up is no answer to this one.
+        self.done.clear();
+        let done = with_timeout(WEB_STEP, async {
+            self.steps.send(step).await;
+            self.done.receive().await
+        })
+        .await
+        .ok();
+        // A step not taken in time is taken back: the asker was told it failed.
+        self.steps.clear();
+        done
+    }
+
+    /// The update task: the next step asked for.
+    pub async fn next(&self) -> WebStep {
+        self.served.store(true, core::sync::atomic::Ordering::Release);
+        self.steps.receive().await
+    }
+
+    /// The update task: what the step did.
+    pub fn answer(&self, done: Result<WebDone, Status>) {
+        self.done.clear();
+        let _ = self.done.try_send(done);
     }
 }
 

@@ -23,6 +23,8 @@ use remodaq_shared::settings::Schema;
 use remodaq_shared::settings::SettingsStore;
 use remodaq_shared::update::Counter;
 use remodaq_shared::update::{BootUpdater, Header, Outcome, Status, UpdateService};
+#[cfg(feature = "web")]
+use remodaq_shared::update::{WebDone, WebStep, WEB_CHUNK};
 use sha2::{Digest, Sha512};
 
 /// The swap's page: larger than the service's 1 KiB chunk, as the boards' 128 KiB sectors are.
@@ -824,4 +826,103 @@ fn confirm_in_boot_swap_and_revert() {
         let (result, _, asked, _) = run(&mut m, false);
         assert_eq!((result, asked), (Confirmation::Confirmed, 0), "start {start}: nothing to confirm");
     }
+}
+
+/// Uploads `file` through the web console's steps (`remodaq_shared::web::firmware`) to a module
+/// with `settings`, chunk by chunk in order; each step's result, and the settings after.
+#[cfg(feature = "web")]
+fn web_upload(
+    m: &mut Module,
+    settings: S,
+    file: &[u8],
+    steps: impl FnOnce(&[u8]) -> Vec<WebStep>,
+) -> (Vec<Result<WebDone, Status>>, S) {
+    let store = store_with(Some(settings));
+    let map = Mutex::<NoopRawMutex, _>::new(Live(settings));
+    let mut aligned = [0u8; 4];
+    let mut target = updater(&mut m.dfu, &mut m.state, &mut aligned);
+    let mut service = UpdateService::new(MODEL, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
+    let mut upload = None;
+    let done = steps(file)
+        .iter()
+        .map(|step| block_on(service.web_step(step, &mut upload, &map, &store, &mut target)))
+        .collect();
+    let after = block_on(map.lock()).0;
+    (done, after)
+}
+
+/// The steps of a whole upload: the header, each chunk in order, the finish.
+#[cfg(feature = "web")]
+fn web_steps(file: &[u8]) -> Vec<WebStep> {
+    let (header, firmware) = file.split_at(HEADER_LEN);
+    let mut steps = vec![WebStep::Begin(header.try_into().unwrap())];
+    for (i, chunk) in firmware.chunks(WEB_CHUNK).enumerate() {
+        let mut data = [0u8; WEB_CHUNK];
+        data[..chunk.len()].copy_from_slice(chunk);
+        steps.push(WebStep::Write { offset: (i * WEB_CHUNK) as u32, len: chunk.len(), data });
+    }
+    steps.push(WebStep::Finish);
+    steps
+}
+
+#[cfg(feature = "web")]
+#[test]
+fn an_upload_through_the_web_console_is_checked_as_a_session_is() {
+    let (old, new) = (image(1, 3000), image(2, 3001));
+    let settings = S { password: credential(), ..S::defaults() };
+    // The whole image, in order: verified, marked (the counter kept as pending), swapped in.
+    let mut m = module_with(&old);
+    let file = signed_as(&new, MODEL, 0xA101, 7, &key());
+    let (done, after) = web_upload(&mut m, settings, &file, web_steps);
+    let header = Header::decode(file[..HEADER_LEN].try_into().unwrap()).unwrap();
+    assert_eq!(done.first(), Some(&Ok(WebDone::Begun(header))));
+    assert_eq!(done.last(), Some(&Ok(WebDone::Updated(header))));
+    assert_eq!(done[done.len() - 2], Ok(WebDone::Written(3001)), "every byte written");
+    assert_eq!(after.update, Counter { confirmed: 0, pending: 7 });
+    assert_eq!(m.boot(None), Ok(State::Swap));
+    assert_eq!(m.running(&old, &new), "new");
+
+    // A chunk out of order or of the wrong length is refused (Invalid), nothing written; the
+    // finish of an image not all sent too; nothing is marked.
+    let mut m = module_with(&old);
+    let file = signed(&new, 0xA101, &key());
+    let skip = |file: &[u8]| {
+        let mut steps = web_steps(file);
+        steps.remove(2); // the second chunk
+        steps
+    };
+    let (done, _) = web_upload(&mut m, settings, &file, skip);
+    assert_eq!(done[1], Ok(WebDone::Written(WEB_CHUNK as u32)));
+    assert!(done[2..].iter().all(|d| *d == Err(Status::Invalid)), "{done:?}");
+    let short = |file: &[u8]| {
+        let mut steps = web_steps(file);
+        if let Some(WebStep::Write { len, .. }) = steps.get_mut(1) {
+            *len -= 1;
+        }
+        steps
+    };
+    let (done, _) = web_upload(&mut m, settings, &file, short);
+    assert_eq!(done[1], Err(Status::Invalid));
+    assert_eq!(m.boot(None), Ok(State::Boot), "nothing marked");
+    assert_eq!(m.running(&old, &new), "old");
+
+    // A changed byte of firmware: the signature check fails at the finish, nothing marked.
+    let mut altered = file.clone();
+    altered[HEADER_LEN + 1000] ^= 1;
+    let (done, _) = web_upload(&mut m, settings, &altered, web_steps);
+    assert_eq!(done.last(), Some(&Err(Status::BadSignature)));
+    assert_eq!(m.boot(None), Ok(State::Boot));
+    // Another key's image, the other model's, an older counter: refused at the header.
+    let other_key = signed(&new, 0xA101, &SigningKey::from_bytes(&[0x11; 32]));
+    let (done, _) = web_upload(&mut m, settings, &other_key, web_steps);
+    assert_eq!(done.last(), Some(&Err(Status::BadSignature)));
+    let other_model = signed_as(&new, 0x8318, 0xA101, 0, &key());
+    let (done, _) = web_upload(&mut m, settings, &other_model, web_steps);
+    assert_eq!(done[0], Err(Status::Invalid));
+    let newer = S { update: Counter { confirmed: 8, pending: 0 }, ..settings };
+    let (done, after) = web_upload(&mut m, newer, &signed_as(&new, MODEL, 0xA101, 7, &key()), web_steps);
+    assert_eq!(done[0], Err(Status::Downgrade));
+    assert_eq!(after.update, Counter { confirmed: 8, pending: 0 }, "the counters untouched");
+    assert_eq!(m.boot(None), Ok(State::Boot), "nothing marked");
+    assert_eq!(m.running(&old, &new), "old");
 }

@@ -37,7 +37,14 @@
       "too short": "At least 8 characters.", "not the same": "The two passwords differ.",
       "password changed": "Password changed: log in again with the new one.",
       "login first": "Log in to change the password.",
-      "set a password first": "Set a password of your own first: the factory one, which anyone knows, may not restrict writes.",
+      "set a password first": "Set a password of your own first: the factory one, which anyone knows, allows neither restricted writes nor updates.",
+      "image file": "Signed image file (.rdq)", upload: "Upload", "choose a file": "Choose an image file first.",
+      "no updates here": "This module takes no firmware updates here (no update partition).",
+      "login to update": "Log in to update the firmware.", "not a signed image file": "Not a signed image file (remodaq sign).",
+      sending: "Sending…", verifying: "The module verifies the image…", verified: "Verified and marked:",
+      "restarting into it": "The module restarts into it.", "now running": "The module now runs firmware",
+      "not back": "The module did not answer again within 3 minutes.",
+      "image-signed": "The module checks the image's signature against its own key and refuses an older release; the running firmware stays until the whole image is verified.",
     },
     zh: {
       status: "状态", io: "实时 I/O", settings: "设置", login: "登录", logout: "退出登录",
@@ -69,6 +76,19 @@
       "too short": "至少 8 个字符。", "not the same": "两次输入的密码不一致。",
       "password changed": "密码已修改，请用新密码重新登录。", "login first": "登录后可修改密码。",
       "set a password first": "请先修改出厂密码。", "ask for the module's key first": "请重试修改密码。",
+      "image file": "已签名的固件文件 (.rdq)", upload: "上传", "choose a file": "请先选择固件文件。",
+      "no updates here": "此模块不能在此更新固件（没有更新分区）。", "login to update": "登录后可更新固件。",
+      "not a signed image file": "不是已签名的固件文件 (remodaq sign)。", sending: "正在发送…",
+      verifying: "模块正在校验固件…", verified: "已校验并标记：", "restarting into it": "模块将重启并运行新固件。",
+      "now running": "模块当前运行固件", "not back": "模块 3 分钟内没有再次应答。",
+      "image-signed": "模块用自己的密钥校验固件签名，并拒绝旧版本；在整个固件校验通过之前，当前固件保持不变。",
+      "another upload is under way": "另一个上传正在进行。", "no upload of this session": "本会话没有进行中的上传。",
+      "not the next chunk": "数据块顺序错误。", "the image is not all sent": "固件尚未全部发送。",
+      "this module takes no updates here": "此模块不能在此更新固件。",
+      "not an image for this module (model, size or format)": "不是本模块的固件（型号、大小或格式不符）。",
+      "the image's security counter is below the module's (an older release)": "固件的安全计数低于模块的（旧版本）。",
+      "the signature does not match (another key, or a changed file)": "签名不符（其他密钥，或文件被修改）。",
+      "the module could not write the update": "模块无法写入更新。",
       "not a usable password": "模块不接受该密码。",
       "not a usable value": "该值不可用。", "at most 4 networks, a.b.c.d/n each": "最多 4 个网络，格式 a.b.c.d/n。",
       "the settings could not be stored": "设置无法保存。",
@@ -95,6 +115,8 @@
   ];
   const DI_MODES = ["normal", "counter", "latch rising", "latch falling", "frequency"];
   const DO_MODES = ["normal", "pulse"];
+  // protocol/src/update.rs: a signed image file's header.
+  const HEADER_LEN = 146;
 
   let lang = (localStorage.getItem("rdaq-lang") || navigator.language || "en").toLowerCase().startsWith("zh") ? "zh" : "en";
   let identity = null;
@@ -154,16 +176,18 @@
       throw new Error("need login");
     }
     const target = "/api/v1/" + path;
-    const body = whole !== undefined ? JSON.stringify(whole) : value === undefined ? "" : JSON.stringify({ value });
+    // Bytes (a firmware image's part) go as they are; anything else as JSON.
+    const binary = whole instanceof Uint8Array;
+    const body = binary ? whole : whole !== undefined ? JSON.stringify(whole) : value === undefined ? "" : JSON.stringify({ value });
     s.counter += 1;
     const counter = s.counter;
     const signature = await A.requestSignature(s.key, method, target, counter, body);
     const r = await fetch(target, {
       method,
-      body: body || undefined,
+      body: body.length ? body : undefined,
       signal: WAIT(),
       headers: {
-        "Content-Type": "application/json",
+        "Content-Type": binary ? "application/octet-stream" : "application/json",
         "X-RDAQ-Session": s.id,
         "X-RDAQ-Counter": String(counter),
         "X-RDAQ-Signature": A.hex(signature),
@@ -350,6 +374,62 @@
 
     // The Modbus write allow-list (shown to a session only, as discovery shows it with the
     // password); the password is changed with the utility.
+    // A signed image file (`remodaq sign`: its header, then the firmware) sent a chunk at a
+    // time, each a signed request; the module verifies it whole before it marks it, then
+    // restarts into it (docs/web.md, "Firmware").
+    async firmware() {
+      const f = await get("firmware");
+      const parts = [el("dl", {}, el("dt", {}, t("firmware")), el("dd", { id: "running-firmware" }, f.firmware))];
+      if (!f.updates) return parts.concat(el("p", {}, t("no updates here")));
+      if (!session) return parts.concat(el("p", {}, t("login to update")));
+      const file = el("input", { type: "file", id: "image-file", accept: ".rdq", "aria-label": "image file" });
+      const bar = el("progress", { id: "upload-progress", max: "1", value: "0", "aria-label": "upload progress" });
+      const verdict = el("p", { id: "verdict", role: "status" });
+      const upload = async (event) => {
+        const button = event.currentTarget;
+        const chosen = file.files[0];
+        if (!chosen) return say(t("choose a file"), true);
+        button.disabled = true;
+        try {
+          const bytes = new Uint8Array(await chosen.arrayBuffer());
+          if (bytes.length <= HEADER_LEN) throw new Error(t("not a signed image file"));
+          const firmware = bytes.subarray(HEADER_LEN);
+          verdict.textContent = t("sending");
+          const begun = await signed("POST", "firmware", undefined, bytes.subarray(0, HEADER_LEN));
+          if (begun.length !== firmware.length) throw new Error(t("not a signed image file"));
+          bar.max = firmware.length;
+          for (let at = 0; at < firmware.length; at += f.chunk) {
+            await signed("PUT", "firmware/" + at, undefined, firmware.subarray(at, at + f.chunk));
+            bar.value = Math.min(at + f.chunk, firmware.length);
+          }
+          verdict.textContent = t("verifying");
+          const done = await signed("POST", "firmware/finish");
+          verdict.textContent = t("verified") + " " + done.firmware + ". " + t("restarting into it");
+          // The module restarts: its sessions end. Its firmware version, once it answers again.
+          session = null;
+          translate();
+          for (const deadline = Date.now() + 180000; Date.now() < deadline;) {
+            await new Promise((go) => setTimeout(go, 2000));
+            const now = await get("identity").catch(() => null);
+            if (now && now.firmware === done.firmware) {
+              identity = now;
+              $("running-firmware").textContent = now.firmware;
+              verdict.textContent = t("now running") + " " + now.firmware + ".";
+              say(t("now running") + " " + now.firmware + ".");
+              return;
+            }
+          }
+          verdict.textContent = t("not back");
+        } catch (e) {
+          verdict.textContent = String(e.message || e);
+        } finally {
+          button.disabled = false;
+        }
+      };
+      return parts.concat(el("label", {}, t("image file") + " ", file),
+        el("button", { id: "upload", onclick: upload }, t("upload")), bar, verdict, el("p", {}, t("image-signed")));
+    },
+
     async security() {
       const parts = [el("h2", {}, t("allow-list"))];
       if (!session) {
@@ -406,7 +486,7 @@
   };
 
   // Pages of controls: not redrawn under a control being edited.
-  const FORMS = ["settings", "network", "security"];
+  const FORMS = ["settings", "network", "security", "firmware"];
 
   function current() {
     const name = location.hash.slice(1);

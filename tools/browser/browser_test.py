@@ -192,6 +192,7 @@ class QemuModule:
     forwarded to free ports of this PC."""
 
     def __init__(self, image, netns):
+        self.image = image
         self.modbus = (MODULE_IP, 8000)
         self.web = f"http://{MODULE_IP}"
         nic = f"user,id=nic0,model=lan9118,hostfwd=tcp:{MODULE_IP}:8000-:8000,hostfwd=tcp:{MODULE_IP}:80-:80"
@@ -246,7 +247,7 @@ def log_in(b, password):
     b.click("#login-form button[value=ok]")
 
 
-QEMU_CHECKS = 4  # the checks qemu_checks makes
+QEMU_CHECKS = 6  # the checks qemu_checks makes
 
 
 def qemu_checks(checks, b, qemu, shots):
@@ -265,6 +266,49 @@ def qemu_checks(checks, b, qemu, shots):
         toggle_do(b, qemu, 4, os.path.join(shots, "8350-io-do4-on.png"))
     checks.check("8350 under QEMU at its LAN address, plain HTTP (no WebCrypto: the page's own PBKDF2 and HMAC): "
                  "a wrong then the right password, DO4 toggled, confirmed by a Modbus read", toggle)
+
+    # The update test images (scripts/qemu variants), signed with the repository's test key.
+    images = os.path.dirname(qemu.image)
+
+    def refused():
+        # Updates need a password of one's own (docs/update.md): set on the page first.
+        b.go(f"{qemu.web}/#security")
+        b.type('input[aria-label="new_password"]', "correct horse battery")
+        b.type('input[aria-label="repeat_password"]', "correct horse battery")
+        b.click("#change-password")
+        b.wait_text("#message", "Password changed", wait=60)
+        b.wait_text("#login", "Log in")
+        log_in(b, "correct horse battery")
+        b.wait_text("#message", "Logged in", wait=60)
+        b.go(f"{qemu.web}/#firmware")
+        b.find("#image-file")
+        # The 8318's image: uploaded whole, refused at its header, the running image kept.
+        upload(b, os.path.join(images, "firmware-8350-other.rdq"))
+        b.wait_text("#verdict", "not an image for this module", wait=60)
+        b.screenshot(os.path.join(shots, "8350-firmware-refused.png"))
+        if read_registers(qemu.modbus, 212, 1) != [0xA100]:
+            raise RuntimeError("the firmware version changed")
+    checks.check("8350 under QEMU: password set on the page, then the 8318's image uploaded on the firmware page: "
+                 "the module's verdict \"not an image for this module\", still A100", refused)
+
+    def updated():
+        upload(b, os.path.join(images, "firmware-8350-v2.rdq"))
+        b.wait_text("#verdict", "Verified and marked: A101", wait=120)
+        b.screenshot(os.path.join(shots, "8350-firmware-verified.png"))
+        # The bootloader swaps it in; the new image confirms itself; the page sees it back.
+        b.wait_text("#verdict", "now runs firmware A101", wait=180)
+        b.screenshot(os.path.join(shots, "8350-firmware-updated.png"))
+        # Spec: register 40213, the firmware version.
+        if read_registers(qemu.modbus, 212, 1) != [0xA101]:
+            raise RuntimeError(f"Modbus reads version {read_registers(qemu.modbus, 212, 1)}")
+    checks.check("8350 under QEMU: its signed A101 image uploaded on the firmware page (progress bar, the verdict), "
+                 "the module restarts into it: the page and register 40213 read A101", updated)
+
+
+def upload(b, path):
+    """Chooses `path` in the firmware page's file field and uploads it."""
+    b.s("POST", f"/element/{b.find('#image-file')}/value", {"text": path})
+    b.click("#upload")
 
 
 def qemu_inner(image, shots, module_ns):
@@ -379,7 +423,8 @@ def main():
         # What each page must show (spec: firmware version A100h, 12 DI, 6 DO; extensions §3).
         every_page(checks, b, m8350, "8350", shots,
                    {"status": ["Firmware\nA100", "Uptime"], "io": ["DI11", "DO5"], "settings": ["DI11", "Host watchdog"],
-                    "network": ["Stored settings", "In force now"], "security": ["Modbus write allow-list", "Log in to see"]})
+                    "network": ["Stored settings", "In force now"], "security": ["Modbus write allow-list", "Log in to see"],
+                    "firmware": ["Firmware\nA100", "no firmware updates here"]})
 
         def log_in_twice():
             b.go(f"{m8350.web}/#io")

@@ -344,7 +344,21 @@ def exercise_settings(c):
     c.signed("PUT", "/api/v1/access", raw=allow)
     c.signed("GET", "/api/v1/access", expect=200)
     c.signed("PUT", "/api/v1/access", raw=json.dumps({"networks": []}).encode())
+    exercise_firmware(c)
     c.call("POST", "/api/v1/restart", expect=401)
+
+
+def exercise_firmware(c):
+    """The firmware upload's refusals on the host build, which has no update partition (the
+    whole upload: tools/browser under QEMU)."""
+    c.call("GET", "/api/v1/firmware")
+    header = bytes(146)
+    c.call("POST", "/api/v1/firmware", raw=header, expect=401)  # unsigned
+    c.signed("POST", "/api/v1/firmware", raw=header[:10], expect=400)
+    c.signed("POST", "/api/v1/firmware", raw=header, expect=503)
+    c.signed("PUT", "/api/v1/firmware/0", raw=b"\xff" * 512, expect=409)  # no upload
+    c.signed("PUT", "/api/v1/firmware/0", raw=b"\xff" * 513, expect=400)
+    c.signed("POST", "/api/v1/firmware/finish", expect=409)
 
 
 def exercise_8318(c):

@@ -2,6 +2,8 @@
 //! the feature `web`, its HTTP service on picoserve ([`service`]).
 
 #[cfg(feature = "web")]
+pub mod firmware;
+#[cfg(feature = "web")]
 pub mod service;
 pub mod sessions;
 #[cfg(feature = "web")]

@@ -435,6 +435,24 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
                 self.write(table == "registers", addr, signed.body).await
             }
             ("GET", (Some("network"), None, None)) => self.network().await,
+            ("GET", (Some("firmware"), None, None)) => self.firmware(),
+            ("POST", (Some("firmware"), None | Some("finish"), None)) | ("PUT", (Some("firmware"), Some(_), None)) => {
+                let verified = match self.verify(signed).await {
+                    Ok(verified) => verified,
+                    Err(why) => return Answer::error(StatusCode::UNAUTHORIZED, why, None),
+                };
+                // As the update service: not with the factory password (docs/update.md).
+                if verified.factory {
+                    return Answer::error(StatusCode::FORBIDDEN, "set a password first", None);
+                }
+                let session = signed.session.unwrap_or_default();
+                match (method, resource.1) {
+                    ("POST", None) => self.firmware_begin(session, signed.body).await,
+                    ("POST", Some(_)) => self.firmware_finish(session).await,
+                    (_, Some(offset)) => self.firmware_write(session, offset, signed.body).await,
+                    _ => Answer::error(StatusCode::METHOD_NOT_ALLOWED, "method not allowed here", None),
+                }
+            }
             (method @ ("PUT" | "GET"), (Some(name @ ("network" | "access" | "password")), None, None))
             | (method @ "POST", (Some(name @ ("restart" | "password")), None | Some("key"), None)) => {
                 // Reading the allow-list needs a session too (discovery shows it only with the
@@ -463,7 +481,8 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
                 _,
                 (
                     Some(
-                        "identity" | "session" | "registers" | "coils" | "network" | "access" | "restart" | "password",
+                        "identity" | "session" | "registers" | "coils" | "network" | "access" | "restart" | "password"
+                        | "firmware",
                     ),
                     _,
                     _,
