@@ -361,6 +361,9 @@ pub const WEB_CHUNK: usize = remodaq_protocol::web::FIRMWARE_CHUNK;
 
 /// A step of an upload through the web console, for the update task ([`WEB`]).
 #[cfg(feature = "web")]
+// The steps channel holds one step in static memory, the size of the largest variant whatever
+// its shape; there is no heap to box the chunk into.
+#[allow(clippy::large_enum_variant)]
 pub enum WebStep {
     /// A new upload: the image's header.
     Begin([u8; HEADER_LEN]),

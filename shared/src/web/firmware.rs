@@ -26,9 +26,11 @@ use crate::modbus::RegisterMap;
 use crate::module::SettingsAccess;
 use crate::update::{Status, WebDone, WebStep, HEADER_LEN, WEB, WEB_CHUNK};
 
+/// A session that owns the upload under way, and when it last sent a step.
+type Owner = Option<([u8; SESSION_ID_LEN], u64)>;
+
 /// The session whose upload is under way, and when it last sent a step.
-static OWNER: Blocking<CriticalSectionRawMutex, Cell<Option<([u8; SESSION_ID_LEN], u64)>>> =
-    Blocking::new(Cell::new(None));
+static OWNER: Blocking<CriticalSectionRawMutex, Cell<Owner>> = Blocking::new(Cell::new(None));
 
 /// An upload with no step for this long may be replaced by another session's.
 const ABANDONED_MS: u64 = 30_000;
