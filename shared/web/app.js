@@ -389,6 +389,8 @@
         const button = event.currentTarget;
         const chosen = file.files[0];
         if (!chosen) return say(t("choose a file"), true);
+        // A verdict of an earlier upload is not this one's.
+        say("");
         button.disabled = true;
         try {
           const bytes = new Uint8Array(await chosen.arrayBuffer());
@@ -531,8 +533,9 @@
       } else if (name === "io" && page.dataset.shows === "io" && page.childNodes.length === content.length) {
         const olds = Array.from(page.childNodes);
         content.forEach((c, i) => patch(olds[i], c));
-      } else if (!FORMS.includes(name) || force === true || !page.contains(document.activeElement)) {
-        // A control being edited is not redrawn under the user's hands.
+      } else if (page.dataset.shows !== name || !FORMS.includes(name) || force === true || !page.contains(document.activeElement)) {
+        // A control being edited is not redrawn under the user's hands; another page's control
+        // (a DO just clicked, say) never keeps this page from being drawn.
         page.replaceChildren(...content);
         page.dataset.shows = name;
       }

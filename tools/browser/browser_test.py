@@ -211,10 +211,14 @@ class QemuModule:
 
 
 class Checks:
-    def __init__(self):
+    def __init__(self, browser=None, shots=None):
         self.passed = 0
         self.failed = 0
         self.not_applicable = 0
+        # Where a failed check leaves a screenshot of what the browser showed.
+        self.browser = browser
+        self.shots = shots
+        self.failures = 0
 
     def check(self, name, f):
         try:
@@ -224,6 +228,16 @@ class Checks:
         except Exception as e:  # every failure is reported, and the next check runs
             self.failed += 1
             print(f"browser {name} ... FAILED: {e}", flush=True)
+            if self.browser and self.shots:
+                self.failures += 1
+                shot = os.path.join(self.shots, f"failed-{self.failures}.png")
+                try:
+                    message = self.browser.text("#message")
+                    url = self.browser.s("GET", "/url")
+                    self.browser.screenshot(shot)
+                    print(f"browser   (the browser at {url}, its message {message!r}: {shot})", flush=True)
+                except Exception:
+                    pass
 
 
 def every_page(checks, b, module, model, shots, shows, label=None):
@@ -323,6 +337,7 @@ def qemu_inner(image, shots, module_ns):
         time.sleep(1)
         qemu = QemuModule(image, module_ns)
         b = WebDriver(driver_port)
+        checks.browser, checks.shots = b, shots
         qemu_checks(checks, b, qemu, shots)
         b.quit()
     except Exception as e:
@@ -418,6 +433,7 @@ def main():
                        "cjc_celsius = 25.0\n[ch0]\nmillivolts = 41.276\n[ch1]\nvolts = 1.2\n[ch3]\nopen = true\n")
         modules += [m8350, m8318]
         b = WebDriver(driver_port)
+        checks.browser, checks.shots = b, shots
 
         # 8350: every page loads.
         # What each page must show (spec: firmware version A100h, 12 DI, 6 DO; extensions §3).
@@ -549,7 +565,7 @@ def main():
         checks.check("8318 input type changed to ±2.5 V: 40201 reads 05h, the values turn to mV", input_type)
 
         b.quit()
-        b = None
+        b = checks.browser = None
         if qemu_image:
             qemu_on_a_lan(checks, os.path.abspath(qemu_image), os.path.join(os.path.abspath(shots), "qemu"))
     except Exception as e:
