@@ -110,9 +110,6 @@ impl<E: Effects> Network for EmbassyNet<E> {
         // Bounded: one session at a time, through these buffers and the service's 1 KiB chunk.
         let mut rx = [0u8; 2048];
         let mut tx = [0u8; 64];
-        // An upload through the web console under way: its header and the bytes written.
-        #[cfg(feature = "web")]
-        let mut upload = None;
         loop {
             let mut socket = TcpSocket::new(self.stack, &mut rx, &mut tx);
             // The web console's steps are taken between two sessions.
@@ -121,10 +118,10 @@ impl<E: Effects> Network for EmbassyNet<E> {
                 let accepting = accept_one(&mut socket, crate::update::PORT, "update");
                 match embassy_futures::select::select(accepting, crate::update::WEB.next()).await {
                     embassy_futures::select::Either::First(accepted) => accepted,
-                    embassy_futures::select::Either::Second(step) => {
-                        let done = service.web_step(&step, &mut upload, map, store, target).await;
+                    embassy_futures::select::Either::Second((number, step)) => {
+                        let done = service.web_step(&step, map, store, target).await;
                         let updated = matches!(done, Ok(crate::update::WebDone::Updated(_)));
-                        crate::update::WEB.answer(done);
+                        crate::update::WEB.answer(number, done);
                         // The console's connection restarts the module once it answered; if it
                         // cannot, this does, a little later.
                         if updated {
@@ -139,11 +136,6 @@ impl<E: Effects> Network for EmbassyNet<E> {
             let accepted = accept_one(&mut socket, crate::update::PORT, "update").await;
             if !accepted {
                 continue;
-            }
-            // A session of the service rewrites the partition: an upload under way ends.
-            #[cfg(feature = "web")]
-            {
-                upload = None;
             }
             let now_ms = embassy_time::Instant::now().as_millis();
             let from = peer(&socket);

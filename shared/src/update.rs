@@ -97,6 +97,10 @@ pub struct UpdateService {
     model: u16,
     mac: [u8; 6],
     capacity: u32,
+    /// An upload through the web console under way: its header and the bytes written. A
+    /// session that begins writing the partition ends it (its bytes are overwritten).
+    #[cfg(feature = "web")]
+    upload: Option<(Header, u32)>,
 }
 
 /// Why a session's handshake ended without going on.
@@ -113,7 +117,13 @@ impl UpdateService {
     /// The service of a module with name register `model`, MAC `mac` and an update partition
     /// of `capacity` bytes.
     pub fn new(model: u16, mac: [u8; 6], capacity: u32) -> Self {
-        Self { model, mac, capacity }
+        Self {
+            model,
+            mac,
+            capacity,
+            #[cfg(feature = "web")]
+            upload: None,
+        }
     }
 
     /// Serves one session from the client at `from` at `now_ms`. The map is locked only to
@@ -167,6 +177,12 @@ impl UpdateService {
                 return answer(io, status, &sign(0, status)).await;
             }
         };
+        // Only an authenticated session that begins writing ends an upload of the console's:
+        // a connection alone leaves it.
+        #[cfg(feature = "web")]
+        {
+            self.upload = None;
+        }
         if let Err(status) = target.begin().await {
             crate::error!("update: the update partition could not be erased");
             return answer(io, status, &sign(0, status)).await;
@@ -277,7 +293,6 @@ impl UpdateService {
     pub async fn web_step<R, A, F, U>(
         &mut self,
         step: &WebStep,
-        upload: &mut Option<(Header, u32)>,
         map: &Mutex<R, A>,
         store: &Store<F, A::Settings>,
         target: &mut U,
@@ -290,16 +305,18 @@ impl UpdateService {
     {
         match step {
             WebStep::Begin(bytes) => {
-                *upload = None;
+                self.upload = None;
                 let settings = *map.lock().await.settings();
                 let header = self.check_header(bytes, &settings)?;
+                let upload = &mut self.upload;
                 target.begin().await?;
                 crate::info!("update: receiving {} bytes from the web console", header.length);
                 *upload = Some((header, 0));
                 Ok(WebDone::Begun(header))
             }
             WebStep::Write { offset, len, data } => {
-                let Some((header, written)) = upload.as_mut() else { return Err(Status::Invalid) };
+                let upload = &mut self.upload;
+                let Some((header, written)) = upload.as_mut() else { return Ok(WebDone::NoUpload) };
                 let expected = ((header.length - *written) as usize).min(WEB_CHUNK);
                 if *offset != *written || *len != expected {
                     return Err(Status::Invalid);
@@ -315,7 +332,8 @@ impl UpdateService {
                 Ok(WebDone::Written(*written))
             }
             WebStep::Finish => {
-                let Some((header, written)) = upload.take() else { return Err(Status::Invalid) };
+                let upload = &mut self.upload;
+                let Some((header, written)) = upload.take() else { return Ok(WebDone::NoUpload) };
                 if written != header.length {
                     *upload = Some((header, written));
                     return Err(Status::Invalid);
@@ -390,73 +408,123 @@ pub enum WebDone {
     Written(u32),
     /// The image is verified and marked: restart into it.
     Updated(Header),
+    /// No upload is under way: a session of the update service began since, or the last step
+    /// failed writing or verifying and ended it.
+    NoUpload,
 }
 
 /// The web console's way to the update task: one step at a time (a lock), carried out between
-/// two sessions of the update service.
+/// two sessions of the update service. Each step carries a number its answer repeats: an
+/// answer to an asker that gave up (its time ran out, its connection was cut) is no answer to
+/// the next, and a step nobody waits for any more is not carried out.
 #[cfg(feature = "web")]
 pub struct WebLink {
     lock: Mutex<embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex, ()>,
-    steps: embassy_sync::channel::Channel<embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex, WebStep, 1>,
+    steps:
+        embassy_sync::channel::Channel<embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex, (u32, WebStep), 1>,
     done: embassy_sync::channel::Channel<
         embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex,
-        Result<WebDone, Status>,
+        (u32, Result<WebDone, Status>),
         1,
     >,
     served: core::sync::atomic::AtomicBool,
+    /// The number of the last step asked for.
+    asked: core::sync::atomic::AtomicU32,
+    /// The number of the step whose asker waits for it (0: none).
+    waiting: core::sync::atomic::AtomicU32,
 }
 
 /// The link of this module.
 #[cfg(feature = "web")]
-pub static WEB: WebLink = WebLink {
-    lock: Mutex::new(()),
-    steps: embassy_sync::channel::Channel::new(),
-    done: embassy_sync::channel::Channel::new(),
-    served: core::sync::atomic::AtomicBool::new(false),
-};
+pub static WEB: WebLink = WebLink::new();
 
 /// How long a step may take: a sector erase of the STM32 within a chunk's write (a 128 KiB
 /// sector takes 1 to 2 s, the datasheet's flash characteristics), or a whole image's
-/// verification.
+/// verification. The wait for another asker's step is bounded the same.
 #[cfg(feature = "web")]
 pub const WEB_STEP: Duration = Duration::from_secs(8);
 
+/// While an asker waits: when it stops (answered, out of time, or dropped with its
+/// connection), its step is no longer wanted.
+#[cfg(feature = "web")]
+struct Waiting<'a>(&'a WebLink, u32);
+
+#[cfg(feature = "web")]
+impl Drop for Waiting<'_> {
+    fn drop(&mut self) {
+        use core::sync::atomic::Ordering;
+        let _ = self.0.waiting.compare_exchange(self.1, 0, Ordering::AcqRel, Ordering::Acquire);
+        // A step not taken yet is taken back.
+        self.0.steps.clear();
+    }
+}
+
 #[cfg(feature = "web")]
 impl WebLink {
+    /// A link with no step asked for.
+    pub const fn new() -> Self {
+        Self {
+            lock: Mutex::new(()),
+            steps: embassy_sync::channel::Channel::new(),
+            done: embassy_sync::channel::Channel::new(),
+            served: core::sync::atomic::AtomicBool::new(false),
+            asked: core::sync::atomic::AtomicU32::new(0),
+            waiting: core::sync::atomic::AtomicU32::new(0),
+        }
+    }
+
     /// Whether an update task takes steps (a board with a bootloader, its image confirmed).
     pub fn is_served(&self) -> bool {
         self.served.load(core::sync::atomic::Ordering::Acquire)
     }
 
-    /// Has the update task carry out `step`; `None` when no task takes it in time.
+    /// Has the update task carry out `step`; `None` when no task takes it in time (or another
+    /// asker's step holds the task that long).
     pub async fn ask(&self, step: WebStep) -> Option<Result<WebDone, Status>> {
+        use core::sync::atomic::Ordering;
         if !self.is_served() {
             return None;
         }
-        let _one = self.lock.lock().await;
-        // An answer to a step whose asker gave up is no answer to this one.
-        self.done.clear();
-        let done = with_timeout(WEB_STEP, async {
-            self.steps.send(step).await;
-            self.done.receive().await
+        let _one = with_timeout(WEB_STEP, self.lock.lock()).await.ok()?;
+        // Never 0, which stands for nobody.
+        let number = self.asked.fetch_add(1, Ordering::AcqRel).wrapping_add(1).max(1);
+        self.waiting.store(number, Ordering::Release);
+        let _waiting = Waiting(self, number);
+        with_timeout(WEB_STEP, async {
+            self.steps.send((number, step)).await;
+            loop {
+                let (answered, done) = self.done.receive().await;
+                if answered == number {
+                    return done;
+                }
+            }
         })
         .await
-        .ok();
-        // A step not taken in time is taken back: the asker was told it failed.
-        self.steps.clear();
-        done
+        .ok()
     }
 
-    /// The update task: the next step asked for.
-    pub async fn next(&self) -> WebStep {
+    /// The update task: the next step asked for whose asker still waits, and its number.
+    pub async fn next(&self) -> (u32, WebStep) {
         self.served.store(true, core::sync::atomic::Ordering::Release);
-        self.steps.receive().await
+        loop {
+            let (number, step) = self.steps.receive().await;
+            if self.waiting.load(core::sync::atomic::Ordering::Acquire) == number {
+                return (number, step);
+            }
+        }
     }
 
-    /// The update task: what the step did.
-    pub fn answer(&self, done: Result<WebDone, Status>) {
+    /// The update task: what step `number` did.
+    pub fn answer(&self, number: u32, done: Result<WebDone, Status>) {
         self.done.clear();
-        let _ = self.done.try_send(done);
+        let _ = self.done.try_send((number, done));
+    }
+}
+
+#[cfg(feature = "web")]
+impl Default for WebLink {
+    fn default() -> Self {
+        Self::new()
     }
 }
 

@@ -842,11 +842,7 @@ fn web_upload(
     let mut aligned = [0u8; 4];
     let mut target = updater(&mut m.dfu, &mut m.state, &mut aligned);
     let mut service = UpdateService::new(MODEL, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
-    let mut upload = None;
-    let done = steps(file)
-        .iter()
-        .map(|step| block_on(service.web_step(step, &mut upload, &map, &store, &mut target)))
-        .collect();
+    let done = steps(file).iter().map(|step| block_on(service.web_step(step, &map, &store, &mut target))).collect();
     let after = block_on(map.lock()).0;
     (done, after)
 }
@@ -925,4 +921,97 @@ fn an_upload_through_the_web_console_is_checked_as_a_session_is() {
     assert_eq!(after.update, Counter { confirmed: 8, pending: 0 }, "the counters untouched");
     assert_eq!(m.boot(None), Ok(State::Boot), "nothing marked");
     assert_eq!(m.running(&old, &new), "old");
+}
+
+/// Attack: a connection to the update service, or a session with a wrong password, meant to
+/// end an upload through the console under way. Refused: only a session that proved the
+/// password and began writing the partition ends it (docs/web.md, "Firmware").
+#[cfg(feature = "web")]
+#[test]
+fn only_a_session_that_begins_writing_ends_an_upload_of_the_console() {
+    let (old, new) = (image(1, 3000), image(2, 3001));
+    let settings = S { password: credential(), ..S::defaults() };
+    let mut m = module_with(&old);
+    let file = signed(&new, 0xA101, &key());
+    let steps = web_steps(&file);
+    let store = store_with(Some(settings));
+    let map = Mutex::<NoopRawMutex, _>::new(Live(settings));
+    let mut aligned = [0u8; 4];
+    let mut target = updater(&mut m.dfu, &mut m.state, &mut aligned);
+    let mut service = UpdateService::new(MODEL, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
+    let step = |service: &mut UpdateService, target: &mut _, i: usize| {
+        block_on(service.web_step(&steps[i], &map, &store, target))
+    };
+    assert!(matches!(step(&mut service, &mut target, 0), Ok(WebDone::Begun(_))));
+    assert_eq!(step(&mut service, &mut target, 1), Ok(WebDone::Written(WEB_CHUNK as u32)));
+
+    // A session with a wrong password: refused (status 1), the upload goes on.
+    let mut wrong = Pc::new(session_bytes("not the password", &file, None));
+    let (turn, now) = session_time();
+    let outcome = block_on(service.session(&mut wrong, [127, 0, 0, 66], now, &map, &store, &mut target));
+    drop(turn);
+    assert_eq!((outcome, wrong.io.outgoing.get(GREETING_LEN..)), (Outcome::NotUpdated, Some(&[1u8][..])));
+    assert_eq!(step(&mut service, &mut target, 2), Ok(WebDone::Written(2 * WEB_CHUNK as u32)));
+
+    // A session with the password that begins writing, then is cut: the console's upload ended
+    // (its bytes overwritten), its next chunk told so, nothing marked.
+    let mut cut = Pc::new(session_bytes(PASSWORD, &file, Some(HEADER_LEN + 100)));
+    let (turn, now) = session_time();
+    let outcome = block_on(service.session(&mut cut, [127, 0, 0, 1], now, &map, &store, &mut target));
+    drop(turn);
+    assert_eq!(outcome, Outcome::NotUpdated);
+    assert_eq!(step(&mut service, &mut target, 3), Ok(WebDone::NoUpload));
+    assert_eq!(step(&mut service, &mut target, steps.len() - 1), Ok(WebDone::NoUpload));
+    assert_eq!((m.boot(None), m.running(&old, &new)), (Ok(State::Boot), "old"));
+}
+
+/// A step's answer goes to its own asker only. An asker that gave up (its connection cut
+/// while the update task worked) leaves no answer for the next one, and its step, if not
+/// taken yet, is never carried out.
+#[cfg(feature = "web")]
+#[test]
+fn a_web_step_answers_its_own_asker_only() {
+    use core::pin::pin;
+    use core::task::Poll;
+    use embassy_futures::poll_once;
+    use remodaq_shared::update::WebLink;
+    let link = WebLink::new();
+    let write = |len| WebStep::Write { offset: 0, len, data: [0; WEB_CHUNK] };
+    assert!(!link.is_served());
+    let mut next = pin!(link.next());
+    assert!(poll_once(next.as_mut()).is_pending());
+    assert!(link.is_served(), "an update task waits for steps");
+
+    // Asker 1's step is taken by the task; asker 1 gives up before the answer.
+    let (first, step) = {
+        let mut one = pin!(link.ask(WebStep::Finish));
+        assert!(poll_once(one.as_mut()).is_pending());
+        let Poll::Ready(taken) = poll_once(next.as_mut()) else { panic!("the task takes the step") };
+        taken
+    };
+    assert!(matches!(step, WebStep::Finish));
+    // Asker 2 asks; the answer to asker 1's step arrives first: not asker 2's.
+    let mut two = pin!(link.ask(write(7)));
+    assert!(poll_once(two.as_mut()).is_pending());
+    link.answer(first, Ok(WebDone::NoUpload));
+    assert!(poll_once(two.as_mut()).is_pending(), "asker 1's answer is not asker 2's");
+    let Poll::Ready((second, WebStep::Write { len: 7, .. })) = poll_once(pin!(link.next())) else {
+        panic!("the task takes asker 2's step")
+    };
+    assert_ne!(first, second);
+    link.answer(second, Ok(WebDone::Written(7)));
+    assert_eq!(poll_once(two.as_mut()), Poll::Ready(Some(Ok(WebDone::Written(7)))));
+
+    // Asker 3 asks and gives up before the task looks: its step is never carried out; asker
+    // 4's is the next the task sees.
+    {
+        let mut three = pin!(link.ask(write(3)));
+        assert!(poll_once(three.as_mut()).is_pending());
+    }
+    let mut four = pin!(link.ask(write(4)));
+    assert!(poll_once(four.as_mut()).is_pending());
+    let Poll::Ready((_, WebStep::Write { len, .. })) = poll_once(pin!(link.next())) else {
+        panic!("the task takes a step")
+    };
+    assert_eq!(len, 4, "asker 3's step is not carried out");
 }

@@ -32,6 +32,15 @@ type Owner = Option<([u8; SESSION_ID_LEN], u64)>;
 /// The session whose upload is under way, and when it last sent a step.
 static OWNER: Blocking<CriticalSectionRawMutex, Cell<Owner>> = Blocking::new(Cell::new(None));
 
+/// A session that logs out gives up its upload: another may begin one at once.
+pub(super) fn release(session: &[u8; SESSION_ID_LEN]) {
+    OWNER.lock(|o| {
+        if matches!(o.get(), Some((owner, _)) if owner == *session) {
+            o.set(None);
+        }
+    });
+}
+
 /// An upload with no step for this long may be replaced by another session's.
 const ABANDONED_MS: u64 = 30_000;
 
@@ -101,7 +110,7 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
             }
             // Out of order, or the wrong length for this place: nothing written.
             Some(Err(Status::Invalid)) => Answer::error(StatusCode::CONFLICT, "not the next chunk", Some("offset")),
-            other => self.refused(other),
+            other => self.ended(other),
         }
     }
 
@@ -120,7 +129,25 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
                 a
             }
             Some(Err(Status::Invalid)) => Answer::error(StatusCode::CONFLICT, "the image is not all sent", None),
-            other => self.refused(other),
+            other => self.ended(other),
+        }
+    }
+
+    /// The answer to a write or a finish that ended the upload (the update task dropped it, or
+    /// a session of the update service began since): the session owns none any more, and
+    /// another may begin at once.
+    fn ended(&self, done: Option<Result<WebDone, Status>>) -> Answer {
+        match done {
+            // Not taken in time: the upload may still be there; the owner keeps it.
+            None => self.refused(None),
+            Some(Ok(WebDone::NoUpload)) => {
+                OWNER.lock(|o| o.set(None));
+                Answer::error(StatusCode::CONFLICT, "no upload of this session", None)
+            }
+            other => {
+                OWNER.lock(|o| o.set(None));
+                self.refused(other)
+            }
         }
     }
 

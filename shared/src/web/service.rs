@@ -410,6 +410,7 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
                 Ok(_) => {
                     if let Some(id) = signed.session {
                         self.sessions.lock(|s| s.borrow_mut().end(&id));
+                        super::firmware::release(&id);
                     }
                     Answer::no_content()
                 }
