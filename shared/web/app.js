@@ -42,7 +42,8 @@
       "no updates here": "This module takes no firmware updates here (no update partition).",
       "login to update": "Log in to update the firmware.", "not a signed image file": "Not a signed image file (remodaq sign).",
       sending: "Sending…", verifying: "The module verifies the image…", verified: "Verified and marked:",
-      "restarting into it": "The module restarts into it.", "now running": "The module now runs firmware",
+      "restarting into it": "The module restarts into it.",
+      "finish unanswered": "No answer to the finish: waiting to see whether the module restarts into the image.", "now running": "The module now runs firmware",
       "not back": "The module did not answer again within 3 minutes.",
       "image-signed": "The module checks the image's signature against its own key and refuses an older release; the running firmware stays until the whole image is verified.",
     },
@@ -80,6 +81,7 @@
       "no updates here": "此模块不能在此更新固件（没有更新分区）。", "login to update": "登录后可更新固件。",
       "not a signed image file": "不是已签名的固件文件 (remodaq sign)。", sending: "正在发送…",
       verifying: "模块正在校验固件…", verified: "已校验并标记：", "restarting into it": "模块将重启并运行新固件。",
+      "finish unanswered": "完成请求未获应答：正在等待模块是否以新固件重启。",
       "now running": "模块当前运行固件", "not back": "模块 3 分钟内没有再次应答。",
       "image-signed": "模块用自己的密钥校验固件签名，并拒绝旧版本；在整个固件校验通过之前，当前固件保持不变。",
       "another upload is under way": "另一个上传正在进行。", "no upload of this session": "本会话没有进行中的上传。",
@@ -405,15 +407,20 @@
             bar.value = Math.min(at + f.chunk, firmware.length);
           }
           verdict.textContent = t("verifying");
-          const done = await signed("POST", "firmware/finish");
-          verdict.textContent = t("verified") + " " + done.firmware + ". " + t("restarting into it");
+          // A finish whose answer is lost (the module restarts 3 s after the mark whatever
+          // happens to the answer): the version it comes back with says what happened.
+          const done = await signed("POST", "firmware/finish").catch((e) => {
+            if (e instanceof TypeError || e.name === "TimeoutError" || e.name === "AbortError") return null;
+            throw e;
+          });
+          verdict.textContent = done ? t("verified") + " " + done.firmware + ". " + t("restarting into it") : t("finish unanswered");
           // The module restarts: its sessions end. Its firmware version, once it answers again.
           session = null;
           translate();
           for (const deadline = Date.now() + 180000; Date.now() < deadline;) {
             await new Promise((go) => setTimeout(go, 2000));
             const now = await get("identity").catch(() => null);
-            if (now && now.firmware === done.firmware) {
+            if (now && now.firmware === begun.firmware) {
               identity = now;
               $("running-firmware").textContent = now.firmware;
               verdict.textContent = t("now running") + " " + now.firmware + ".";
