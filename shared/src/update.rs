@@ -308,15 +308,13 @@ impl UpdateService {
                 self.upload = None;
                 let settings = *map.lock().await.settings();
                 let header = self.check_header(bytes, &settings)?;
-                let upload = &mut self.upload;
                 target.begin().await?;
                 crate::info!("update: receiving {} bytes from the web console", header.length);
-                *upload = Some((header, 0));
+                self.upload = Some((header, 0));
                 Ok(WebDone::Begun(header))
             }
             WebStep::Write { offset, len, data } => {
-                let upload = &mut self.upload;
-                let Some((header, written)) = upload.as_mut() else { return Ok(WebDone::NoUpload) };
+                let Some((header, written)) = self.upload.as_mut() else { return Ok(WebDone::NoUpload) };
                 let expected = ((header.length - *written) as usize).min(WEB_CHUNK);
                 if *offset != *written || *len != expected {
                     return Err(Status::Invalid);
@@ -325,17 +323,16 @@ impl UpdateService {
                 padded[..*len].copy_from_slice(&data[..*len]);
                 let end = len.next_multiple_of(U::WRITE_SIZE).min(WEB_CHUNK);
                 if let Err(status) = target.write(*offset, &padded[..end]).await {
-                    *upload = None;
+                    self.upload = None;
                     return Err(status);
                 }
                 *written += *len as u32;
                 Ok(WebDone::Written(*written))
             }
             WebStep::Finish => {
-                let upload = &mut self.upload;
-                let Some((header, written)) = upload.take() else { return Ok(WebDone::NoUpload) };
+                let Some((header, written)) = self.upload.take() else { return Ok(WebDone::NoUpload) };
                 if written != header.length {
-                    *upload = Some((header, written));
+                    self.upload = Some((header, written));
                     return Err(Status::Invalid);
                 }
                 finish(&header, map, store, target).await?;

@@ -155,6 +155,10 @@
     return body;
   }
 
+  // Whether a request failed for want of an answer (the network, or its time ran out), not by
+  // the module's refusal.
+  const unanswered = (e) => e instanceof TypeError || e.name === "TimeoutError" || e.name === "AbortError";
+
   // Signed requests go one after the other: each counter must reach the module after the one
   // before it (a later one arriving first would make the earlier one stale).
   let signing = Promise.resolve();
@@ -163,7 +167,7 @@
     signing = run.catch(() => {});
     return run.catch((e) => {
       // A refusal is said by signedNow; a request that got no answer is said here.
-      if (e instanceof TypeError || e.name === "TimeoutError" || e.name === "AbortError") say(t("no answer"), true);
+      if (unanswered(e)) say(t("no answer"), true);
       throw e;
     });
   }
@@ -410,7 +414,7 @@
           // A finish whose answer is lost (the module restarts 3 s after the mark whatever
           // happens to the answer): the version it comes back with says what happened.
           const done = await signed("POST", "firmware/finish").catch((e) => {
-            if (e instanceof TypeError || e.name === "TimeoutError" || e.name === "AbortError") return null;
+            if (unanswered(e)) return null;
             throw e;
           });
           verdict.textContent = done ? t("verified") + " " + done.firmware + ". " + t("restarting into it") : t("finish unanswered");

@@ -218,7 +218,6 @@ class Checks:
         # Where a failed check leaves a screenshot of what the browser showed.
         self.browser = browser
         self.shots = shots
-        self.failures = 0
 
     def check(self, name, f):
         try:
@@ -229,8 +228,7 @@ class Checks:
             self.failed += 1
             print(f"browser {name} ... FAILED: {e}", flush=True)
             if self.browser and self.shots:
-                self.failures += 1
-                shot = os.path.join(self.shots, f"failed-{self.failures}.png")
+                shot = os.path.join(self.shots, f"failed-{self.failed}.png")
                 try:
                     message = self.browser.text("#message")
                     url = self.browser.s("GET", "/url")

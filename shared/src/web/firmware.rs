@@ -137,17 +137,13 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
     /// a session of the update service began since): the session owns none any more, and
     /// another may begin at once.
     fn ended(&self, done: Option<Result<WebDone, Status>>) -> Answer {
+        // Not taken in time (`None`): the upload may still be there; the owner keeps it.
+        if done.is_some() {
+            OWNER.lock(|o| o.set(None));
+        }
         match done {
-            // Not taken in time: the upload may still be there; the owner keeps it.
-            None => self.refused(None),
-            Some(Ok(WebDone::NoUpload)) => {
-                OWNER.lock(|o| o.set(None));
-                Answer::error(StatusCode::CONFLICT, "no upload of this session", None)
-            }
-            other => {
-                OWNER.lock(|o| o.set(None));
-                self.refused(other)
-            }
+            Some(Ok(WebDone::NoUpload)) => Answer::error(StatusCode::CONFLICT, "no upload of this session", None),
+            other => self.refused(other),
         }
     }
 
