@@ -42,12 +42,12 @@ impl core::str::FromStr for Network {
 
     fn from_str(s: &str) -> Result<Self, ()> {
         let (ip, prefix) = s.split_once('/').unwrap_or((s, "32"));
-        let ip: core::net::Ipv4Addr = ip.parse().map_err(|_| ())?;
+        let ip = crate::net::parse_ipv4(ip).ok_or(())?;
         // A prefix is decimal digits only (u8's parse would take a sign).
         if prefix.is_empty() || prefix.len() > 2 || !prefix.bytes().all(|b| b.is_ascii_digit()) {
             return Err(());
         }
-        Self::new(ip.octets(), prefix.parse().map_err(|_| ())?).ok_or(())
+        Self::new(ip, prefix.parse().map_err(|_| ())?).ok_or(())
     }
 }
 

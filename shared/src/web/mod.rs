@@ -4,6 +4,8 @@
 #[cfg(feature = "web")]
 pub mod firmware;
 #[cfg(feature = "web")]
+pub mod json;
+#[cfg(feature = "web")]
 pub mod service;
 pub mod sessions;
 #[cfg(feature = "web")]

@@ -22,8 +22,8 @@ use remodaq_protocol::m8350::{DiMode, REG_DI_MODE};
 use remodaq_protocol::resources::{self, Field, Format, Resource};
 use remodaq_protocol::web::{hex, unhex, HEADER_COUNTER, HEADER_SESSION, HEADER_SIGNATURE, SESSION_ID_LEN};
 use remodaq_protocol::{u32_low_first, words_low_first, Table};
-use serde::Deserialize;
 
+use super::json::{Object, Value};
 use super::{Login, LoginError, Refusal, Sessions, Signed, Verified};
 use crate::discovery::Identity;
 use crate::modbus::pdu::{handle_pdu, MAX_PDU};
@@ -239,22 +239,9 @@ impl IntoResponse for Answer {
     }
 }
 
-#[derive(Deserialize)]
-struct LoginBody<'a> {
-    nonce: &'a str,
-    page_nonce: &'a str,
-    proof: &'a str,
-}
-
-/// The body of a write: `{"value": ...}`.
-#[derive(Deserialize)]
-struct Body<T> {
-    value: T,
-}
-
-/// `{"value": T}` of a request body.
-fn body<'a, T: Deserialize<'a>>(body: &'a [u8]) -> Option<T> {
-    serde_json_core::from_slice::<Body<T>>(body).ok().map(|(b, _)| b.value)
+/// `{"value": ...}` of a request body, when the body is a JSON object ([`Object`]).
+fn body(body: &[u8]) -> Option<Object<'_>> {
+    Object::parse(body)
 }
 
 /// What a field reads as.
@@ -346,14 +333,17 @@ fn host_is_an_address(host: Option<&str>) -> bool {
     if let Some(rest) = host.strip_prefix('[') {
         let Some((address, after)) = rest.split_once(']') else { return false };
         let port_ok = after.is_empty() || after.strip_prefix(':').is_some_and(port_is_right);
-        return port_ok && address.parse::<core::net::Ipv6Addr>().is_ok();
+        // Only an IPv6 literal can stand between brackets in a URL (RFC 3986, section 3.2.2);
+        // its characters are checked, not its groups (core's IPv6 reader takes about 1 KB).
+        let literal = address.contains(':') && address.bytes().all(|b| b.is_ascii_hexdigit() || b == b':' || b == b'.');
+        return port_ok && literal;
     }
     let name = match host.rsplit_once(':') {
         Some((name, port)) if port_is_right(port) => name,
         Some(_) => return false,
         None => host,
     };
-    name.eq_ignore_ascii_case("localhost") || name.parse::<core::net::Ipv4Addr>().is_ok()
+    name.eq_ignore_ascii_case("localhost") || remodaq_protocol::net::parse_ipv4(name).is_some()
 }
 
 /// Whether `origin` (`http://host[:port]`) is the origin the request was sent to (`Host`).
@@ -555,11 +545,12 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
     }
 
     async fn login(&self, body: &[u8]) -> Answer {
-        let Ok((login, _)) = serde_json_core::from_slice::<LoginBody<'_>>(body) else {
+        let fields = Object::parse(body).and_then(|o| Some((o.str("nonce")?, o.str("page_nonce")?, o.str("proof")?)));
+        let Some((nonce, page_nonce, proof)) = fields else {
             return Answer::error(StatusCode::BAD_REQUEST, "expected {nonce, page_nonce, proof}", None);
         };
         let (Some(module_nonce), Some(page_nonce), Some(proof)) =
-            (unhex(login.nonce), unhex(login.page_nonce), unhex::<KEY_LEN>(login.proof))
+            (unhex(nonce), unhex(page_nonce), unhex::<KEY_LEN>(proof))
         else {
             return Answer::error(StatusCode::BAD_REQUEST, "nonces are 32 hex digits, the proof 64", None);
         };
@@ -633,12 +624,12 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
     /// A write of registers or coils at `addr` from a body `{"value": ...}`.
     async fn write(&self, registers: bool, addr: u16, body: &[u8]) -> Answer {
         let request = if registers {
-            match self::body::<u16>(body) {
+            match self::body(body).and_then(|o| o.u16("value")) {
                 Some(v) => Pdu::word(addr, v),
                 None => return Answer::error(StatusCode::BAD_REQUEST, "expected {value: 0..65535}", Some("value")),
             }
         } else {
-            match self::body::<bool>(body) {
+            match self::body(body).and_then(|o| o.bool("value")) {
                 Some(v) => Pdu::bit(addr, v),
                 None => return Answer::error(StatusCode::BAD_REQUEST, "expected {value: true|false}", Some("value")),
             }
@@ -741,14 +732,16 @@ pub fn write_request(f: &Field, n: u16, body: &[u8]) -> Result<Pdu, WriteError> 
         return Err(WriteError::ReadOnly);
     }
     let addr = f.addr(n);
+    let value = self::body(body);
     let request = match f.format {
-        Format::Bool => self::body::<bool>(body).map(|v| Pdu::bit(addr, v)),
-        Format::Word | Format::InputType => self::body::<u16>(body).map(|v| Pdu::word(addr, v)),
-        Format::Long => self::body::<u32>(body).map(|v| Pdu::long(addr, v)),
+        Format::Bool => value.and_then(|o| o.bool("value")).map(|v| Pdu::bit(addr, v)),
+        Format::Word | Format::InputType => value.and_then(|o| o.u16("value")).map(|v| Pdu::word(addr, v)),
+        Format::Long => value.and_then(|o| o.u32("value")).map(|v| Pdu::long(addr, v)),
         // A decimal number of °C with at most two decimals (no float parsing in the image);
         // the map checks the range.
         Format::Hundredths => hundredths(body).and_then(|h| i16::try_from(h).ok()).map(|h| Pdu::word(addr, h as u16)),
-        Format::Named(names) => self::body::<&str>(body)
+        Format::Named(names) => value
+            .and_then(|o| o.str("value"))
             .and_then(|v| names.iter().position(|name| *name == v))
             .map(|i| Pdu::word(addr, i as u16)),
         Format::MaskBit | Format::Engineering | Format::Frequency | Format::Ipv4 => return Err(WriteError::ReadOnly),
@@ -759,9 +752,7 @@ pub fn write_request(f: &Field, n: u16, body: &[u8]) -> Result<Pdu, WriteError> 
 /// `{"value": N}` with N a decimal number of at most two decimals (`-2`, `1.25`), in
 /// hundredths.
 fn hundredths(body: &[u8]) -> Option<i32> {
-    let text = core::str::from_utf8(body).ok()?.trim();
-    let inner = text.strip_prefix('{')?.strip_suffix('}')?.trim();
-    let number = inner.strip_prefix("\"value\"")?.trim_start().strip_prefix(':')?.trim();
+    let Value::Number(number) = Object::parse(body)?.get("value")? else { return None };
     let (negative, digits) = match number.strip_prefix('-') {
         Some(digits) => (true, digits),
         None => (false, number),
@@ -929,6 +920,8 @@ mod tests {
             "[::1",
             "[::1]80",
             "[attacker.example]:80",
+            "[fe80::1%25eth0]",
+            "[]",
             "",
         ] {
             assert!(!host_is_an_address(Some(refused)), "{refused}");

@@ -16,10 +16,10 @@ use embedded_storage_async::nor_flash::NorFlash;
 use picoserve::response::StatusCode;
 use remodaq_protocol::access::{AllowList, Network, MAX_NETWORKS};
 use remodaq_protocol::auth::{seal, x25519, Credential, BASE_POINT, CREDENTIAL_LEN, KEY_LEN};
-use remodaq_protocol::net::NetConfig;
+use remodaq_protocol::net::{parse_ipv4, NetConfig};
 use remodaq_protocol::web::{agreement_proof, hex, unhex, PASSWORD_SEAL_LABEL, SESSION_ID_LEN};
-use serde::Deserialize;
 
+use super::json::Object;
 use super::service::{Answer, Api};
 use crate::discovery::NETWORK_STORED;
 use crate::modbus::RegisterMap;
@@ -39,32 +39,6 @@ pub fn serving_on(port: u16) {
 type Agreement = ([u8; KEY_LEN], [u8; KEY_LEN], [u8; SESSION_ID_LEN]);
 static AGREEMENT: Blocking<CriticalSectionRawMutex, Cell<Option<Agreement>>> = Blocking::new(Cell::new(None));
 
-/// The body of `PUT /api/v1/password`: the module's ephemeral key it was sealed for, the
-/// page's public key and the sealed credential.
-#[derive(Deserialize)]
-struct PasswordBody<'a> {
-    module: &'a str,
-    public: &'a str,
-    sealed: &'a str,
-}
-
-/// The body of `PUT /api/v1/network`: every field, as `GET` shows them.
-#[derive(Deserialize)]
-struct NetworkBody<'a> {
-    ip: &'a str,
-    mask: &'a str,
-    gateway: &'a str,
-    modbus_port: u16,
-    http_port: u16,
-}
-
-/// The body of `PUT /api/v1/access`.
-#[derive(Deserialize)]
-struct AccessBody<'a> {
-    #[serde(borrow)]
-    networks: heapless::Vec<&'a str, MAX_NETWORKS>,
-}
-
 /// Why a network body is refused: the field at fault.
 #[derive(Debug, PartialEq, Eq)]
 pub enum NetworkError {
@@ -80,19 +54,22 @@ pub enum NetworkError {
 /// discovery checks them ([`NetConfig::is_valid`]; the console's port neither 0 nor one of the
 /// module's other TCP ports), the field at fault named.
 pub fn network_of(body: &[u8]) -> Result<(NetConfig, u16), NetworkError> {
-    let Ok((b, _)) = serde_json_core::from_slice::<NetworkBody<'_>>(body) else {
+    // Every field must be there, of its kind, before any is checked.
+    let fields = Object::parse(body).and_then(|o| {
+        Some((o.str("ip")?, o.str("mask")?, o.str("gateway")?, o.u16("modbus_port")?, o.u16("http_port")?))
+    });
+    let Some((ip, mask, gateway, modbus_port, http_port)) = fields else {
         return Err(NetworkError::NotJson);
     };
-    let address =
-        |text: &str, field| text.parse::<Ipv4Addr>().map(|a| a.octets()).map_err(|_| NetworkError::Field(field));
+    let address = |text: &str, field| parse_ipv4(text).ok_or(NetworkError::Field(field));
     let net = NetConfig {
-        ip: address(b.ip, "ip")?,
-        mask: address(b.mask, "mask")?,
-        gateway: address(b.gateway, "gateway")?,
-        port: b.modbus_port,
+        ip: address(ip, "ip")?,
+        mask: address(mask, "mask")?,
+        gateway: address(gateway, "gateway")?,
+        port: modbus_port,
     };
     if net.is_valid() {
-        return match b.http_port {
+        return match http_port {
             0 | remodaq_protocol::update::PORT => Err(NetworkError::Field("http_port")),
             port if port == net.port => Err(NetworkError::Field("http_port")),
             port => Ok((net, port)),
@@ -112,9 +89,8 @@ pub fn network_of(body: &[u8]) -> Result<(NetConfig, u16), NetworkError> {
 /// The allow-list of a `PUT /api/v1/access` body (`{"networks": [...]}`, at most
 /// [`MAX_NETWORKS`], `a.b.c.d/n` each); `None` when it is not one.
 pub fn allow_list_of(body: &[u8]) -> Option<AllowList> {
-    let (b, _) = serde_json_core::from_slice::<AccessBody<'_>>(body).ok()?;
     let mut nets: heapless::Vec<Network, MAX_NETWORKS> = heapless::Vec::new();
-    for text in &b.networks {
+    for text in Object::parse(body)?.strings("networks")? {
         nets.push(text.parse().ok()?).ok()?;
     }
     AllowList::of(&nets)
@@ -220,11 +196,12 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
     /// `PUT /api/v1/password` (signed): the new credential, sealed under the key agreed with
     /// this session's ephemeral key (used once). Every session ends with the old password.
     pub(super) async fn set_password(&self, session: [u8; SESSION_ID_LEN], body: &[u8]) -> Answer {
-        let Ok((b, _)) = serde_json_core::from_slice::<PasswordBody<'_>>(body) else {
+        let fields = Object::parse(body).and_then(|o| Some((o.str("module")?, o.str("public")?, o.str("sealed")?)));
+        let Some((module, public, sealed)) = fields else {
             return Answer::error(StatusCode::BAD_REQUEST, "expected {module, public, sealed}", None);
         };
         let (Some(sealed_for), Some(public), Some(mut bytes)) =
-            (unhex::<KEY_LEN>(b.module), unhex::<KEY_LEN>(b.public), unhex::<CREDENTIAL_LEN>(b.sealed))
+            (unhex::<KEY_LEN>(module), unhex::<KEY_LEN>(public), unhex::<CREDENTIAL_LEN>(sealed))
         else {
             return Answer::error(StatusCode::BAD_REQUEST, "the keys are 64 hex digits, the credential 168", None);
         };
