@@ -29,6 +29,7 @@ use crate::discovery::Identity;
 use crate::modbus::pdu::{handle_pdu, MAX_PDU};
 use crate::modbus::RegisterMap;
 use crate::module::{CommonSettings as _, SettingsAccess, Store};
+use crate::password::Credential;
 use embedded_storage_async::nor_flash::NorFlash;
 
 /// The sessions of the module's web console (one set for both connections).
@@ -118,13 +119,20 @@ const PAGES: [(&str, &str, &[u8]); 4] = [
     ("/style.css", "text/css; charset=utf-8", include_bytes!(concat!(env!("OUT_DIR"), "/style.css.gz"))),
 ];
 
-/// What every answer says about itself: a page's scripts come from the module only and no
-/// other site may frame it (clickjacking); browsers take the declared types as they are.
-const SECURITY_HEADERS: [(&str, &str); 3] = [
+/// The headers of a JSON answer, and what every answer says about itself: a page's scripts
+/// come from the module only and no other site may frame it (clickjacking); browsers take the
+/// declared types as they are.
+const JSON_HEADERS: [(&str, &str); 4] = [
+    ("Cache-Control", "no-store"),
     ("Content-Security-Policy", "default-src 'self'; frame-ancestors 'none'; form-action 'self'"),
     ("X-Content-Type-Options", "nosniff"),
     ("Referrer-Policy", "no-referrer"),
 ];
+
+/// The headers of a page's file: compressed at build time (every browser takes gzip), checked
+/// again at each load, and what every answer says about itself.
+const PAGE_HEADERS: [(&str, &str); 5] =
+    [("Content-Encoding", "gzip"), ("Cache-Control", "no-cache"), JSON_HEADERS[1], JSON_HEADERS[2], JSON_HEADERS[3]];
 
 /// Largest JSON answer, bytes (the 8350's 12 DIs with every field fit, about 1.3 KB).
 pub const MAX_ANSWER: usize = 2048;
@@ -190,11 +198,13 @@ impl Json {
 pub struct Answer {
     pub(super) status: StatusCode,
     pub(super) json: Json,
+    /// A page's file instead of the JSON: its type and its gzip-compressed bytes.
+    page: Option<(&'static str, &'static [u8])>,
 }
 
 impl Answer {
     pub(super) fn new(status: StatusCode) -> Self {
-        Self { status, json: Json::default() }
+        Self { status, json: Json::default(), page: None }
     }
 
     /// `{"error": what}` (and `"field": field` when one field is at fault).
@@ -226,15 +236,18 @@ impl IntoResponse for Answer {
         connection: picoserve::response::Connection<'_, R>,
         response_writer: W,
     ) -> Result<ResponseSent, W::Error> {
-        let (status, json) = if self.json.cut {
-            (StatusCode::INTERNAL_SERVER_ERROR, "{\"error\":\"answer too long\"}")
-        } else {
-            (self.status, self.json.text.as_str())
+        // One kind of response for every answer: one copy of picoserve's writer in flash.
+        let (status, kind, body, headers): (_, _, &[u8], &[(&str, &str)]) = match self.page {
+            Some((kind, gz)) => (self.status, kind, gz, &PAGE_HEADERS),
+            None if self.json.cut => (
+                StatusCode::INTERNAL_SERVER_ERROR,
+                "application/json",
+                b"{\"error\":\"answer too long\"}",
+                &JSON_HEADERS,
+            ),
+            None => (self.status, "application/json", self.json.text.as_bytes(), &JSON_HEADERS),
         };
-        let response = Response::new(status, json)
-            .with_content_type("application/json")
-            .with_header("Cache-Control", "no-store")
-            .with_headers(SECURITY_HEADERS);
+        let response = Response::new(status, body).with_content_type(kind).with_headers(headers);
         response_writer.write_response(connection, response).await
     }
 }
@@ -267,39 +280,35 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> PathRouterServic
         let parts = request.parts;
         let method = parts.method();
         let target = path.encoded();
-        if !host_is_an_address(header(&parts, "Host")) {
+        let page = PAGES.iter().find(|(p, ..)| *p == target).filter(|_| method == "GET");
+        let answer = if !host_is_an_address(header(&parts, "Host")) {
             // DNS rebinding: a hostile page whose name the attacker's DNS turns into the module's
             // address sends its requests with its own name as the Host (docs/web.md).
-            let answer = Answer::error(StatusCode::MISDIRECTED_REQUEST, "reach the module by its address", None);
-            return answer.write_to(request.body_connection.finalize().await?, response_writer).await;
-        }
-        if let Some((_, kind, gz)) = PAGES.iter().find(|(p, ..)| *p == target).filter(|_| method == "GET") {
-            // Every browser takes gzip; the page's files are served as compressed at build time.
-            let response = Response::new(StatusCode::OK, *gz)
-                .with_content_type(kind)
-                .with_header("Content-Encoding", "gzip")
-                .with_header("Cache-Control", "no-cache")
-                .with_headers(SECURITY_HEADERS);
-            return response_writer.write_response(request.body_connection.finalize().await?, response).await;
-        }
-        let query = parts.query().map(|q| q.0);
-        let full = full_target(target, query);
-        let answer = match (request.body_connection.body().read_all().await, full.as_ref()) {
-            (Ok(_), None) => Answer::error(StatusCode::URI_TOO_LONG, "target too long", None),
-            (Ok(body), Some(full)) => {
-                let signed = Signed {
-                    method,
-                    target: full.as_str(),
-                    body,
-                    session: header(&parts, HEADER_SESSION).and_then(unhex::<SESSION_ID_LEN>),
-                    counter: header(&parts, HEADER_COUNTER).and_then(|c| c.parse().ok()),
-                    signature: header(&parts, HEADER_SIGNATURE).and_then(unhex::<KEY_LEN>),
-                };
-                let foreign =
-                    header(&parts, "Origin").is_some_and(|origin| !same_origin(origin, header(&parts, "Host")));
-                self.route(method, target, query, &signed, foreign).await
+            Answer::error(StatusCode::MISDIRECTED_REQUEST, "reach the module by its address", None)
+        } else if let Some((_, kind, gz)) = page {
+            Answer { page: Some((kind, gz)), ..Answer::new(StatusCode::OK) }
+        } else {
+            let query = parts.query().map(|q| q.0);
+            let full = full_target(target, query);
+            match (request.body_connection.body().read_all().await, full.as_ref()) {
+                (Ok(_), None) => Answer::error(StatusCode::URI_TOO_LONG, "target too long", None),
+                (Ok(body), Some(full)) => {
+                    let signed = Signed {
+                        method,
+                        target: full.as_str(),
+                        body,
+                        session: header(&parts, HEADER_SESSION).and_then(unhex::<SESSION_ID_LEN>),
+                        counter: header(&parts, HEADER_COUNTER).and_then(|c| c.parse().ok()),
+                        signature: header(&parts, HEADER_SIGNATURE).and_then(unhex::<KEY_LEN>),
+                    };
+                    let foreign =
+                        header(&parts, "Origin").is_some_and(|origin| !same_origin(origin, header(&parts, "Host")));
+                    // The password in force, read once for the request's checks.
+                    let credential = self.map.lock().await.settings().password();
+                    self.route(method, target, query, &signed, foreign, &credential).await
+                }
+                (Err(_), _) => Answer::error(StatusCode::PAYLOAD_TOO_LARGE, "body too large", None),
             }
-            (Err(_), _) => Answer::error(StatusCode::PAYLOAD_TOO_LARGE, "body too large", None),
         };
         answer.write_to(request.body_connection.finalize().await?, response_writer).await
     }
@@ -379,6 +388,7 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
         query: Option<&str>,
         signed: &Signed<'_>,
         foreign: bool,
+        credential: &Credential,
     ) -> Answer {
         let mut segments = target.trim_start_matches('/').split('/');
         let (Some("api"), Some("v1")) = (segments.next(), segments.next()) else {
@@ -394,9 +404,9 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
         }
         match (method, resource) {
             ("GET", (Some("identity"), None, None)) => self.identity(),
-            ("POST", (Some("session"), Some("challenge"), None)) => self.challenge().await,
-            ("POST", (Some("session"), None, None)) => self.login(signed.body).await,
-            ("DELETE", (Some("session"), None, None)) => match self.verify(signed).await {
+            ("POST", (Some("session"), Some("challenge"), None)) => self.challenge(credential),
+            ("POST", (Some("session"), None, None)) => self.login(signed.body, credential),
+            ("DELETE", (Some("session"), None, None)) => match self.verify(signed, credential) {
                 Ok(_) => {
                     if let Some(id) = signed.session {
                         self.sessions.lock(|s| s.borrow_mut().end(&id));
@@ -420,7 +430,7 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
                 let Ok(addr) = addr.parse::<u16>() else {
                     return Answer::error(StatusCode::BAD_REQUEST, "not an address", Some("address"));
                 };
-                if let Err(why) = self.verify(signed).await {
+                if let Err(why) = self.verify(signed, credential) {
                     return Answer::error(StatusCode::UNAUTHORIZED, why, None);
                 }
                 self.write(table == "registers", addr, signed.body).await
@@ -428,7 +438,7 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
             ("GET", (Some("network"), None, None)) => self.network().await,
             ("GET", (Some("firmware"), None, None)) => self.firmware(),
             ("POST", (Some("firmware"), None | Some("finish"), None)) | ("PUT", (Some("firmware"), Some(_), None)) => {
-                let verified = match self.verify(signed).await {
+                let verified = match self.verify(signed, credential) {
                     Ok(verified) => verified,
                     Err(why) => return Answer::error(StatusCode::UNAUTHORIZED, why, None),
                 };
@@ -448,7 +458,7 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
             | (method @ "POST", (Some(name @ ("restart" | "password")), None | Some("key"), None)) => {
                 // Reading the allow-list needs a session too (discovery shows it only with the
                 // password); every other read here is open.
-                let verified = match self.verify(signed).await {
+                let verified = match self.verify(signed, credential) {
                     Ok(verified) => verified,
                     Err(why) => return Answer::error(StatusCode::UNAUTHORIZED, why, None),
                 };
@@ -499,7 +509,7 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
                         if r.count > 0 && n.is_none() {
                             return Answer::error(StatusCode::NOT_FOUND, "no such item", Some("item"));
                         }
-                        if let Err(why) = self.verify(signed).await {
+                        if let Err(why) = self.verify(signed, credential) {
                             return Answer::error(StatusCode::UNAUTHORIZED, why, None);
                         }
                         self.change(f, n.unwrap_or(0), signed.body).await
@@ -526,10 +536,9 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
         a
     }
 
-    async fn challenge(&self) -> Answer {
-        let credential = self.map.lock().await.settings().password();
+    fn challenge(&self, credential: &Credential) -> Answer {
         let now = (self.now_ms)();
-        let Some(c) = self.sessions.lock(|s| s.borrow_mut().challenge(&credential, self.peer, now)) else {
+        let Some(c) = self.sessions.lock(|s| s.borrow_mut().challenge(credential, self.peer, now)) else {
             return Answer::error(StatusCode::SERVICE_UNAVAILABLE, "the module is not ready for logins", None);
         };
         let (mut salt, mut nonce) = ([0u8; 32], [0u8; 2 * NONCE_LEN]);
@@ -544,7 +553,7 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
         a
     }
 
-    async fn login(&self, body: &[u8]) -> Answer {
+    fn login(&self, body: &[u8], credential: &Credential) -> Answer {
         let fields = Object::parse(body).and_then(|o| Some((o.str("nonce")?, o.str("page_nonce")?, o.str("proof")?)));
         let Some((nonce, page_nonce, proof)) = fields else {
             return Answer::error(StatusCode::BAD_REQUEST, "expected {nonce, page_nonce, proof}", None);
@@ -554,11 +563,10 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
         else {
             return Answer::error(StatusCode::BAD_REQUEST, "nonces are 32 hex digits, the proof 64", None);
         };
-        let credential = self.map.lock().await.settings().password();
         let now = (self.now_ms)();
         let login = Login { module_nonce, page_nonce, proof };
         let mac = self.identity.mac;
-        match self.sessions.lock(|s| s.borrow_mut().login(&credential, &mac, &login, self.peer, now)) {
+        match self.sessions.lock(|s| s.borrow_mut().login(credential, &mac, &login, self.peer, now)) {
             Ok(done) => {
                 let (mut id, mut signature) = ([0u8; 2 * SESSION_ID_LEN], [0u8; 2 * KEY_LEN]);
                 let mut a = Answer::new(StatusCode::OK);
@@ -582,10 +590,9 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
 
     /// The signature check of a state-changing request, against the password in force; why
     /// it was refused.
-    async fn verify(&self, signed: &Signed<'_>) -> Result<Verified, &'static str> {
-        let credential = self.map.lock().await.settings().password();
+    fn verify(&self, signed: &Signed<'_>, credential: &Credential) -> Result<Verified, &'static str> {
         let now = (self.now_ms)();
-        self.sessions.lock(|s| s.borrow_mut().verify(signed, &credential, now)).map_err(|refusal| match refusal {
+        self.sessions.lock(|s| s.borrow_mut().verify(signed, credential, now)).map_err(|refusal| match refusal {
             Refusal::Unsigned => "unsigned",
             Refusal::NoSession => "no session",
             Refusal::Stale => "stale counter",
