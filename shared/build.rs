@@ -15,7 +15,11 @@ fn main() {
         let path = format!("web/{name}");
         println!("cargo:rerun-if-changed={path}");
         let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{path}: {e}"));
-        let text = if name.ends_with(".html") { text } else { lean(&text) };
+        let text = match name.rsplit_once('.').map(|(_, kind)| kind) {
+            Some("js") => lean(&text, &path, true),
+            Some("css") => lean(&text, &path, false),
+            _ => text,
+        };
         let mut gz = flate2::GzBuilder::new().mtime(0).write(Vec::new(), flate2::Compression::best());
         gz.write_all(text.as_bytes()).expect("gzip into memory");
         let gz = gz.finish().expect("gzip into memory");
@@ -23,12 +27,22 @@ fn main() {
     }
 }
 
-/// `text` (a script or a style sheet) without its indentation, blank lines and whole-line `//`
-/// comments. Each line stays a line, so JavaScript reads the same (no line of the pages
-/// continues a string or a template onto the next: tools/browser runs them as served).
-fn lean(text: &str) -> String {
+/// `text` (a script, or a style sheet: `script` false) without its indentation and blank lines,
+/// and a script without its whole-line `//` comments. Each line stays a line, so a script reads
+/// the same, as long as no string, template or comment spans lines: the build stops on a
+/// backtick, a `/*` or a line ending in `\` in a script (tools/browser runs the pages as served).
+fn lean(text: &str, path: &str, script: bool) -> String {
     let mut out = String::with_capacity(text.len());
-    for line in text.lines().map(str::trim).filter(|l| !l.is_empty() && !l.starts_with("//")) {
+    for line in text.lines().map(str::trim) {
+        let comment = script && line.starts_with("//");
+        if script && !comment && (line.contains('`') || line.contains("/*") || line.ends_with('\\')) {
+            panic!(
+                "{path}: a line that may go on to the next (keep strings, templates and comments on one line): {line}"
+            );
+        }
+        if line.is_empty() || comment {
+            continue;
+        }
         out.push_str(line);
         out.push('\n');
     }

@@ -37,6 +37,41 @@ fn expect_refused(answer: Answer, what: &str, status: u16) {
     assert_eq!((answer.status, field(&answer.body, "error")), (status, what), "{}", answer.body);
 }
 
+/// Every answer's headers as docs/web.md ("The server") lists them: a page's file compressed
+/// and checked again at each load, a JSON answer never stored, and on both what stops another
+/// site from framing the page, loading other scripts or sniffing types.
+#[test]
+fn pages_and_json_answers_carry_their_headers() {
+    let module =
+        SimModule::start_with(BIN, &temp("headers.flash"), &["--listen", "127.0.0.1:0", "--http", "127.0.0.1:0"]);
+    let web = module.web.expect("web address");
+    let security = [
+        ("Content-Security-Policy", "default-src 'self'; frame-ancestors 'none'; form-action 'self'"),
+        ("X-Content-Type-Options", "nosniff"),
+        ("Referrer-Policy", "no-referrer"),
+    ];
+    let page = request(web, "GET", "/app.js", &[], "");
+    let json = request(web, "GET", "/api/v1/identity", &[], "");
+    let rebound = request_to_host(web, "attacker.example", "GET", "/api/v1/identity", &[], "");
+    assert_eq!((page.status, json.status, rebound.status), (200, 200, 421));
+    let page_headers = [
+        ("Content-Type", "text/javascript; charset=utf-8"),
+        ("Content-Encoding", "gzip"),
+        ("Cache-Control", "no-cache"),
+    ];
+    for (name, value) in page_headers.into_iter().chain(security) {
+        assert_eq!(page.header(name), Some(value), "/app.js {name}:\n{}", page.head);
+    }
+    for answer in [&json, &rebound] {
+        for (name, value) in
+            [("Content-Type", "application/json"), ("Cache-Control", "no-store")].into_iter().chain(security)
+        {
+            assert_eq!(answer.header(name), Some(value), "{name}:\n{}", answer.head);
+        }
+        assert_eq!(answer.header("Content-Encoding"), None, "{}", answer.head);
+    }
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn logins_signed_writes_and_the_attacks() {
     let module = SimModule::start_with(BIN, &temp("web.flash"), &["--listen", "127.0.0.1:0", "--http", "127.0.0.1:0"]);

@@ -27,6 +27,7 @@ use remodaq_shared::module::SettingsAccess;
 use remodaq_shared::password::AUTH;
 use remodaq_shared::ram_flash::RamFlash;
 use remodaq_shared::settings::{Schema, SettingsStore};
+use remodaq_shared::web::json::Value;
 use remodaq_shared::web::service::{write_request, Api, SharedSessions};
 use remodaq_shared::web::Sessions;
 
@@ -202,6 +203,26 @@ fuzz_target!(|data: &[u8]| {
             .flat_map(|r| r.fields.iter().map(move |f| (r, f)))
             .collect();
         let (r, f) = all[usize::from(pick) % all.len()];
+        // The module's JSON reader takes nothing that is not JSON (serde_json as the oracle),
+        // and reads the same members.
+        if let Some(object) = remodaq_shared::web::json::Object::parse(body) {
+            let full: serde_json::Map<String, serde_json::Value> =
+                serde_json::from_slice(body).expect("a body the reader took is a JSON object");
+            for (name, value) in &full {
+                let got = object.get(name);
+                match (value, got) {
+                    (serde_json::Value::String(s), Some(Value::Str(t))) => assert_eq!(s, t),
+                    (serde_json::Value::Bool(b), Some(Value::Bool(c))) => assert_eq!(*b, c),
+                    (serde_json::Value::Null, Some(Value::Null)) => {}
+                    (serde_json::Value::Number(_), Some(Value::Number(_))) => {}
+                    (serde_json::Value::Array(a), Some(Value::Strings(_))) => {
+                        let read: Vec<&str> = object.strings(name).expect("strings").collect();
+                        assert_eq!(a.iter().map(|v| v.as_str().expect("a string")).collect::<Vec<_>>(), read);
+                    }
+                    other => panic!("member {name}: {other:?}"),
+                }
+            }
+        }
         let n = u16::from(which & 0x0F) % r.count.max(1);
         if let Ok(pdu) = write_request(f, n, body) {
             let b = pdu.bytes();

@@ -303,7 +303,9 @@ impl<const H: usize, const S: usize> Backlog<H, S> {
             }
             return Verdict::Pass;
         }
-        if self.held.iter().filter(|h| h.peer.ip == peer.ip).count() >= self.per_source.map_or(H, core::num::NonZeroUsize::get) {
+        if self.held.iter().filter(|h| h.peer.ip == peer.ip).count()
+            >= self.per_source.map_or(H, core::num::NonZeroUsize::get)
+        {
             // One source's SYNs never fill the backlog: its newest replaces its oldest.
             if let Some(i) = self.held.iter().position(|h| h.peer.ip == peer.ip) {
                 self.remove_held(i);

@@ -10,7 +10,8 @@
 //! - at most [`MAX_MEMBERS`] members, each name once (a duplicate is refused: which would
 //!   count is not said by RFC 8259).
 //!
-//! Members the API does not know are ignored, as serde did.
+//! Members the API does not know are ignored when their values are of the kinds above (serde
+//! ignored any value; no client of the API sends other members).
 
 /// Most members a body may have.
 pub const MAX_MEMBERS: usize = 8;
@@ -258,6 +259,8 @@ mod tests {
         assert_eq!(o.u16("value"), None);
         let o = Object::parse(br#"{"value":"Type J"}"#).expect("an object");
         assert_eq!(o.str("value"), Some("Type J"));
+        let o = Object::parse("{\"unit\":\"°C\",\"名\":\"温度\",\"value\":\"±2.5 V\"}".as_bytes()).expect("an object");
+        assert_eq!((o.str("unit"), o.str("名"), o.str("value")), (Some("°C"), Some("温度"), Some("±2.5 V")));
         let o = Object::parse(
             br#"{"ip":"10.0.5.20","mask":"255.255.0.0","gateway":"10.0.0.1","modbus_port":502,"http_port":8080}"#,
         )

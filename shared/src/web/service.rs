@@ -252,11 +252,6 @@ impl IntoResponse for Answer {
     }
 }
 
-/// `{"value": ...}` of a request body, when the body is a JSON object ([`Object`]).
-fn body(body: &[u8]) -> Option<Object<'_>> {
-    Object::parse(body)
-}
-
 /// What a field reads as.
 #[derive(Clone, Copy)]
 enum Seen {
@@ -631,12 +626,12 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
     /// A write of registers or coils at `addr` from a body `{"value": ...}`.
     async fn write(&self, registers: bool, addr: u16, body: &[u8]) -> Answer {
         let request = if registers {
-            match self::body(body).and_then(|o| o.u16("value")) {
+            match Object::parse(body).and_then(|o| o.u16("value")) {
                 Some(v) => Pdu::word(addr, v),
                 None => return Answer::error(StatusCode::BAD_REQUEST, "expected {value: 0..65535}", Some("value")),
             }
         } else {
-            match self::body(body).and_then(|o| o.bool("value")) {
+            match Object::parse(body).and_then(|o| o.bool("value")) {
                 Some(v) => Pdu::bit(addr, v),
                 None => return Answer::error(StatusCode::BAD_REQUEST, "expected {value: true|false}", Some("value")),
             }
@@ -739,7 +734,7 @@ pub fn write_request(f: &Field, n: u16, body: &[u8]) -> Result<Pdu, WriteError> 
         return Err(WriteError::ReadOnly);
     }
     let addr = f.addr(n);
-    let value = self::body(body);
+    let value = Object::parse(body);
     let request = match f.format {
         Format::Bool => value.and_then(|o| o.bool("value")).map(|v| Pdu::bit(addr, v)),
         Format::Word | Format::InputType => value.and_then(|o| o.u16("value")).map(|v| Pdu::word(addr, v)),

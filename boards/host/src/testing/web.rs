@@ -12,12 +12,24 @@ use remodaq_protocol::web::{
     agreement_proof, hex, login_message, request_signature, session_key, unhex, PASSWORD_SEAL_LABEL, SESSION_ID_LEN,
 };
 
-/// An HTTP answer: status, body.
+/// An HTTP answer: status, headers, body.
 pub struct Answer {
     /// The status code (0: no answer).
     pub status: u16,
-    /// The body.
+    /// The header lines as sent, after the status line.
+    pub head: String,
+    /// The body (as text: a gzip-compressed page's bytes come out mangled).
     pub body: String,
+}
+
+impl Answer {
+    /// The value of header `name` (its first line; the name in any case).
+    pub fn header(&self, name: &str) -> Option<&str> {
+        self.head.lines().find_map(|line| {
+            let (n, v) = line.split_once(':')?;
+            n.eq_ignore_ascii_case(name).then(|| v.trim())
+        })
+    }
 }
 
 /// Sends `request` (the whole text) and reads the answer until the module closes.
@@ -29,8 +41,9 @@ pub fn send_raw(web: SocketAddr, request: &[u8]) -> Answer {
     let _ = s.read_to_end(&mut text);
     let text = String::from_utf8_lossy(&text).into_owned();
     let status = text.split(' ').nth(1).and_then(|c| c.parse().ok()).unwrap_or(0);
-    let body = text.split_once("\r\n\r\n").map_or(String::new(), |(_, b)| b.to_string());
-    Answer { status, body }
+    let (head, body) = text.split_once("\r\n\r\n").unwrap_or((&text, ""));
+    let head = head.split_once("\r\n").map_or("", |(_, h)| h).to_string();
+    Answer { status, head, body: body.to_string() }
 }
 
 /// Sends one request with a `Host` (the module's address) and a `Content-Length` header.
