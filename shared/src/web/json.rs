@@ -212,6 +212,14 @@ impl<'a> Object<'a> {
         }
     }
 
+    /// Member `name` as a number, as written.
+    pub fn number(&self, name: &str) -> Option<&'a str> {
+        match self.get(name)? {
+            Value::Number(n) => Some(n),
+            _ => None,
+        }
+    }
+
     /// Member `name` as `true` or `false`.
     pub fn bool(&self, name: &str) -> Option<bool> {
         match self.get(name)? {
@@ -227,10 +235,7 @@ impl<'a> Object<'a> {
 
     /// Member `name` as an integer from 0 to 2^32 - 1 (no sign, fraction or exponent).
     pub fn u32(&self, name: &str) -> Option<u32> {
-        match self.get(name)? {
-            Value::Number(n) if n.bytes().all(|b| b.is_ascii_digit()) => n.parse().ok(),
-            _ => None,
-        }
+        self.number(name).filter(|n| n.bytes().all(|b| b.is_ascii_digit()))?.parse().ok()
     }
 
     /// Member `name` as an array of strings: each in turn.

@@ -23,7 +23,7 @@ use remodaq_protocol::resources::{self, Field, Format, Resource};
 use remodaq_protocol::web::{hex, unhex, HEADER_COUNTER, HEADER_SESSION, HEADER_SIGNATURE, SESSION_ID_LEN};
 use remodaq_protocol::{u32_low_first, words_low_first, Table};
 
-use super::json::{Object, Value};
+use super::json::Object;
 use super::{Login, LoginError, Refusal, Sessions, Signed, Verified};
 use crate::discovery::Identity;
 use crate::modbus::pdu::{handle_pdu, MAX_PDU};
@@ -275,12 +275,11 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> PathRouterServic
         let parts = request.parts;
         let method = parts.method();
         let target = path.encoded();
-        let page = PAGES.iter().find(|(p, ..)| *p == target).filter(|_| method == "GET");
         let answer = if !host_is_an_address(header(&parts, "Host")) {
             // DNS rebinding: a hostile page whose name the attacker's DNS turns into the module's
             // address sends its requests with its own name as the Host (docs/web.md).
             Answer::error(StatusCode::MISDIRECTED_REQUEST, "reach the module by its address", None)
-        } else if let Some((_, kind, gz)) = page {
+        } else if let Some((_, kind, gz)) = PAGES.iter().find(|(p, ..)| *p == target).filter(|_| method == "GET") {
             Answer { page: Some((kind, gz)), ..Answer::new(StatusCode::OK) }
         } else {
             let query = parts.query().map(|q| q.0);
@@ -741,7 +740,11 @@ pub fn write_request(f: &Field, n: u16, body: &[u8]) -> Result<Pdu, WriteError> 
         Format::Long => value.and_then(|o| o.u32("value")).map(|v| Pdu::long(addr, v)),
         // A decimal number of °C with at most two decimals (no float parsing in the image);
         // the map checks the range.
-        Format::Hundredths => hundredths(body).and_then(|h| i16::try_from(h).ok()).map(|h| Pdu::word(addr, h as u16)),
+        Format::Hundredths => value
+            .and_then(|o| o.number("value"))
+            .and_then(hundredths)
+            .and_then(|h| i16::try_from(h).ok())
+            .map(|h| Pdu::word(addr, h as u16)),
         Format::Named(names) => value
             .and_then(|o| o.str("value"))
             .and_then(|v| names.iter().position(|name| *name == v))
@@ -751,10 +754,9 @@ pub fn write_request(f: &Field, n: u16, body: &[u8]) -> Result<Pdu, WriteError> 
     request.ok_or(WriteError::NotAValue)
 }
 
-/// `{"value": N}` with N a decimal number of at most two decimals (`-2`, `1.25`), in
-/// hundredths.
-fn hundredths(body: &[u8]) -> Option<i32> {
-    let Value::Number(number) = Object::parse(body)?.get("value")? else { return None };
+/// A JSON number (`number`, as [`Object::number`] gives it) of at most two decimals (`-2`,
+/// `1.25`), in hundredths.
+fn hundredths(number: &str) -> Option<i32> {
     let (negative, digits) = match number.strip_prefix('-') {
         Some(digits) => (true, digits),
         None => (false, number),
@@ -948,7 +950,8 @@ mod tests {
             (r#"{"value":123456}"#, None),
             (r#"{"other":1}"#, None),
         ] {
-            assert_eq!(hundredths(body.as_bytes()), want, "{body}");
+            let got = Object::parse(body.as_bytes()).and_then(|o| o.number("value")).and_then(hundredths);
+            assert_eq!(got, want, "{body}");
         }
     }
 
