@@ -17,10 +17,27 @@ compile_error!("choose one board: `board-stm32` (default) or `--no-default-featu
 // is never switched on by another (docs/security.md).
 #[cfg(all(target_os = "none", not(feature = "board-qemu")))]
 const _: () = assert!(
-    cfg!(feature = "test-update-key") || !remodaq_shared::update::UPDATE_KEY_IS_TEST_KEY,
+    cfg!(feature = "test-update-key") || !build::UPDATE_KEY_IS_TEST_KEY,
     "this STM32 image would trust the repository's TEST update key: build it with REMODAQ_UPDATE_KEY, \
      or ask for the test key explicitly (feature test-update-key, test builds only)"
 );
+
+/// What this image's build fixed (boards/update-key.rs, run by this crate's build script): the
+/// update key and the firmware version, read here so that another key or version rebuilds only
+/// the image crate.
+mod build {
+    include!(concat!(env!("OUT_DIR"), "/update_key.rs"));
+    include!(concat!(env!("OUT_DIR"), "/firmware_version.rs"));
+
+    /// The build's identity, for the runtime.
+    pub const BUILD: remodaq_shared::identity::Build = remodaq_shared::identity::Build {
+        version: match FIRMWARE_VERSION_OVERRIDE {
+            Some(version) => version,
+            None => remodaq_shared::identity::FIRMWARE_VERSION,
+        },
+        update_key: UPDATE_KEY,
+    };
+}
 
 #[cfg(not(target_os = "none"))]
 use remodaq_board_host::HostBoard as Board;
@@ -63,6 +80,7 @@ async fn web(app: &'static Running) -> ! {
 }
 
 async fn start(spawner: Spawner) {
+    remodaq_shared::identity::set_build(build::BUILD);
     let (app, io) = remodaq_shared::board::start(spawner, &STATICS).await;
     app.spawn(spawner, io, modbus, discovery, update, spawn_application);
     #[cfg(any(not(target_os = "none"), feature = "web"))]

@@ -63,30 +63,10 @@ pub mod identity {
     pub const REG_NAME: u16 = 0x00D2;
     /// 40213: firmware version.
     pub const REG_VERSION: u16 = 0x00D4;
-    /// Firmware version reported in 40213: A100h, or the 4 hex digits of
-    /// `REMODAQ_FIRMWARE_VERSION` at build time (test images of another version, docs/update.md).
-    pub const FIRMWARE_VERSION: u16 = match option_env!("REMODAQ_FIRMWARE_VERSION") {
-        Some(v) => hex16(v.as_bytes()),
-        None => 0xA100,
-    };
-
-    /// Four hex digits (a build error otherwise).
-    const fn hex16(s: &[u8]) -> u16 {
-        assert!(s.len() == 4, "REMODAQ_FIRMWARE_VERSION: 4 hex digits");
-        let mut value = 0u16;
-        let mut i = 0;
-        while i < 4 {
-            let digit = match s[i] {
-                b'0'..=b'9' => s[i] - b'0',
-                b'a'..=b'f' => s[i] - b'a' + 10,
-                b'A'..=b'F' => s[i] - b'A' + 10,
-                _ => panic!("REMODAQ_FIRMWARE_VERSION: 4 hex digits"),
-            };
-            value = value << 4 | digit as u16;
-            i += 1;
-        }
-        value
-    }
+    /// Firmware version of this release, reported in 40213: A100h. A test image of another
+    /// version (docs/update.md) is built with `REMODAQ_FIRMWARE_VERSION`, which the image crate
+    /// reads (boards/update-key.rs) and hands to the runtime (`remodaq_shared::identity`).
+    pub const FIRMWARE_VERSION: u16 = 0xA100;
 }
 
 /// One word of a 32-bit value: the low word comes first.

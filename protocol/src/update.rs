@@ -98,8 +98,6 @@ pub const SIGNED_LEN: usize = 4 + 1 + 1 + 2 + 2 + 4 + 4 + 64;
 /// Bytes of an encoded [`Header`].
 pub const HEADER_LEN: usize = SIGNED_LEN + 64;
 
-include!(concat!(env!("OUT_DIR"), "/update_key.rs"));
-
 /// The header of an image file.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Header {

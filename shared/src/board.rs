@@ -16,7 +16,7 @@ use embedded_storage_async::nor_flash::NorFlash;
 use static_cell::StaticCell;
 
 use crate::discovery::{Effect, Identity};
-use crate::identity::FIRMWARE_VERSION;
+use crate::identity::firmware_version;
 use crate::modbus::server::{Slots, MAX_CONNECTIONS, SOCKETS};
 use crate::modbus::RegisterMap;
 use crate::module::{CommonSettings, SettingsAccess, Store};
@@ -250,7 +250,7 @@ where
     let settings = *store.get();
     crate::password::AUTH.seed(&board.entropy());
     crate::diagnostics::DIAGNOSTICS.factory_password(settings.password().is_factory());
-    crate::diagnostics::DIAGNOSTICS.update_key(remodaq_protocol::auth::fingerprint(&crate::update::UPDATE_KEY));
+    crate::diagnostics::DIAGNOSTICS.update_key(remodaq_protocol::auth::fingerprint(&crate::identity::update_key()));
     if settings.password().is_factory() {
         crate::warn!("the factory password is in force: set one (remodaq password)");
     }
@@ -261,8 +261,8 @@ where
     // take longer than the STM32's capture ring lasts), just before the network.
     let io = B::io(resources);
     let (net, running) = board.start_network(spawner, stored);
-    let identity = Identity { model: M::MODULE_NAME, name: M::MODEL, version: FIRMWARE_VERSION, mac, running };
-    crate::info!("{} running, firmware {:04X}", M::MODEL, FIRMWARE_VERSION);
+    let identity = Identity { model: M::MODULE_NAME, name: M::MODEL, version: firmware_version(), mac, running };
+    crate::info!("{} running, firmware {:04X}", M::MODEL, firmware_version());
     let app = statics.app.init(App {
         map,
         store,

@@ -201,7 +201,7 @@ impl Service {
         w.bytes(&i.model.to_be_bytes()).bytes(&i.version.to_be_bytes()).bytes(&i.mac);
         w.net(&i.running).net(&settings.net());
         w.bytes(&((now_ms / 1000) as u32).to_be_bytes()).string(i.name.as_bytes());
-        w.bytes(&[flags(settings)]).bytes(&fingerprint(&crate::update::UPDATE_KEY));
+        w.bytes(&[flags(settings)]).bytes(&fingerprint(&crate::identity::update_key()));
         w.finish()
     }
 }

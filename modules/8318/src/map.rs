@@ -6,7 +6,7 @@ use embedded_storage_async::nor_flash::NorFlash;
 use remodaq_protocol::m8318::{decode, Reg, CHANNELS, REG_CJC, REG_STATUS, REG_VALUE};
 use remodaq_shared::access;
 use remodaq_shared::diagnostics::DIAGNOSTICS;
-use remodaq_shared::identity::FIRMWARE_VERSION;
+use remodaq_shared::identity::firmware_version;
 use remodaq_shared::modbus::map::{allows_each, read_registers_each};
 use remodaq_shared::modbus::{Access, Exception, RegisterMap, Table, WriteValues};
 use remodaq_shared::module::{write_update, SettingsAccess, Store};
@@ -101,7 +101,7 @@ impl<F: NorFlash> RegisterMap for Map8318<'_, F> {
             Some(Reg::EnableMask) => u16::from(s.enable_mask),
             Some(Reg::OpenValue) => u16::from(s.downscale),
             Some(Reg::Name) => MODULE_NAME,
-            Some(Reg::Version) => FIRMWARE_VERSION,
+            Some(Reg::Version) => firmware_version(),
             Some(Reg::Diag(d)) => DIAGNOSTICS.read(d, 0),
             None => 0,
         }

@@ -13,7 +13,7 @@ use remodaq_protocol::m8350::{
 };
 use remodaq_shared::access;
 use remodaq_shared::diagnostics::{status, DIAGNOSTICS};
-use remodaq_shared::identity::FIRMWARE_VERSION;
+use remodaq_shared::identity::firmware_version;
 use remodaq_shared::modbus::map::{allows_each, observe_registers_each, read_bits_each, read_registers_each};
 use remodaq_shared::modbus::{Access, Exception, RegisterMap, Table, WriteValues};
 use remodaq_shared::module::{write_update, SettingsAccess, Store, UpdateError};
@@ -206,7 +206,7 @@ impl<'a, F: NorFlash, R: RawMutex> Map8350<'a, F, R> {
             Point::AllDi => s.di.state(),
             Point::AllDo => s.pulse.do_bits(),
             Point::Name => MODULE_NAME,
-            Point::Version => FIRMWARE_VERSION,
+            Point::Version => firmware_version(),
             // "Samples lost since the last read of this register": cleared by the read.
             Point::Diag(d) => DIAGNOSTICS.read(d, status::FRONT_END_FAULT),
             Point::WatchdogTimeout => settings.watchdog.timeout,

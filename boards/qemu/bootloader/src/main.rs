@@ -17,7 +17,10 @@ fn main() {
 mod boot {
     use embassy_boot::{BlockingFirmwareState, BootLoader, BootLoaderConfig};
     use embedded_storage::nor_flash::{NorFlash, ReadNorFlash};
-    use remodaq_protocol::update::{check_before_swap, BeforeSwap, UPDATE_KEY};
+    use remodaq_protocol::update::{check_before_swap, BeforeSwap};
+
+    // The key of this build (build.rs, boards/update-key.rs): `UPDATE_KEY`, `UPDATE_KEY_IS_TEST_KEY`.
+    include!(concat!(env!("OUT_DIR"), "/update_key.rs"));
     use remodaq_ram_nor::RamNor;
 
     /// The swap's page: as the STM32F429's 128 KiB sectors of ACTIVE and DFU.

@@ -36,7 +36,10 @@ mod boot {
     use embassy_sync::blocking_mutex::raw::NoopRawMutex;
     use embassy_sync::blocking_mutex::Mutex;
     use embedded_storage::nor_flash::NorFlash;
-    use remodaq_protocol::update::{check_before_swap, BeforeSwap, UPDATE_KEY};
+    use remodaq_protocol::update::{check_before_swap, BeforeSwap};
+
+    // The key of this build (build.rs, boards/update-key.rs): `UPDATE_KEY`, `UPDATE_KEY_IS_TEST_KEY`.
+    include!(concat!(env!("OUT_DIR"), "/update_key.rs"));
 
     /// ACTIVE: the start of bank 1 region 3 (sector 5), six sectors.
     const ACTIVE_OFFSET: u32 = 0;
@@ -96,7 +99,7 @@ mod boot {
 
     // Never the repository's test key (public secret half) unless asked (docs/security.md).
     const _: () = assert!(
-        cfg!(feature = "test-update-key") || !remodaq_protocol::update::UPDATE_KEY_IS_TEST_KEY,
+        cfg!(feature = "test-update-key") || !UPDATE_KEY_IS_TEST_KEY,
         "this bootloader would trust the repository's TEST update key: build it with REMODAQ_UPDATE_KEY, \
          or ask for the test key explicitly (feature test-update-key, test builds only)"
     );
