@@ -28,29 +28,63 @@ def exchange(data, port, src="127.0.0.1", timeout=1.0):
             return None
 
 
-def search_raw(port):
-    """INFO of the module at `port`, in whichever protocol version answers."""
-    for version in (2, 1):
-        reply = exchange(header(version, 0x01, 7), port, timeout=0.3)
-        if reply and reply[5] == 0x81:
-            return {"proto": version, "mac": reply[12:18], "uptime": struct.unpack(">I", reply[46:50])[0]}
+def net_fields(b):
+    """IP, mask, gateway (dotted) and Modbus port of 14 bytes of an INFO answer."""
+    dotted = [".".join(str(x) for x in b[i:i + 4]) for i in (0, 4, 8)]
+    return {"ip": dotted[0], "mask": dotted[1], "gateway": dotted[2], "port": struct.unpack(">H", b[12:14])[0]}
+
+
+def search_raw(port, timeout=0.3, versions=(2, 1)):
+    """INFO of the module at `port`, in whichever protocol version of `versions` answers (the
+    same layout in both): protocol version, MAC, running and stored settings, uptime in s."""
+    for version in versions:
+        reply = exchange(header(version, 0x01, 7), port, timeout=timeout)
+        if reply and len(reply) >= 50 and reply[5] == 0x81:
+            return {"proto": version, "mac": reply[12:18], "running": net_fields(reply[18:32]),
+                    "stored": net_fields(reply[32:46]), "uptime": struct.unpack(">I", reply[46:50])[0]}
     return None
 
 
-def scram_keys(password, salt, iterations):
+# The factory credential's salt and iterations (protocol/src/auth.rs, `Credential::FACTORY`).
+FACTORY_SALT = b"remodaq-factory!"
+FACTORY_ITERATIONS = 4096
+
+
+def password_equivalents(password, salt, iterations):
+    """What a password is worth on the wire (protocol/src/auth.rs, RFC 5802): SaltedPassword =
+    PBKDF2-HMAC-SHA-256(password, salt, iterations), ClientKey = HMAC(SaltedPassword, "Client
+    Key"), StoredKey = SHA-256(ClientKey), ServerKey = HMAC(SaltedPassword, "Server Key")."""
     salted = hashlib.pbkdf2_hmac("sha256", password, salt, iterations)
     client_key = hmac.new(salted, b"Client Key", hashlib.sha256).digest()
-    server_key = hmac.new(salted, b"Server Key", hashlib.sha256).digest()
-    return client_key, hashlib.sha256(client_key).digest(), server_key
+    return {"SaltedPassword": salted, "ClientKey": client_key, "StoredKey": hashlib.sha256(client_key).digest(),
+            "ServerKey": hmac.new(salted, b"Server Key", hashlib.sha256).digest()}
+
+
+def scram_keys(password, salt, iterations):
+    keys = password_equivalents(password, salt, iterations)
+    return keys["ClientKey"], keys["StoredKey"], keys["ServerKey"]
+
+
+def challenge_salt(answer):
+    """Salt and iterations of a CHALLENGE answer (opcode 88h, docs/discovery.md); None for
+    another datagram."""
+    if len(answer) >= 66 and answer[:4] == b"RDAQ" and answer[5] == 0x88:
+        return bytes(answer[46:62]), struct.unpack(">I", answer[62:66])[0]
+    return None
 
 
 def command(sim, opcode, body, password, src="127.0.0.1"):
     """One configuration command (02 SET_NETWORK, 03 RESTART, 06 GET_ACCESS, 07 SET_ACCESS) as
     the module's protocol version wants it; the status byte of its answer (None: no answer)."""
+    reply = command_reply(sim, opcode, body, password, src)
+    return reply[14] if reply and len(reply) > 14 else None
+
+
+def command_reply(sim, opcode, body, password, src="127.0.0.1"):
+    """`command`, but the whole answer (None: no answer)."""
     pw = password.encode()
     if sim.version == 1:
-        reply = exchange(header(1, opcode, 9) + sim.mac + bytes([len(pw)]) + pw + body, sim.disc, src)
-        return reply[14] if reply else None
+        return exchange(header(1, opcode, 9) + sim.mac + bytes([len(pw)]) + pw + body, sim.disc, src)
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind((src, 0))
         s.settimeout(1.0)
@@ -60,8 +94,8 @@ def command(sim, opcode, body, password, src="127.0.0.1"):
             challenge = s.recv(512)
         except socket.timeout:
             return None
-        snonce, salt = challenge[30:46], challenge[46:62]
-        iterations = struct.unpack(">I", challenge[62:66])[0]
+        snonce = challenge[30:46]
+        salt, iterations = challenge_salt(challenge)
         client_key, stored_key, _ = scram_keys(pw, salt, iterations)
         request = bytearray(header(2, opcode, 10) + sim.mac + cnonce + snonce + bytes(32) + body)
         message = b"RDAQ discovery v2 request" + bytes(request[:46]) + bytes(request[78:])
@@ -69,7 +103,7 @@ def command(sim, opcode, body, password, src="127.0.0.1"):
         request[46:78] = bytes(a ^ b for a, b in zip(client_key, signature))
         s.sendto(bytes(request), (TARGET, sim.disc))
         try:
-            return s.recv(512)[14]
+            return s.recv(512)
         except socket.timeout:
             return None
 
