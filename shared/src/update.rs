@@ -721,7 +721,8 @@ where
     let mut aligned = [0u8; 32];
     // The update partition is the running one plus a page for the swap.
     let capacity = (dfu.capacity() - DFU::ERASE_SIZE) as u32;
-    let mut target = BootUpdater::new(dfu, state, &mut aligned[..STATE::WRITE_SIZE], crate::identity::update_key(), capacity);
+    let mut target =
+        BootUpdater::new(dfu, state, &mut aligned[..STATE::WRITE_SIZE], crate::identity::update_key(), capacity);
     let self_test = || self_test_passed(net.is_up()) && !cfg!(feature = "never-confirm");
     if confirm(&mut target, map, store, self_test, TRIAL).await == Confirmation::NotPassed {
         crate::error!("update: self-test not passed in time: restarting (the bootloader reverts)");

@@ -21,7 +21,7 @@ use remodaq_protocol::m8350::{self, DiMode};
 use crate::i18n::Lang;
 use crate::trend::Trend;
 use crate::validate::{self, Problem};
-use crate::worker::{Config, Done, Event, Job, Located, Reading, Worker};
+use crate::worker::{Clock, Config, Done, Event, Job, Located, Reading, Worker};
 use zeroize::Zeroizing;
 
 /// How the utility is started.
@@ -43,6 +43,8 @@ pub struct Options {
     /// Where to write, at most once a second, the frames drawn and the longest UI pass
     /// (`REMODAQ_UTILITY_STATS`, for the responsiveness report).
     pub stats: Option<PathBuf>,
+    /// The clock of the readings and the trend's time axis (the system's; tests hold it).
+    pub clock: Clock,
 }
 
 impl Default for Options {
@@ -55,6 +57,7 @@ impl Default for Options {
             search_at_start: true,
             stats: None,
             select: None,
+            clock: Clock::default(),
         }
     }
 }
@@ -327,7 +330,8 @@ impl Utility {
     /// A utility whose worker wakes `ctx` when something arrives.
     pub fn new(ctx: &egui::Context, options: Options) -> std::io::Result<Self> {
         let wake = ctx.clone();
-        let worker = Worker::start(move || wake.request_repaint(), options.timeout)?;
+        let worker = Worker::start(move || wake.request_repaint(), options.timeout, options.clock.clone())?;
+        let started = options.clock.now();
         let mut u = Self {
             worker,
             options,
@@ -367,7 +371,7 @@ impl Utility {
             paused: None,
             span_s: SPANS[0],
             freeze: false,
-            started: Instant::now(),
+            started,
             csv_path: std::env::temp_dir().join("remodaq-trend.csv").to_string_lossy().into_owned(),
             stats: FrameStats::default(),
             stats_written: None,
@@ -463,7 +467,7 @@ impl Utility {
 
     /// Seconds since the utility started: the time axis of the trend.
     pub fn now_s(&self) -> f64 {
-        self.started.elapsed().as_secs_f64()
+        self.options.clock.now().saturating_duration_since(self.started).as_secs_f64()
     }
 
     /// Takes the worker's events.

@@ -6,6 +6,7 @@
 use std::collections::HashMap;
 use std::net::SocketAddr;
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -21,6 +22,33 @@ use remodaq_protocol::access::AllowList;
 use tokio::sync::mpsc::{unbounded_channel, UnboundedReceiver, UnboundedSender};
 use tokio::task::JoinHandle;
 use zeroize::Zeroizing;
+
+/// Where the times of readings and of the trend come from: the system's monotonic clock, or
+/// (a test seam) a clock that stands still until the test moves it, so that a trend's points
+/// fall at the same times in every run.
+#[derive(Clone, Debug, Default)]
+pub struct Clock(Option<Arc<(Instant, AtomicU64)>>);
+
+impl Clock {
+    /// A clock at its start until [`set`](Self::set) moves it.
+    pub fn manual() -> Self {
+        Self(Some(Arc::new((Instant::now(), AtomicU64::new(0)))))
+    }
+
+    pub fn now(&self) -> Instant {
+        match &self.0 {
+            None => Instant::now(),
+            Some(c) => c.0 + Duration::from_micros(c.1.load(Ordering::SeqCst)),
+        }
+    }
+
+    /// Moves a manual clock to `since_start` after its start (the system's: nothing).
+    pub fn set(&self, since_start: Duration) {
+        if let Some(c) = &self.0 {
+            c.1.store(u64::try_from(since_start.as_micros()).unwrap_or(u64::MAX), Ordering::SeqCst);
+        }
+    }
+}
 
 /// A module found by a search, with where to reach it.
 #[derive(Clone, Debug)]
@@ -115,14 +143,15 @@ type Wake = Arc<dyn Fn() + Send + Sync>;
 impl Worker {
     /// Starts the worker thread; `wake` asks the window for a frame. `timeout` bounds every
     /// exchange with a module.
-    pub fn start(wake: impl Fn() + Send + Sync + 'static, timeout: Duration) -> std::io::Result<Self> {
+    /// `clock` times the readings.
+    pub fn start(wake: impl Fn() + Send + Sync + 'static, timeout: Duration, clock: Clock) -> std::io::Result<Self> {
         let (jobs, rx) = unbounded_channel();
         let (tx, events) = mpsc::channel();
         let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
         let wake: Wake = Arc::new(wake);
         std::thread::Builder::new()
             .name("remodaq-network".into())
-            .spawn(move || runtime.block_on(serve(rx, Out { tx, wake }, timeout)))?;
+            .spawn(move || runtime.block_on(serve(rx, Out { tx, wake, clock }, timeout)))?;
         Ok(Self { jobs, events })
     }
 
@@ -142,6 +171,7 @@ impl Worker {
 struct Out {
     tx: mpsc::Sender<Event>,
     wake: Wake,
+    clock: Clock,
 }
 
 impl Out {
@@ -296,7 +326,7 @@ async fn poll(mac: Mac, addr: SocketAddr, every: Duration, wake: bool, timeout: 
         }
         let changed = answered != Some(result.is_ok());
         answered = Some(result.is_ok());
-        let event = Event::Reading { mac, at: Instant::now(), reading: Box::new(result) };
+        let event = Event::Reading { mac, at: out.clock.now(), reading: Box::new(result) };
         if wake || changed {
             out.send(event);
         } else {
@@ -351,7 +381,9 @@ async fn configure(
             }
             Ok(Done::Restarted(None))
         }
-        Config::GetAccess | Config::SetAccess(_) => Ok(Done::Access(outcome.list.unwrap_or(AllowList::EMPTY))),
+        Config::GetAccess => Ok(Done::Access(outcome.list.unwrap_or(AllowList::EMPTY))),
+        // The module answers a store with its status only: what is in force is the list sent.
+        Config::SetAccess(sent) => Ok(Done::Access(outcome.list.unwrap_or(sent))),
         _ => Ok(Done::Said(said.into())),
     }
 }

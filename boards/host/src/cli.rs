@@ -45,6 +45,12 @@ pub struct Options {
     /// holding the USER button at power-up does on the module.
     #[arg(long)]
     pub factory_reset: bool,
+
+    /// The module's MAC address, as six hex bytes (`02:83:18:00:00:01`), instead of the one
+    /// derived from the flash image's path: a fixed identity for tests that show it (snapshots).
+    /// A unicast address (bit 0 of the first byte clear).
+    #[arg(long, value_name = "MAC", value_parser = parse_mac)]
+    pub mac: Option<[u8; 6]>,
 }
 
 /// A `--listen` value.
@@ -61,6 +67,25 @@ fn parse_listen(s: &str) -> Result<Listen, String> {
         .map(Listen::Addr)
         .or_else(|_| s.parse::<IpAddr>().map(Listen::Ip))
         .map_err(|_| format!("`{s}` is not ADDR or ADDR:PORT"))
+}
+
+fn parse_mac(s: &str) -> Result<[u8; 6], String> {
+    let bad = || format!("`{s}` is not a MAC address (six hex bytes: 02:83:18:00:00:01)");
+    let parts: Vec<&str> = s.split([':', '-']).collect();
+    if parts.len() != 6 {
+        return Err(bad());
+    }
+    let mut mac = [0u8; 6];
+    for (byte, part) in mac.iter_mut().zip(parts) {
+        if part.len() != 2 || !part.bytes().all(|b| b.is_ascii_hexdigit()) {
+            return Err(bad());
+        }
+        *byte = u8::from_str_radix(part, 16).map_err(|_| bad())?;
+    }
+    if mac[0] & 1 != 0 {
+        return Err(format!("`{s}` is a multicast address: a module's MAC is unicast"));
+    }
+    Ok(mac)
 }
 
 impl Options {
@@ -84,5 +109,25 @@ impl Options {
             Some(Listen::Ip(ip)) => SocketAddr::new(ip, settings_port),
             None => SocketAddr::from(([127, 0, 0, 1], settings_port)),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_mac_is_six_hex_bytes_and_unicast() {
+        assert_eq!(parse_mac("02:83:18:00:00:01"), Ok([0x02, 0x83, 0x18, 0, 0, 1]));
+        assert_eq!(parse_mac("02-83-50-AB-cd-ef"), Ok([0x02, 0x83, 0x50, 0xab, 0xcd, 0xef]));
+        for bad in
+            ["", "02:83:18:00:00", "02:83:18:00:00:01:02", "02:83:18:00:00:1", "02:83:18:00:00:0g", "+2:83:18:00:00:01"]
+        {
+            assert!(parse_mac(bad).is_err(), "{bad}");
+        }
+        assert!(parse_mac("01:00:5e:00:00:01").is_err(), "multicast");
+        let o = Options::try_parse_from(["firmware-8318", "--mac", "02:00:00:00:00:07"]).expect("parsed");
+        assert_eq!(o.mac, Some([2, 0, 0, 0, 0, 7]));
+        assert_eq!(Options::try_parse_from(["firmware-8318"]).expect("parsed").mac, None);
     }
 }

@@ -98,8 +98,11 @@ impl Board for HostBoard {
         self.options.factory_reset
     }
 
-    /// Stable for a flash image, as the MCU's unique id is for a module.
+    /// `--mac`, else stable for a flash image, as the MCU's unique id is for a module.
     fn mac(&self) -> [u8; 6] {
+        if let Some(mac) = self.options.mac {
+            return mac;
+        }
         let canonical = std::fs::canonicalize(&self.path).unwrap_or(self.path.clone());
         let digest = <sha2::Sha256 as sha2::Digest>::digest(canonical.to_string_lossy().as_bytes());
         let mut uid = [0u8; 12];

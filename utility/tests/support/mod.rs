@@ -4,7 +4,7 @@
 #![allow(dead_code, unused_imports)]
 
 use std::net::{SocketAddr, TcpListener, UdpSocket};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 pub use remodaq_protocol::auth::FACTORY_PASSWORD;
@@ -15,19 +15,55 @@ use eframe::egui;
 use egui_kittest::kittest::{NodeT, Queryable};
 use egui_kittest::Harness;
 use remodaq_board_host::testing::{program, SimModule};
+pub use remodaq_utility::worker::Clock;
 use remodaq_utility::{Options, Utility};
+pub use tokio_modbus::ExceptionCode;
 
 /// How long the utility waits for a module in these tests.
 pub const TIMEOUT: Duration = Duration::from_millis(500);
 
-/// A firmware's host build, next to the test binaries' `deps` directory (`cargo test
-/// --workspace` builds it).
-pub fn firmware(model: &str) -> String {
+/// A program of the workspace (`firmware-8318`, `remodaq`), next to the test binaries' `deps`
+/// directory (`cargo test --workspace` builds it).
+fn workspace_program(name: &str) -> String {
     let exe = std::env::current_exe().expect("test binary");
-    let beside = exe.parent().and_then(|d| d.parent()).expect("target dir").join(format!("firmware-{model}"));
-    let path = program(&format!("firmware-{model}"), &beside);
+    let beside = exe.parent().and_then(|d| d.parent()).expect("target dir").join(name);
+    let path = program(name, &beside);
     assert!(path.exists(), "{} is missing: run the workspace's tests (cargo test --workspace)", path.display());
     path.to_string_lossy().into_owned()
+}
+
+/// A firmware's host build.
+pub fn firmware(model: &str) -> String {
+    workspace_program(&format!("firmware-{model}"))
+}
+
+/// The workspace's root directory.
+pub fn workspace() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("the utility is in the workspace").to_path_buf()
+}
+
+/// Says that a test could not make its checks here, on the test process's standard error
+/// itself (the harness keeps what a passing test prints with `eprintln!`).
+pub fn not_applicable(what: &str, why: &str) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr(), "{what}: not applicable: {why}");
+}
+
+/// Signs `firmware` (any bytes) into the image file `out` for `model` (`8318`, `8350`),
+/// `version` (hex) and security `counter`, with the test update key, as a vendor does
+/// (`remodaq sign --key keys/test-update.key`, docs/update.md).
+pub fn sign(firmware: &Path, model: &str, version: &str, counter: u32, out: &Path) {
+    let key = workspace().join("keys/test-update.key");
+    let result = std::process::Command::new(workspace_program("remodaq"))
+        .args(["sign", "--key"])
+        .arg(&key)
+        .args(["--model", model, "--version", version, "--counter", &counter.to_string()])
+        .arg(firmware)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .expect("remodaq sign runs");
+    assert!(result.status.success(), "remodaq sign: {}", String::from_utf8_lossy(&result.stderr));
 }
 
 pub fn temp(name: &str) -> PathBuf {
@@ -145,33 +181,62 @@ impl Sim {
     pub fn kill(self) {
         self.module.kill();
     }
+
+    /// Stops the module (SIGSTOP: its sockets stay open and accept, nothing answers); `false`
+    /// where it was killed instead (Windows).
+    pub fn stop(&mut self) -> bool {
+        self.module.stop()
+    }
+
+    /// Lets a stopped module run again (SIGCONT).
+    pub fn resume(&mut self) {
+        self.module.resume();
+    }
 }
 
 /// What a module says of itself to a search (the test's own discovery request).
 pub struct Info {
     pub mac: [u8; 6],
     pub model: u16,
+    pub version: u16,
     pub running_port: u16,
     pub stored_port: u16,
+    /// The factory password is in force (flag bit 1 of the answer, docs/discovery.md).
+    pub factory_password: bool,
+    /// The Modbus write allow-list is not empty (flag bit 0).
+    pub writes_restricted: bool,
 }
 
 pub fn discover(at: SocketAddr) -> Info {
+    discover_within(at, 10).unwrap_or_else(|| panic!("no answer to a search at {at}"))
+}
+
+/// A search at `at`, tried `attempts` times (500 ms each).
+pub fn discover_within(at: SocketAddr, attempts: u16) -> Option<Info> {
     use remodaq_protocol::discovery::{decode_info, encode_request, Request, MAX_DATAGRAM};
     let socket = UdpSocket::bind("127.0.0.1:0").expect("udp");
     socket.set_read_timeout(Some(Duration::from_millis(500))).expect("timeout");
     let mut buf = [0u8; MAX_DATAGRAM];
-    for attempt in 0..10u16 {
+    for attempt in 0..attempts {
         let id = 0x5100 + attempt;
         let n = encode_request(id, &Request::Search, &mut buf).expect("search request");
         socket.send_to(&buf[..n], at).expect("send");
         let mut rx = [0u8; 512];
         while let Ok((n, _)) = socket.recv_from(&mut rx) {
             if let Some(i) = decode_info(&rx[..n]).filter(|i| i.id == id) {
-                return Info { mac: i.mac, model: i.model, running_port: i.running.port, stored_port: i.stored.port };
+                return Some(Info {
+                    mac: i.mac,
+                    model: i.model,
+                    version: i.version,
+                    running_port: i.running.port,
+                    stored_port: i.stored.port,
+                    factory_password: i.flags & 0b10 != 0,
+                    writes_restricted: i.flags & 0b01 != 0,
+                });
             }
         }
     }
-    panic!("no answer to a search at {at}");
+    None
 }
 
 fn modbus<T>(addr: SocketAddr, f: impl FnOnce(&mut tokio_modbus::client::sync::Context) -> T) -> T {
@@ -192,6 +257,18 @@ pub fn coils(addr: SocketAddr, at: u16, n: u16) -> Vec<bool> {
     modbus(addr, |c| c.read_coils(at, n).expect("transport").expect("no exception"))
 }
 
+/// Writes holding registers (function 16) at a PDU address: the module's exception, if any.
+pub fn write_registers(addr: SocketAddr, at: u16, values: &[u16]) -> Result<(), ExceptionCode> {
+    use tokio_modbus::client::sync::Writer;
+    modbus(addr, |c| c.write_multiple_registers(at, values).expect("transport"))
+}
+
+/// Writes a coil (function 05) at a PDU address: the module's exception, if any.
+pub fn write_coil(addr: SocketAddr, at: u16, on: bool) -> Result<(), ExceptionCode> {
+    use tokio_modbus::client::sync::Writer;
+    modbus(addr, |c| c.write_single_coil(at, on).expect("transport"))
+}
+
 /// Discrete inputs (function 02) at a PDU address.
 pub fn discrete(addr: SocketAddr, at: u16, n: u16) -> Vec<bool> {
     use tokio_modbus::client::sync::Reader;
@@ -201,6 +278,22 @@ pub fn discrete(addr: SocketAddr, at: u16, n: u16) -> Vec<bool> {
 /// The type K temperature of `mv` (cold junction at 0 °C), interpolated in the NIST ITS-90
 /// table (1 °C steps) vendored with the 8318's tests.
 pub fn nist_k_temperature(mv: f64) -> f64 {
+    let points = nist_k_table();
+    let i = points.windows(2).position(|w| w[0].1 <= mv && mv <= w[1].1).expect("mv within the table");
+    let ((t0, e0), (t1, e1)) = (points[i], points[i + 1]);
+    t0 + (mv - e0) / (e1 - e0) * (t1 - t0)
+}
+
+/// The type K emf of a junction at `t` °C against one at 0 °C, mV (the same table).
+pub fn nist_k_emf(t: f64) -> f64 {
+    let points = nist_k_table();
+    let i = points.windows(2).position(|w| w[0].0 <= t && t <= w[1].0).expect("t within the table");
+    let ((t0, e0), (t1, e1)) = (points[i], points[i + 1]);
+    e0 + (t - t0) / (t1 - t0) * (e1 - e0)
+}
+
+/// The type K table from 0 °C up: (°C, mV).
+fn nist_k_table() -> Vec<(f64, f64)> {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../modules/8318/tests/reference/nist-its90-tables.tab");
     let text = std::fs::read_to_string(path).expect("the NIST tables");
     let mut points: Vec<(f64, f64)> = Vec::new();
@@ -226,9 +319,7 @@ pub fn nist_k_temperature(mv: f64) -> f64 {
     }
     points.sort_by(|a, b| a.0.total_cmp(&b.0));
     points.dedup_by(|a, b| a.0 == b.0);
-    let i = points.windows(2).position(|w| w[0].1 <= mv && mv <= w[1].1).expect("mv within the table");
-    let ((t0, e0), (t1, e1)) = (points[i], points[i + 1]);
-    t0 + (mv - e0) / (e1 - e0) * (t1 - t0)
+    points
 }
 
 /// What a node says: its label, or for a text its value (egui's labels carry their text as
@@ -249,7 +340,12 @@ impl Gui {
     }
 
     pub fn sized(search_at: Vec<SocketAddr>, size: egui::Vec2) -> Self {
-        let options = Options { search_at, timeout: TIMEOUT, search_at_start: false, ..Options::default() };
+        Self::with(search_at, size, TIMEOUT, Clock::default())
+    }
+
+    /// The utility waiting `timeout` for a module, its readings and trend timed by `clock`.
+    pub fn with(search_at: Vec<SocketAddr>, size: egui::Vec2, timeout: Duration, clock: Clock) -> Self {
+        let options = Options { search_at, timeout, search_at_start: false, clock, ..Options::default() };
         let harness = Harness::builder()
             .with_size(size)
             .with_context_setup(|ctx| {
@@ -310,17 +406,22 @@ impl Gui {
     /// Runs frames until `ok` (at most 20 s), else fails saying `what` and what the utility
     /// last said.
     pub fn wait(&mut self, what: &str, ok: impl Fn(&Gui) -> bool) {
+        self.wait_for(what, Duration::from_secs(20), ok);
+    }
+
+    /// [`wait`](Self::wait), at most `limit`.
+    pub fn wait_for(&mut self, what: &str, limit: Duration, ok: impl Fn(&Gui) -> bool) {
         let t = Instant::now();
         loop {
             self.harness.step();
             if ok(self) {
                 return;
             }
-            if t.elapsed() > Duration::from_secs(20) {
+            if t.elapsed() > limit {
                 let said = self.app().message().unwrap_or("nothing").to_string();
                 let labels: Vec<String> =
                     self.harness.query_all_by_label_contains("").filter_map(|n| text(&n)).take(300).collect();
-                panic!("waited 20 s for {what}; the utility said: {said}; it shows: {labels:?}");
+                panic!("waited {} s for {what}; the utility said: {said}; it shows: {labels:?}", limit.as_secs());
             }
             std::thread::sleep(Duration::from_millis(20));
         }
@@ -361,11 +462,53 @@ impl Gui {
 
     /// Searches and selects the module whose tree node names `name` on `port`.
     pub fn select_module(&mut self, name: &str, port: u16) {
+        self.select_module_at(name, ([127, 0, 0, 1], port).into());
+    }
+
+    /// Searches and selects the module whose tree node names `name` at `modbus`.
+    pub fn select_module_at(&mut self, name: &str, modbus: SocketAddr) {
         self.click("Search the LAN");
-        let node = format!("{name} (127.0.0.1:{port})");
+        let node = format!("{name} ({modbus})");
         self.wait("the module in the tree", |g| g.has(&node));
         self.click(&node);
         self.wait("the module's tabs", |g| g.has("Network Settings"));
+    }
+
+    /// Answers the password dialog (which must name `module`, its name and MAC) with `password`.
+    pub fn password(&mut self, module: &str, password: &str) {
+        self.wait("the password dialog", |g| g.has("Configuration password"));
+        assert!(self.has_part(module), "the password dialog names {module}");
+        // Its field (the Security tab has a heading "Password" too).
+        self.harness
+            .query_all_by_role_and_label(egui::accesskit::Role::PasswordInput, "Password")
+            .next()
+            .expect("the dialog's password field")
+            .set_text_value_accesskit(password);
+        self.frames(2);
+        self.click("OK");
+        assert!(!self.has("Configuration password"), "the dialog closed");
+    }
+
+    /// The text of the progress bar, if one is shown.
+    pub fn progress(&self) -> Option<String> {
+        self.harness.query_all_by_role(egui::accesskit::Role::ProgressIndicator).next().and_then(|n| text(&n))
+    }
+
+    /// Whether the widget labelled `label` is enabled (AccessKit).
+    pub fn enabled(&self, label: &str) -> bool {
+        !self.harness.get_by_label(label).accesskit_node().is_disabled()
+    }
+
+    /// The status line's message (what the utility said last).
+    pub fn said(&self) -> String {
+        self.app().message().unwrap_or_default().to_string()
+    }
+
+    /// The text and the place (in points) of the first node whose text starts with `prefix`.
+    pub fn text_starting(&self, prefix: &str) -> Option<(String, egui::Rect)> {
+        self.harness
+            .query_all_by_label_contains(prefix)
+            .find_map(|n| text(&n).filter(|l| l.starts_with(prefix)).map(|l| (l, n.rect())))
     }
 
     /// The text in the field labelled `label`.

@@ -137,6 +137,41 @@ impl SimModule {
         let _ = self.child.kill();
         let _ = self.child.wait();
     }
+
+    /// Stops the module without closing anything (SIGSTOP): the kernel keeps its sockets open
+    /// and its listener's backlog accepting, so a client's connect succeeds and its request
+    /// waits for an answer that does not come, as with a module that hangs or a cable pulled
+    /// mid-exchange (a killed module's sockets refuse and reset at once instead). Returns
+    /// whether the module can be [resumed](Self::resume): on Windows, which has no SIGSTOP,
+    /// the module is killed instead (connections then fail fast) and this returns `false`.
+    pub fn stop(&mut self) -> bool {
+        #[cfg(unix)]
+        {
+            self.signal("-STOP");
+            true
+        }
+        #[cfg(not(unix))]
+        {
+            // No SIGSTOP on Windows (suspending a process's threads would need its handle's
+            // NtSuspendProcess): the fallback is the kill, which a caller must not resume.
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+            false
+        }
+    }
+
+    /// Lets a module stopped by [`stop`](Self::stop) run again (SIGCONT); it then answers
+    /// what waited in its sockets. Nothing to do on Windows (the module was killed).
+    pub fn resume(&mut self) {
+        #[cfg(unix)]
+        self.signal("-CONT");
+    }
+
+    #[cfg(unix)]
+    fn signal(&self, which: &str) {
+        let status = Command::new("kill").arg(which).arg(self.child.id().to_string()).status();
+        assert!(status.as_ref().is_ok_and(|s| s.success()), "kill {which} {}: {status:?}", self.child.id());
+    }
 }
 
 impl Drop for SimModule {
