@@ -113,6 +113,23 @@ class WebDriver:
             time.sleep(0.1)
         raise RuntimeError(f"{css!r} reads {text!r}, not {want!r}")
 
+    def clear_message(self):
+        """Empties the page's message line (`#message`), so that a wait on it after the next
+        click sees only what that click brought: the page never clears it by itself, and a
+        "Saved" or "Logged in" of an earlier step would otherwise satisfy the wait at once."""
+        self.script('const m = document.getElementById("message"); if (m) { m.textContent = ""; m.className = ""; }')
+
+    def click_for_message(self, css, want, wait=10.0):
+        """Clicks `css` and waits for a new `want` in `#message`; returns the message."""
+        self.clear_message()
+        self.click(css)
+        return self.wait_text("#message", want, wait)
+
+    def rows(self):
+        """The cells' texts of every table row on the page (`main#page tr`)."""
+        return self.script('return Array.from(document.querySelectorAll("main#page tr"))'
+                           '.map(r => Array.from(r.cells).map(c => c.textContent.trim()))')
+
     def screenshot(self, path):
         with open(path, "wb") as f:
             f.write(base64.b64decode(self.s("GET", "/screenshot")))
@@ -254,12 +271,15 @@ def every_page(checks, b, module, model, shots, shows, label=None):
 
 
 def log_in(b, password):
+    """Opens the login dialog and submits `password`; `#message` is emptied first, so that a
+    wait for "Logged in" sees this login's."""
     b.click("#login")
     b.type("#password", password)
+    b.clear_message()
     b.click("#login-form button[value=ok]")
 
 
-QEMU_CHECKS = 6  # the checks qemu_checks makes
+QEMU_CHECKS = 7  # the checks qemu_checks makes
 
 
 def qemu_checks(checks, b, qemu, shots):
@@ -269,6 +289,15 @@ def qemu_checks(checks, b, qemu, shots):
     every_page(checks, b, qemu, "8350", shots,
                {"status": ["Firmware\nA100", "Uptime"], "io": ["DI11", "DO5"], "settings": ["DI11", "Host watchdog"]},
                label="8350 under QEMU at its LAN address:")
+
+    def di_states():
+        b.go(f"{qemu.web}/#io")
+        # The QEMU board's inputs (boards/qemu/src/digital.rs): DI3 steady high, DI0 a 1 kHz
+        # square wave, the rest low.
+        shown = page_matches_di(b, qemu, steady=range(1, 12), high={3})
+        print(f"  the live page's DI1-DI11 under QEMU: {shown}", flush=True)
+    checks.check("8350 under QEMU: the live page's DI3 (high on the QEMU board) reads on, DI1, DI2, DI4-DI11 off, "
+                 "each as Modbus reads it (40301)", di_states)
 
     def toggle():
         b.go(f"{qemu.web}/#io")
@@ -287,8 +316,7 @@ def qemu_checks(checks, b, qemu, shots):
         b.go(f"{qemu.web}/#security")
         b.type('input[aria-label="new_password"]', "correct horse battery")
         b.type('input[aria-label="repeat_password"]', "correct horse battery")
-        b.click("#change-password")
-        b.wait_text("#message", "Password changed", wait=60)
+        b.click_for_message("#change-password", "Password changed", wait=60)
         b.wait_text("#login", "Log in")
         log_in(b, "correct horse battery")
         b.wait_text("#message", "Logged in", wait=60)
@@ -391,13 +419,73 @@ def qemu_on_a_lan(checks, image, shots):
         subprocess.run(["ip", "netns", "del", mod], stderr=subprocess.DEVNULL)
 
 
+# The 8318 scenario's channel 0 (41.276 mV at the terminals, type K, the cold junction at
+# 25 °C): NIST ITS-90's type K table (modules/8318/tests/reference/nist-its90-tables.tab) gives
+# E(25 °C) = 1.000 mV, so the hot junction's emf is 42.276 mV, between 42.247 mV (1025 °C) and
+# 42.286 mV (1026 °C): 1025.74 °C. The table's 3 decimals are worth 0.013 °C, one count of the
+# type K range (-250 .. 1400 °C, spec §2.2-2.3) 0.025 °C.
+CH0_CELSIUS = 1025.74
+CH0_TOLERANCE = 0.1
+# Type K's range (spec §2.2) and the linear mapping of its codes (§2.3).
+TYPE_K = (-250.0, 1400.0)
+
+
+def page_matches_di(b, module, steady, high, wait=10.0):
+    """Waits until the live page's DI rows show, for each DI in `steady`, "on" exactly when
+    register 40301 (spec §3.1: every DI, bit n = DIn) has its bit set, and those in `high` are
+    on; returns the states shown. An error naming both readings otherwise."""
+    deadline = time.time() + wait
+    while True:
+        shown = {int(r[0][2:]): r[1] for r in b.rows() if len(r) >= 2 and r[0][:2] == "DI" and r[0][2:].isdigit()}
+        bits = read_registers(module.modbus, 0x12C, 1)[0]
+        modbus = {n: "on" if bits >> n & 1 else "off" for n in steady}
+        page = {n: shown.get(n) for n in steady}
+        wanted_high = all(modbus[n] == "on" for n in high)
+        if page == modbus and wanted_high:
+            return page
+        if time.time() > deadline:
+            raise RuntimeError(f"the page shows DI states {page}, Modbus reads {bits:04x}h: {modbus} "
+                               f"(DI{sorted(high)} high in the scenario)")
+        time.sleep(0.2)
+
+
+def page_matches_8318(b, module, wait=10.0):
+    """Waits until the live page's channel 0 row shows the scenario's temperature and the
+    value and raw code that register 40001 holds (within 2 counts: the page and the read are
+    not taken at the same instant); returns the row."""
+    lo, hi = TYPE_K
+    deadline = time.time() + wait
+    why = "no channel 0 row"
+    while True:
+        row = next((r for r in b.rows() if len(r) >= 4 and r[0] == "0"), None)
+        raw = read_registers(module.modbus, 0, 1)[0]
+        celsius = lo + raw * (hi - lo) / 65535
+        if row:
+            try:
+                value, unit = row[1].split(" ", 1)
+                value = float(value)
+                page_raw = int(row[3])
+                if unit != "°C":
+                    why = f"channel 0 reads {row[1]!r}: not in °C"
+                elif abs(value - CH0_CELSIUS) > CH0_TOLERANCE:
+                    why = f"channel 0 reads {row[1]!r}, the scenario gives {CH0_CELSIUS} ± {CH0_TOLERANCE} °C"
+                elif abs(value - celsius) > 2 * (hi - lo) / 65535 or abs(page_raw - raw) > 2:
+                    why = f"channel 0 reads {row[1]!r} (raw {page_raw}), Modbus {raw} = {celsius:.3f} °C"
+                else:
+                    return row
+            except ValueError:
+                why = f"channel 0's row {row!r} is not a value, a unit and a raw code"
+        if time.time() > deadline:
+            raise RuntimeError(why)
+        time.sleep(0.2)
+
+
 def wrong_then_right(b):
     """Logs in with a wrong password (refused), then the factory one."""
     log_in(b, "not the password")
     b.wait_text("#login-error", "Wrong password")
     b.type("#password", FACTORY_PASSWORD)
-    b.click("#login-form button[value=ok]")
-    b.wait_text("#message", "Logged in")
+    b.click_for_message("#login-form button[value=ok]", "Logged in")
 
 
 def toggle_do(b, module, n, shot):
@@ -451,6 +539,15 @@ def main():
             toggle_do(b, m8350, 2, os.path.join(shots, "8350-io-do2-on.png"))
         checks.check("8350 DO2 toggled on the live page, confirmed by a Modbus read", toggle)
 
+        def di_states():
+            b.go(f"{m8350.web}/#io")
+            # The scenario: DI1 steady high, DI0 a 5 Hz square wave, the rest low.
+            shown = page_matches_di(b, m8350, steady=range(1, 12), high={1})
+            b.screenshot(os.path.join(shots, "8350-io-di.png"))
+            print(f"  the live page's DI1-DI11: {shown}", flush=True)
+        checks.check("8350 live page: DI1 (high in the scenario) reads on, DI2-DI11 off, each as Modbus reads "
+                     "it (40301)", di_states)
+
         def chinese():
             b.go(f"{m8350.web}/#io")
             b.click("#lang")
@@ -482,18 +579,15 @@ def main():
             # then the password changed on the page, and the new one logs in.
             b.go(f"{m8350.web}/#security")
             b.type('input[aria-label="networks"]', "192.0.2.0/24")
-            b.click("#save-access")
-            b.wait_text("#message", "Set a password of your own first")
+            b.click_for_message("#save-access", "Set a password of your own first")
             b.type('input[aria-label="new_password"]', "correct horse battery")
             b.type('input[aria-label="repeat_password"]', "correct horse battery")
-            b.click("#change-password")
-            b.wait_text("#message", "Password changed", wait=30)
+            b.click_for_message("#change-password", "Password changed", wait=30)
             b.wait_text("#login", "Log in")
             log_in(b, FACTORY_PASSWORD)
             b.wait_text("#login-error", "Wrong password")
             b.type("#password", "correct horse battery")
-            b.click("#login-form button[value=ok]")
-            b.wait_text("#message", "Logged in", wait=30)
+            b.click_for_message("#login-form button[value=ok]", "Logged in", wait=30)
         checks.check("8350 password changed on the security page (the factory one may not set the allow-list); "
                      "the old one refused, the new one logs in", password)
 
@@ -502,8 +596,8 @@ def main():
             # (exception 01); emptied, writes are served again.
             b.go(f"{m8350.web}/#security")
             b.type('input[aria-label="networks"]', "192.0.2.0/24, 10.9.8.7")
-            b.click("#save-access")
-            b.wait_text("#message", "Saved")
+            # Each save waits for its own "Saved" (the message line emptied before the click).
+            b.click_for_message("#save-access", "Saved")
             # Drawn again from the module's answer: the bare address as /32.
             shown, deadline = "", time.time() + 10
             while shown != "192.0.2.0/24, 10.9.8.7/32" and time.time() < deadline:
@@ -515,8 +609,8 @@ def main():
             if write_coil(m8350.modbus, 0x10, False) != 1:
                 raise RuntimeError("a Modbus write from outside the list was not refused with exception 01")
             b.type('input[aria-label="networks"]', "")
-            b.click("#save-access")
-            b.wait_text("#message", "Saved")
+            # Each save waits for its own "Saved" (the message line emptied before the click).
+            b.click_for_message("#save-access", "Saved")
             if write_coil(m8350.modbus, 0x10, False) is not None:
                 raise RuntimeError("a Modbus write was refused with the list emptied")
         checks.check("8350 allow-list set on the security page: a Modbus write from outside it refused "
@@ -525,8 +619,7 @@ def main():
         def network():
             b.go(f"{m8350.web}/#network")
             b.type('input[aria-label="ip"]', "192.0.2.20")
-            b.click("main#page button")
-            b.wait_text("#message", "Saved")
+            b.click_for_message("main#page button", "Saved")
             b.wait_text("main#page", "take effect after a restart")
             stored = json.loads(urllib.request.urlopen(m8350.web + "/api/v1/network", timeout=5).read())["stored"]
             if stored["ip"] != "192.0.2.20":
@@ -540,6 +633,14 @@ def main():
                    {"status": ["Firmware\nA100", "Uptime"], "io": ["open", "°C"], "settings": ["Input type", "Cold junction: 25"],
                     "network": ["Stored settings", "In force now"], "security": ["Modbus write allow-list"]})
 
+        def channel_values():
+            b.go(f"{m8318.web}/#io")
+            shown = page_matches_8318(b, m8318)
+            b.screenshot(os.path.join(shots, "8318-io-values.png"))
+            print(f"  the live page's channel 0: {shown}", flush=True)
+        checks.check(f"8318 live page: channel 0 (41.276 mV, type K, cold junction 25 °C) reads {CH0_CELSIUS} °C "
+                     "(NIST ITS-90), its value and raw code as Modbus reads them (40001)", channel_values)
+
         def input_type():
             b.go(f"{m8318.web}/#io")
             # Factory type K (spec §2.2): °C.
@@ -548,8 +649,7 @@ def main():
             b.wait_text("#message", "Logged in")
             b.go(f"{m8318.web}/#settings")
             b.click('select[aria-label="inputs/type"]')
-            b.click('select[aria-label="inputs/type"] option[value="5"]')
-            b.wait_text("#message", "Saved")
+            b.click_for_message('select[aria-label="inputs/type"] option[value="5"]', "Saved")
             # Spec §2.1: 40201 holds the type code; 05h is ±2.5 V.
             if read_registers(m8318.modbus, 0xC8, 1) != [5]:
                 raise RuntimeError(f"40201 reads {read_registers(m8318.modbus, 0xC8, 1)}")

@@ -12,14 +12,21 @@
 //! event's instant rounded down), which the 8350's host-watchdog check saw as a trip 499.8 ms
 //! after its arming write. SysTick, at 1 kHz from the 25 MHz core clock, only wakes the timer
 //! queue (timers wake within 1 ms).
+//!
+//! The board's critical sections (the `critical-section` crate's implementation for the whole
+//! image) mask interrupts as cortex-m's single-core one does, and time each outermost one on
+//! the same counter: SysTick says in QEMU's log how much of a stall of the machine a critical
+//! section of the firmware held, so that a test never takes the firmware's own masked time
+//! for this PC's (tools/qemu-e2e).
 
 use core::cell::{Cell, RefCell};
+use core::sync::atomic::{AtomicU32, Ordering};
 use core::task::Waker;
 
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::SYST;
 use cortex_m_rt::exception;
-use critical_section::Mutex;
+use critical_section::{Mutex, RawRestoreState};
 use embassy_time_driver::Driver;
 use embassy_time_queue_utils::Queue;
 
@@ -99,27 +106,93 @@ pub fn start(syst: &mut SYST) {
     syst.enable_counter();
 }
 
-/// A gap between two SysTicks longer than this is the machine stalled: SysTick preempts every
-/// task (only a critical section as long would delay it: the firmware's are bounded far below,
-/// docs/design.md), so a longer gap is QEMU's thread put aside by the PC, during which the
-/// guest's clock, the wall clock, ran on. 5 ms: less than the 8350 output ring's 6.4 ms slack,
-/// and rare enough that the log's semihosting writes (each one stops the machine) do not
-/// disturb the latency checks (a 2 ms threshold logged hundreds a session on a loaded PC).
+/// The firmware's critical sections, measured: interrupts masked by PRIMASK as in cortex-m's
+/// `critical-section-single-core` (which this board does not enable), and each outermost
+/// section (PRIMASK clear before it) timed on the FPGAIO's microsecond counter. Nothing can
+/// interrupt an outermost section (PRIMASK masks every interrupt and SysTick), so one start
+/// time serves. The cost: two reads of the counter per outermost section.
+struct MeasuredCriticalSection;
+critical_section::set_impl!(MeasuredCriticalSection);
+
+/// The counter when the outermost critical section under way began.
+static ENTERED_AT: AtomicU32 = AtomicU32::new(0);
+/// Time spent in critical sections since the last SysTick, µs.
+static MASKED_US: AtomicU32 = AtomicU32::new(0);
+/// The longest critical section since the last SysTick, µs.
+static LONGEST_US: AtomicU32 = AtomicU32::new(0);
+
+// SAFETY: a single-core machine: masking interrupts excludes every other context (as
+// cortex-m's implementation); `release` restores the PRIMASK that `acquire` found.
+unsafe impl critical_section::Impl for MeasuredCriticalSection {
+    unsafe fn acquire() -> RawRestoreState {
+        let primask = cortex_m::register::primask::read_raw();
+        cortex_m::interrupt::disable();
+        if primask & 1 == 0 {
+            ENTERED_AT.store(fpgaio_read(COUNTER), Ordering::Relaxed);
+        }
+        primask
+    }
+
+    unsafe fn release(primask: RawRestoreState) {
+        if primask & 1 == 0 {
+            // Interrupts are still masked: plain loads and stores suffice.
+            let held = fpgaio_read(COUNTER).wrapping_sub(ENTERED_AT.load(Ordering::Relaxed));
+            MASKED_US.store(MASKED_US.load(Ordering::Relaxed).saturating_add(held), Ordering::Relaxed);
+            if held > LONGEST_US.load(Ordering::Relaxed) {
+                LONGEST_US.store(held, Ordering::Relaxed);
+            }
+        }
+        // SAFETY: the PRIMASK `acquire` found: interrupts enabled again only if they were then.
+        unsafe { cortex_m::register::primask::write_raw(primask) };
+    }
+}
+
+/// A gap between two SysTicks longer than this is a stall: SysTick preempts every task, so
+/// only a critical section (interrupts masked) or QEMU's thread put aside by the PC (during
+/// which the guest's clock, the wall clock, ran on) delays it. The log says how much of the
+/// gap critical sections held, measured above: that part is the firmware's, the rest this
+/// PC's. 5 ms: less than the 8350 output ring's 6.4 ms slack, and rare enough that the log's
+/// semihosting writes (each one stops the machine) do not disturb the latency checks (a 2 ms
+/// threshold logged hundreds a session on a loaded PC).
 const STALL_US: u64 = 5_000;
+
+/// A critical section at least this long is said in the log when it is the longest yet.
+const LONG_SECTION_US: u32 = 1_000;
 
 /// The time of the last SysTick, µs.
 static LAST_TICK_US: Mutex<Cell<u64>> = Mutex::new(Cell::new(0));
+/// The longest critical section said in the log so far, µs.
+static LONGEST_SAID_US: AtomicU32 = AtomicU32::new(0);
 
 #[exception]
 fn SysTick() {
     let now = DRIVER.now();
-    let last = critical_section::with(|cs| {
+    let (last, masked, longest) = critical_section::with(|cs| {
         DRIVER.queue.borrow(cs).borrow_mut().next_expiration(now);
-        LAST_TICK_US.borrow(cs).replace(now)
+        let masked = MASKED_US.load(Ordering::Relaxed);
+        let longest = LONGEST_US.load(Ordering::Relaxed);
+        MASKED_US.store(0, Ordering::Relaxed);
+        LONGEST_US.store(0, Ordering::Relaxed);
+        (LAST_TICK_US.borrow(cs).replace(now), masked, longest)
     });
+    // Nothing before the first tick counts: the counter ran at another rate before `start`.
+    if last == 0 {
+        return;
+    }
     // Said in QEMU's log, so a test can tell a stall of the PC from a late task of the firmware
-    // (tools/qemu-e2e: the 8350's output ring during an update).
-    if last != 0 && now.saturating_sub(last) > STALL_US {
-        cortex_m_semihosting::hprintln!("qemu board: the machine stalled {} us, at {} us", now - last, now);
+    // (tools/qemu-e2e: the 8350's output ring during an update, Modbus during a web load), and
+    // see the firmware's longest critical sections.
+    if now.saturating_sub(last) > STALL_US {
+        cortex_m_semihosting::hprintln!(
+            "qemu board: the machine stalled {} us, at {} us; critical sections {} us, the longest {} us",
+            now - last,
+            now,
+            masked,
+            longest
+        );
+    }
+    if longest >= LONG_SECTION_US && longest > LONGEST_SAID_US.load(Ordering::Relaxed) {
+        LONGEST_SAID_US.store(longest, Ordering::Relaxed);
+        cortex_m_semihosting::hprintln!("qemu board: critical section {} us, the longest yet, at {} us", longest, now);
     }
 }

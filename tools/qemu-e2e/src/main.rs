@@ -403,7 +403,18 @@ async fn diagnostics(addr: SocketAddr) -> Result<(), String> {
         return Err(format!("diagnostics {d:04x?}: reset cause 0 and this client expected"));
     }
     let status = async |ctx: &mut Context| regs(ctx, diag::REG_MODULE_STATUS, 1).await.map(|v| v[0]);
+    // Watched from a second before the injection, after one read: the 8350's bit stays set
+    // until read after a loss, and this PC keeping QEMU from running for longer than the
+    // capture ring lasts (82 ms, seen twice in a busy hour here) loses samples as the injected
+    // fault does (the update check holds the firmware to losing none).
     let deadline = Instant::now() + Duration::from_secs(40);
+    while uptime(&mut ctx).await? < 19 {
+        if Instant::now() > deadline {
+            return Err("the uptime never reached 19 s".into());
+        }
+        sleep(Duration::from_millis(200)).await;
+    }
+    status(&mut ctx).await?;
     while status(&mut ctx).await? & diag::status::FRONT_END_FAULT == 0 {
         if Instant::now() > deadline {
             return Err("the injected fault never showed in 40241".into());
@@ -735,21 +746,27 @@ async fn run(model: &str, image: &str) -> Report {
             );
         }
         report.check("host watchdog: trip to the safe levels, exception 04, clear", watchdog.map(|_| ()));
+        // Before the web checks: the board injects its fault 20-23 s after the start, and the
+        // web load's reads of /api/v1/diagnostics clear the 8350's bit as a Modbus read does;
+        // a web load over those seconds left this check nothing to see.
+        report.check("diagnostics: injected front-end fault, set and cleared", diagnostics(addr).await);
         let web = SocketAddr::from(([127, 0, 0, 1], ports.web));
         report.check(
             "web console: identity, a wrong then the right password, a signed DO write confirmed by Modbus, an unsigned one refused",
             web_console(web, addr).await,
         );
         report.check(
-            "Modbus during a web load: the worst of 1000 requests within 2x alone (2 clients reloading, 1 trickling; the time the machine stalled taken off; 5 attempts at most)",
+            "Modbus during a web load: the median of 2000 requests within 2x alone, 95 % within 4x (20 alternating blocks; 2 clients reloading, 1 trickling, web answers before and during each loaded block; the time this PC stalled the machine outside critical sections taken off; one attempt)",
             modbus_during_web_load(addr, web, &format!("{image}.qemu.log")).await,
         );
         report.check(
-            "web console: 50 connections held open at once, Modbus answering beside them, the console answering once they are gone",
+            "web console: 50 connections opened at once, at least 2 held by the module (open, and answered once completed), Modbus answering beside them, the console answering once they are gone",
             fifty_connections(web, addr).await,
         );
     }
-    report.check("diagnostics: injected front-end fault, set and cleared", diagnostics(addr).await);
+    if name != 0x8350 {
+        report.check("diagnostics: injected front-end fault, set and cleared", diagnostics(addr).await);
+    }
     let discovery = SocketAddr::from(([127, 0, 0, 1], udp));
     report.check("discovery: search, network settings, restart", discovery_and_restart(discovery, addr, name).await);
     if name == 0x8350 {
@@ -811,18 +828,47 @@ async fn web_console(web: SocketAddr, modbus: SocketAddr) -> Result<(), String> 
 
 /// Issue #25's "50 parallel connections leave the module serving", on the embassy-net path: 50
 /// connections to the web port, each sending half a request and holding it (more than the web
-/// port's backlog holds: the rest are refused or wait). Modbus answers all the while, and the
-/// console answers once they are closed.
+/// port's backlog holds: the rest are refused or wait). Modbus answers all the while. The
+/// module holds at least two of them (its two connection tasks take one each; the backlog may
+/// hold more): still open after a moment, and, half of them completed, at least two answered
+/// (a web port that refused every connection but one, or took none, would leave Modbus nothing
+/// to answer beside). The other half is dropped half-open, and the console answers once all
+/// are gone.
 async fn fifty_connections(web: SocketAddr, modbus: SocketAddr) -> Result<(), String> {
     use remodaq_board_host::testing::web::request;
-    use tokio::io::AsyncWriteExt;
-    let mut held = Vec::new();
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let started = Instant::now();
+    let mut opened = Vec::new();
     for _ in 0..50 {
-        // A connection refused outright also counts: the module chose not to take it.
         if let Ok(Ok(mut s)) = timeout(STEP, tokio::net::TcpStream::connect(web)).await {
             let _ = s.write_all(b"GET /api/v1/identity HTTP/1.1\r\nHost: ").await;
-            held.push(s);
+            opened.push(s);
         }
+    }
+    let connected = started.elapsed();
+    // QEMU's user network takes every connection on this side before the guest answers its
+    // SYN; a connection the guest refuses (a reset) it closes here at once. After a moment,
+    // one still open and silent may be held by the module (a task has it, or the backlog holds
+    // its SYN); one closed (or answered: the half request cannot be) the module did not take.
+    sleep(Duration::from_millis(500)).await;
+    let (mut held, mut closed) = (Vec::new(), 0);
+    for s in opened.drain(..) {
+        let mut byte = [0u8; 1];
+        match s.try_read(&mut byte) {
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => held.push(s),
+            _ => closed += 1,
+        }
+    }
+    println!(
+        "  50 connections to the web port in {connected:?}: {} open after 0.5 s, {closed} closed by the module, {} not connected",
+        held.len(),
+        50 - held.len() - closed
+    );
+    if held.len() < 2 {
+        return Err(format!(
+            "{} of 50 connections left open by the module ({closed} closed at once): at least its two connection tasks' wanted",
+            held.len()
+        ));
     }
     let mut ctx = connect(modbus).await?;
     for i in 0..20 {
@@ -832,7 +878,24 @@ async fn fifty_connections(web: SocketAddr, modbus: SocketAddr) -> Result<(), St
             .map_err(|e| e.to_string())?
             .map_err(|e| format!("Modbus read {i}: exception {e:?}"))?;
     }
-    drop(held);
+    // Every other connection completed: those the module holds are answered (the two its
+    // tasks have at once, then those of the backlog as the tasks come free); the rest dropped
+    // half-open.
+    let completed: Vec<_> = held.into_iter().step_by(2).collect();
+    let tried = completed.len();
+    let answers = completed.into_iter().map(|mut s| async move {
+        s.write_all(b"127.0.0.1\r\n\r\n").await.ok()?;
+        let mut head = [0u8; 12];
+        timeout(Duration::from_secs(15), s.read_exact(&mut head)).await.ok()?.ok()?;
+        head.starts_with(b"HTTP/1.1 200").then_some(())
+    });
+    let answered = futures_all(answers).await.into_iter().flatten().count();
+    println!("  {tried} of the held connections completed: {answered} answered 200 within 15 s");
+    if answered < 2 {
+        return Err(format!(
+            "{answered} of {tried} held connections answered once their requests were completed: the module held fewer than two"
+        ));
+    }
     // Each held connection ends at its close, or at the module's timeouts (docs/web.md).
     let status = tokio::task::spawn_blocking(move || {
         let back = Instant::now();
@@ -852,6 +915,22 @@ async fn fifty_connections(web: SocketAddr, modbus: SocketAddr) -> Result<(), St
     Ok(())
 }
 
+/// Runs `futures` at once (each in its own task); their outputs in order.
+async fn futures_all<F>(futures: impl IntoIterator<Item = F>) -> Vec<F::Output>
+where
+    F: std::future::Future + Send + 'static,
+    F::Output: Send + 'static,
+{
+    let tasks: Vec<_> = futures.into_iter().map(tokio::spawn).collect();
+    let mut outputs = Vec::new();
+    for task in tasks {
+        if let Ok(output) = task.await {
+            outputs.push(output);
+        }
+    }
+    outputs
+}
+
 /// The web load's clients stand for browsers on other PCs of the LAN: on this PC they run at
 /// the lowest priority (nice 19, this thread only), so that they take no core from QEMU while
 /// it has work (which on a 2-core machine would measure this PC's scheduler rather than the
@@ -864,133 +943,237 @@ fn like_another_machine() {
     }
 }
 
-/// Issue #25: the Modbus request latency (median and worst of 1000) alone and while two
-/// clients reload the live data (`/api/v1/di` and `/api/v1/diagnostics`, then `/api/v1/do`, one
-/// connection a request, as fast as they are answered) and a third trickles a request a byte
-/// every 200 ms (held until the module's 3 s request timeout, then again). The worst during
-/// the load must stay within 2x the worst alone.
+/// Issue #25: the Modbus request latency alone and while two clients reload the live data
+/// (`/api/v1/di` and `/api/v1/diagnostics`, then `/api/v1/do`, one connection a request, as
+/// fast as they are answered) and a third trickles a request a byte every 200 ms (held until
+/// the module's 3 s request timeout, then again).
 ///
-/// The two measures are taken in 10 alternating blocks of 100 requests (the load paused, then
-/// running), so that both see this PC and its hypervisor over the same seconds: a QEMU thread
-/// put aside for a few ms makes a worst case of its own, in either measure (a run here with no
-/// load at all in either measure saw worsts from 1.1 to 24 ms). The load's clients stand for
-/// browsers on other PCs and run at the lowest priority here ([`like_another_machine`]).
+/// The two measures are taken in [`WEB_LOAD_BLOCKS`] alternating blocks of 100 requests (the
+/// load paused, then running), so that both see this PC and its hypervisor over the same
+/// seconds. The load's clients stand for browsers on other PCs and run at the lowest priority
+/// here ([`like_another_machine`]).
+///
+/// One measure, never taken again (a firmware over the bound one run in two would pass a
+/// second chance three times in four), so its figures must not be this PC's:
+/// - the median of the 2000 requests under the load within 2x the median of the 2000 alone;
+/// - their 95th percentile within 4x alone's.
+///
+/// The worst, the issue's figure, is this PC's under QEMU: a QEMU thread put aside for a few
+/// ms makes a worst case of its own in either measure (worsts of 1000 from 1.1 to 24 ms with no
+/// load at all). Over 45 runs here (December 2026, 2 cores shared with other work) the
+/// firmware of today gave, loaded over alone: medians 1.1x to 1.75x; 95th percentiles 1.1x to
+/// 3.0x; each block's worst (their median) 1.5x to 3.7x. A web answer is rendered in one poll
+/// of the executor Modbus shares (about 0.3 ms under QEMU), and the load's clients and QEMU's
+/// user network take this PC's cores from QEMU: a tail or a worst held at 2x would fail a
+/// firmware as good as today's one run in two, so the tail's bound is 4x and the median's the
+/// issue's 2x. A web part that delays Modbus (a long poll, a lock held across a slow client,
+/// interrupts masked) delays each Modbus request that meets it: the 95th percentile moves as
+/// soon as one in 20 does (10 ms masked at each web request gave 40x), the median once most
+/// do. The worsts (overall and each block's) are printed.
 ///
 /// A request during which the emulated machine stalled (QEMU's log, `log`, gained a "machine
-/// stalled" line of the QEMU board: no SysTick, the highest-priority interrupt, for over 5 ms,
-/// which only a critical section that long could cause, and the firmware's are far shorter,
-/// docs/design.md) counts with the stall's length (less the 1 ms tick) taken off: that part
-/// measures this PC, not the firmware. How many were so is reported. An attempt over the limit
-/// is taken again, 5 attempts at most (each one's figures are printed).
+/// stalled" line of the QEMU board: no SysTick for over 5 ms) counts with the time no critical
+/// section of the firmware held taken off ([`Stall::lost`]): that part measures this PC. How
+/// many were so is reported.
+///
+/// The load must run through each loaded block: before it, [`WEB_LEAD_ANSWERS`] new web
+/// answers are waited for (5 s at most), and during it one more at least. A web server that
+/// answered once and then hung fails at the next block.
 async fn modbus_during_web_load(modbus: SocketAddr, web: SocketAddr, log: &str) -> Result<(), String> {
     use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
     use std::sync::Arc;
-    const BLOCKS: usize = 10;
     const PER_BLOCK: usize = 100;
-    let mut last = String::new();
-    for attempt in 1..=5 {
-        let (stop, paused) = (Arc::new(AtomicBool::new(false)), Arc::new(AtomicBool::new(true)));
-        // Web answers served, and web requests under way (none while Modbus is measured alone:
-        // the measure waits for them to end).
-        let (served, busy) = (Arc::new(AtomicU32::new(0)), Arc::new(AtomicU32::new(0)));
-        let mut load = Vec::new();
-        for target in ["/api/v1/di", "/api/v1/diagnostics"] {
-            let (stop, paused, served, busy) = (stop.clone(), paused.clone(), served.clone(), busy.clone());
-            load.push(std::thread::spawn(move || {
-                like_another_machine();
-                while !stop.load(Ordering::Relaxed) {
-                    for t in [target, "/api/v1/do"] {
-                        busy.fetch_add(1, Ordering::SeqCst);
-                        if paused.load(Ordering::SeqCst) {
-                            busy.fetch_sub(1, Ordering::SeqCst);
-                            std::thread::sleep(Duration::from_millis(1));
-                            break;
-                        }
-                        if remodaq_board_host::testing::web::request(web, "GET", t, &[], "").status == 200 {
-                            served.fetch_add(1, Ordering::Relaxed);
-                        }
-                        busy.fetch_sub(1, Ordering::SeqCst);
-                    }
-                }
-            }));
-        }
-        let (trickle_stop, trickle_paused) = (stop.clone(), paused.clone());
+    let (stop, paused) = (Arc::new(AtomicBool::new(false)), Arc::new(AtomicBool::new(true)));
+    // Web answers served, and web requests under way (none while Modbus is measured alone:
+    // the measure waits for them to end).
+    let (served, busy) = (Arc::new(AtomicU32::new(0)), Arc::new(AtomicU32::new(0)));
+    let mut load = Vec::new();
+    for target in ["/api/v1/di", "/api/v1/diagnostics"] {
+        let (stop, paused, served, busy) = (stop.clone(), paused.clone(), served.clone(), busy.clone());
         load.push(std::thread::spawn(move || {
-            use std::io::Write;
             like_another_machine();
-            let text = b"GET /api/v1/identity HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: ";
-            while !trickle_stop.load(Ordering::Relaxed) {
-                if trickle_paused.load(Ordering::Relaxed) {
-                    std::thread::sleep(Duration::from_millis(1));
-                    continue;
-                }
-                let Ok(mut s) = std::net::TcpStream::connect(web) else { continue };
-                for byte in text.iter().chain(std::iter::repeat(&b'x')) {
-                    if trickle_stop.load(Ordering::Relaxed) {
+            while !stop.load(Ordering::Relaxed) {
+                for t in [target, "/api/v1/do"] {
+                    busy.fetch_add(1, Ordering::SeqCst);
+                    if paused.load(Ordering::SeqCst) {
+                        busy.fetch_sub(1, Ordering::SeqCst);
+                        std::thread::sleep(Duration::from_millis(1));
                         break;
                     }
-                    if !trickle_paused.load(Ordering::Relaxed) && s.write_all(&[*byte]).is_err() {
-                        break;
+                    if remodaq_board_host::testing::web::request(web, "GET", t, &[], "").status == 200 {
+                        served.fetch_add(1, Ordering::Relaxed);
                     }
-                    std::thread::sleep(Duration::from_millis(200));
+                    busy.fetch_sub(1, Ordering::SeqCst);
                 }
             }
         }));
-        let measured = async {
-            let mut stream = timeout(STEP, tokio::net::TcpStream::connect(modbus))
-                .await
-                .map_err(|_| "connect")?
-                .map_err(|e| e.to_string())?;
-            let _ = stream.set_nodelay(true);
-            let (mut alone, mut loaded) = (Latencies::default(), Latencies::default());
-            let mut stalls = StallWatch::new(log);
-            for _ in 0..BLOCKS {
-                paused.store(true, Ordering::SeqCst);
-                // The web requests under way end before the block alone starts.
-                let quiet = Instant::now();
-                while busy.load(Ordering::SeqCst) != 0 && quiet.elapsed() < STEP {
-                    sleep(Duration::from_millis(1)).await;
-                }
-                sleep(Duration::from_millis(5)).await;
-                stalls.since();
-                for _ in 0..PER_BLOCK {
-                    let took = burst(&mut stream, 1).await?;
-                    alone.add(took, stalls.since());
-                }
-                paused.store(false, Ordering::SeqCst);
-                sleep(Duration::from_millis(50)).await;
-                stalls.since();
-                for _ in 0..PER_BLOCK {
-                    let took = burst(&mut stream, 1).await?;
-                    loaded.add(took, stalls.since());
-                }
-            }
-            Ok::<_, String>((alone, loaded))
-        }
-        .await;
-        stop.store(true, Ordering::Relaxed);
-        for t in load {
-            let _ = tokio::task::spawn_blocking(move || t.join()).await;
-        }
-        let (alone, loaded) = measured?;
-        let (alone_worst, loaded_worst) = (alone.worst(), loaded.worst());
-        let pages = served.load(Ordering::Relaxed);
-        println!(
-            "  attempt {attempt}: Modbus alone: median {:?}, worst {alone_worst:?} ({} requests during a stall of the machine, its length taken off); during the web load ({pages} web answers): median {:?}, worst {loaded_worst:?} ({} during a stall)",
-            alone.median(),
-            alone.stalled,
-            loaded.median(),
-            loaded.stalled
-        );
-        if pages == 0 {
-            return Err("the web load was never served".into());
-        }
-        if loaded_worst <= alone_worst * 2 {
-            return Ok(());
-        }
-        last = format!("worst {loaded_worst:?} during the load, {alone_worst:?} alone");
     }
-    Err(last)
+    let (trickle_stop, trickle_paused) = (stop.clone(), paused.clone());
+    load.push(std::thread::spawn(move || {
+        use std::io::Write;
+        like_another_machine();
+        let text = b"GET /api/v1/identity HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: ";
+        while !trickle_stop.load(Ordering::Relaxed) {
+            if trickle_paused.load(Ordering::Relaxed) {
+                std::thread::sleep(Duration::from_millis(1));
+                continue;
+            }
+            let Ok(mut s) = std::net::TcpStream::connect(web) else { continue };
+            for byte in text.iter().chain(std::iter::repeat(&b'x')) {
+                if trickle_stop.load(Ordering::Relaxed) {
+                    break;
+                }
+                if !trickle_paused.load(Ordering::Relaxed) && s.write_all(&[*byte]).is_err() {
+                    break;
+                }
+                std::thread::sleep(Duration::from_millis(200));
+            }
+        }
+    }));
+    let measured = async {
+        let mut stream =
+            timeout(STEP, tokio::net::TcpStream::connect(modbus)).await.map_err(|_| "connect")?.map_err(|e| e.to_string())?;
+        let _ = stream.set_nodelay(true);
+        let mut blocks = Vec::new();
+        let mut stalls = StallWatch::new(log);
+        for block in 0..WEB_LOAD_BLOCKS {
+            let (mut alone, mut loaded) = (Latencies::default(), Latencies::default());
+            paused.store(true, Ordering::SeqCst);
+            // The web requests under way end before the block alone starts.
+            let quiet = Instant::now();
+            while busy.load(Ordering::SeqCst) != 0 {
+                if quiet.elapsed() > STEP {
+                    return Err(format!("block {block}: web requests still under way {STEP:?} after the load paused"));
+                }
+                sleep(Duration::from_millis(1)).await;
+            }
+            sleep(Duration::from_millis(5)).await;
+            stalls.since();
+            for _ in 0..PER_BLOCK {
+                let took = burst(&mut stream, 1).await?;
+                alone.add(took, stalls.since());
+            }
+            let unpaused = served.load(Ordering::SeqCst);
+            paused.store(false, Ordering::SeqCst);
+            // The load runs: new answers come.
+            let lead = Instant::now();
+            while served.load(Ordering::SeqCst) - unpaused < WEB_LEAD_ANSWERS {
+                if lead.elapsed() > STEP {
+                    let answers = served.load(Ordering::SeqCst) - unpaused;
+                    return Err(format!(
+                        "block {block}: {answers} web answers within {STEP:?} of the load's start ({WEB_LEAD_ANSWERS} wanted): the web load is not served"
+                    ));
+                }
+                sleep(Duration::from_millis(1)).await;
+            }
+            stalls.since();
+            let served_before = served.load(Ordering::SeqCst);
+            for _ in 0..PER_BLOCK {
+                let took = burst(&mut stream, 1).await?;
+                loaded.add(took, stalls.since());
+            }
+            let answers = served.load(Ordering::SeqCst) - served_before;
+            if answers == 0 {
+                return Err(format!(
+                    "block {block}: no web answer while Modbus made {PER_BLOCK} requests under the load: the web load stopped"
+                ));
+            }
+            blocks.push(Block { alone, loaded, answers });
+        }
+        Ok::<_, String>(blocks)
+    }
+    .await;
+    stop.store(true, Ordering::Relaxed);
+    for t in load {
+        let _ = tokio::task::spawn_blocking(move || t.join()).await;
+    }
+    let blocks = measured?;
+    let verdict = WebLoad::of(&blocks);
+    println!("  {verdict}");
+    let ms = |l: &Latencies| format!("{:.1}", l.worst().as_secs_f64() * 1e3);
+    println!(
+        "  each block's worst, ms: alone [{}], loaded [{}]; web answers [{}]",
+        blocks.iter().map(|b| ms(&b.alone)).collect::<Vec<_>>().join(" "),
+        blocks.iter().map(|b| ms(&b.loaded)).collect::<Vec<_>>().join(" "),
+        blocks.iter().map(|b| b.answers.to_string()).collect::<Vec<_>>().join(" ")
+    );
+    let (alone, loaded) = (verdict.alone.median(), verdict.loaded.median());
+    if loaded > alone * 2 {
+        return Err(format!("the median during the web load, {loaded:?}, is over 2x the median alone, {alone:?}"));
+    }
+    let (alone, loaded) = (verdict.alone.quantile(95), verdict.loaded.quantile(95));
+    if loaded > alone * 4 {
+        return Err(format!("95 % during the web load within {loaded:?}, over 4x alone's {alone:?}"));
+    }
+    Ok(())
+}
+
+/// Alternating blocks of the web-load measure.
+const WEB_LOAD_BLOCKS: usize = 20;
+
+/// New web answers waited for before each loaded block (it lasts about 30 ms, and sees 3 to
+/// 20 answers here).
+const WEB_LEAD_ANSWERS: u32 = 2;
+
+/// One block pair of the web-load measure: Modbus alone, then under the load, and the web
+/// answers served meanwhile.
+struct Block {
+    alone: Latencies,
+    loaded: Latencies,
+    answers: u32,
+}
+
+/// The web-load measure's figures.
+struct WebLoad {
+    /// The median over blocks of each block's worst, alone and loaded.
+    alone_block_worst: Duration,
+    loaded_block_worst: Duration,
+    alone: Latencies,
+    loaded: Latencies,
+    answers: u32,
+    fewest_answers: u32,
+}
+
+impl WebLoad {
+    fn of(blocks: &[Block]) -> Self {
+        let worsts = |f: fn(&Block) -> &Latencies| median(blocks.iter().map(|b| f(b).worst()).collect());
+        let all = |f: fn(&Block) -> &Latencies| Latencies {
+            took: blocks.iter().flat_map(|b| f(b).took.iter().copied()).collect(),
+            stalled: blocks.iter().map(|b| f(b).stalled).sum(),
+        };
+        Self {
+            alone_block_worst: worsts(|b| &b.alone),
+            loaded_block_worst: worsts(|b| &b.loaded),
+            alone: all(|b| &b.alone),
+            loaded: all(|b| &b.loaded),
+            answers: blocks.iter().map(|b| b.answers).sum(),
+            fewest_answers: blocks.iter().map(|b| b.answers).min().unwrap_or(0),
+        }
+    }
+}
+
+impl std::fmt::Display for WebLoad {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (a, l) = (&self.alone, &self.loaded);
+        write!(
+            f,
+            "Modbus alone: median {:?}, 95 % {:?}, 99 % {:?}, worst {:?}, blocks' median worst {:?} ({} requests during a stall of the machine, the time no critical section held taken off); during the web load ({} web answers, {} in the fewest block): median {:?}, 95 % {:?}, 99 % {:?}, worst {:?}, blocks' median worst {:?} ({} during a stall)",
+            a.median(),
+            a.quantile(95),
+            a.quantile(99),
+            a.worst(),
+            self.alone_block_worst,
+            a.stalled,
+            self.answers,
+            self.fewest_answers,
+            l.median(),
+            l.quantile(95),
+            l.quantile(99),
+            l.worst(),
+            self.loaded_block_worst,
+            l.stalled
+        )
+    }
 }
 
 /// Request latencies, each less the time the machine stalled during it; and how many were so.
@@ -1013,11 +1196,14 @@ impl Latencies {
     }
 
     fn median(&self) -> Duration {
-        if self.took.is_empty() {
-            Duration::ZERO
-        } else {
-            median(self.took.clone())
-        }
+        self.quantile(50)
+    }
+
+    /// The `percent` quantile (the lower one where it falls between two).
+    fn quantile(&self, percent: usize) -> Duration {
+        let mut took = self.took.clone();
+        took.sort();
+        took.get((took.len() * percent / 100).min(took.len().saturating_sub(1))).copied().unwrap_or_default()
     }
 }
 
@@ -1033,8 +1219,9 @@ impl<'a> StallWatch<'a> {
         Self { log, read }
     }
 
-    /// The time the machine lost in the stalls the log said since the last call: each gap
-    /// between two SysTicks less the 1 ms period.
+    /// The time this PC took from the machine in the stalls the log said since the last call:
+    /// each gap between two SysTicks less the 1 ms period and the firmware's critical sections
+    /// ([`Stall::lost`]).
     fn since(&mut self) -> Duration {
         use std::io::{Read, Seek, SeekFrom};
         let Ok(mut file) = std::fs::File::open(self.log) else { return Duration::ZERO };
@@ -1044,7 +1231,7 @@ impl<'a> StallWatch<'a> {
         }
         self.read += added.len() as u64;
         let (stalls, _) = stalls_and_underruns(&String::from_utf8_lossy(&added));
-        Duration::from_micros(stalls.iter().map(|&(_, gap)| gap.saturating_sub(1_000)).sum())
+        Duration::from_micros(stalls.iter().map(Stall::lost).sum())
     }
 }
 
@@ -1115,18 +1302,33 @@ async fn set_password(discovery: SocketAddr) -> Result<[u8; 6], String> {
     }
 }
 
-/// How long the 8318 with a broken front end is watched after the revert (issue #21).
-const NO_RESTART_FOR: Duration = Duration::from_secs(180);
+/// How long the 8318 with a broken front end is watched after the revert (issue #21): three
+/// trial windows, and a little more. What the watch must show is that the reverted image does
+/// not run a trial of its own (the endless trial of issue #21: on trial, its self-test failing
+/// as the front end does, it would restart 20 s after each start, and the bootloader would
+/// start it again). Such a loop restarts once every trial window, whenever it began: its first
+/// restart falls within the first window after the revert, and the uptime goes back. Three
+/// windows see that restart three times over, and a loop that restarted only every second or
+/// third start (a trial that passed by chance some times) at least once; longer adds nothing
+/// a 20 s timer could do. The watch was 180 s before (issue #36).
+const NO_RESTART_FOR: Duration = Duration::from_secs(3 * TRIAL_WINDOW_S + 2);
+/// A trial window under QEMU, s: an image on trial restarts 20 s after its start when its
+/// self-test has not passed (`shared::update::TRIAL`), and starts again within about 1 s
+/// (docs/update.md: "reverted 21 s after its start").
+const TRIAL_WINDOW_S: u64 = 21;
+/// The watch polls the uptime this often.
+const WATCH_POLL: Duration = Duration::from_secs(5);
 
 /// Issue #21 (the endless trial): an 8318 whose front end fails on every channel (the board's
 /// test switch, which every image started on this machine sees, as a broken AD7124-8 would)
 /// takes an update (A101) that never confirms, because its self-test fails the same way. After
 /// its 20 s trial the module restarts and the bootloader reverts to A100, which it started in
 /// the Revert state: A100 is confirmed without a trial, so it does not restart again. Watched
-/// for 3 minutes (uptime never goes back: restarts counted, 0 wanted); then a further update
-/// is accepted (the answer to a whole session is "verified and marked").
+/// for three trial windows ([`NO_RESTART_FOR`]: uptime never goes back, restarts counted, 0
+/// wanted); then a further update is accepted (the answer to a whole session is "verified and
+/// marked").
 async fn broken_front_end(report: &mut Report, image: &str) {
-    const REVERTED: &str = "update: an 8318 whose front end fails takes an update that never confirms; after the revert, no restart for 3 minutes";
+    const REVERTED: &str = "update: an 8318 whose front end fails takes an update that never confirms; after the revert, no restart through 3 trial windows (65 s)";
     const FURTHER: &str = "update: after that revert a further update is accepted";
     let v2 = match std::fs::read(format!("{image}-v2.rdq")) {
         Ok(file) => file,
@@ -1166,7 +1368,7 @@ async fn broken_front_end(report: &mut Report, image: &str) {
         }
         let took = reverted(addr, 0xA101, 0xA100).await?;
         println!("qemu-8318: A101 ran on trial and was reverted to A100 after {:.1} s", took.as_secs_f64());
-        // A100 now: count its restarts over 3 minutes.
+        // A100 now: count its restarts over three trial windows.
         let watched = Instant::now();
         let mut restarts = 0;
         let mut last = 0u32;
@@ -1189,16 +1391,19 @@ async fn broken_front_end(report: &mut Report, image: &str) {
                 }
                 None => println!("qemu-8318: no answer at {:.0} s of the watch", watched.elapsed().as_secs_f64()),
             }
-            sleep(Duration::from_secs(5)).await;
+            sleep(WATCH_POLL).await;
         }
-        // Polled every 5 s: the last answer came at least 170 s after the first, on the module's
-        // clock too (the QEMU board's follows the wall clock).
+        // Polled every 5 s: answers all along (at most two polls missed), and the last came at
+        // least the watch less two polls (55 s, over two and a half trial windows) after the
+        // first on the module's clock too (the QEMU board's follows the wall clock).
         let first = first.unwrap_or(u32::MAX);
+        let least_polls = (NO_RESTART_FOR.as_secs() / WATCH_POLL.as_secs()) as u32 - 2;
+        let least_span = (NO_RESTART_FOR - 2 * WATCH_POLL).as_secs() as u32;
         println!(
             "qemu-8318: watched A100 for {} s after the revert: {restarts} restarts, uptime {first} s then {last} s, {polls} polls",
             NO_RESTART_FOR.as_secs()
         );
-        if restarts > 0 || polls < 30 || last < first.saturating_add(170) {
+        if restarts > 0 || polls < least_polls || last < first.saturating_add(least_span) {
             return Err(format!(
                 "{restarts} restarts in {} s (uptime {first} s, then {last} s; {polls} answers)",
                 NO_RESTART_FOR.as_secs()
@@ -1406,22 +1611,16 @@ async fn updates(report: &mut Report, image: &str, addr: SocketAddr, update: Soc
 
     // The module's clock is QEMU's, which follows the wall clock: when this machine keeps QEMU
     // from running for longer than the output ring's slack (6.4 ms), the guest finds its ring
-    // run dry, as a module would whose CPU stopped. The QEMU board says each such stall and
-    // each underrun in its log; an underrun right after a stall is this PC's, one without is
-    // the firmware's (a task that kept the I/O loop waiting). A firmware that blocks the I/O
-    // loop does so in every session; a busy host, rarely twice: one more session is made after
-    // a lost sample or an unexplained underrun only, and said.
+    // run dry, as a module would whose CPU stopped. The QEMU board says each such stall, how
+    // much of it the firmware's critical sections held, and each underrun in its log; an
+    // underrun right after a stall no critical section covered is this PC's, any other the
+    // firmware's (a task that kept the I/O loop waiting, or interrupts masked). One session,
+    // never taken again: a firmware that failed one session in two would pass a second chance
+    // three times in four.
     let log = format!("{image}.qemu.log");
-    let mut during = during_update(addr, update, &tampered, &log).await;
-    if let Err(e) = &during {
-        if e.contains(RAN_DRY) || e.contains(OVERRAN) {
-            println!("qemu-8350: during the update session: {e}; one more session");
-            during = during_update(addr, update, &tampered, &log).await;
-        }
-    }
     report.check(
-        "update: during a whole session, DI0's 1 kHz counter loses no edge, the outputs never run dry, settings writes answer within 1 s",
-        during,
+        "update: during a whole session, DI0's 1 kHz counter loses no edge, the outputs never run dry (unless this PC stalled the machine outside the firmware's critical sections), settings writes answer within 1 s",
+        during_update(addr, update, &tampered, &log).await,
     );
 
     // v1 -> v2 with the tool.
@@ -1593,8 +1792,7 @@ async fn during_update(addr: SocketAddr, update: SocketAddr, file: &[u8], log: &
         answers
     };
     // A write every second for as long as the session runs, alternating 26 and 25 (each a
-    // commit: about 5 a session, within the commit budget of 20 with the run's other writes
-    // even when a second session is made).
+    // commit: about 5 a session, within the commit budget of 20 with the run's other writes).
     let writes = async {
         let (mut slowest, mut n) = (Duration::ZERO, 0u32);
         while !done.get() {
@@ -1645,52 +1843,117 @@ async fn during_update(addr: SocketAddr, update: SocketAddr, file: &[u8], log: &
         return Err(format!("input samples were lost ({OVERRAN})"));
     }
     let dry = underruns_after.wrapping_sub(underruns);
+    let text = std::fs::read(log).map_err(|e| format!("{log}: {e}"))?;
+    let text = String::from_utf8_lossy(text.get(log_from..).unwrap_or(&[])).into_owned();
+    let (stalls, dry_at) = stalls_and_underruns(&text);
+    println!(
+        "qemu-8350: during the session QEMU's log said {} stalls of the machine over 5 ms ({} ms lost outside critical sections, {} ms inside), the longest critical section {} us",
+        stalls.len(),
+        stalls.iter().map(Stall::lost).sum::<u64>() / 1000,
+        stalls.iter().map(|s| s.masked).sum::<u64>() / 1000,
+        longest_critical_section(&text)
+    );
     if dry != 0 {
-        let text = std::fs::read(log).map_err(|e| format!("{log}: {e}"))?;
-        let (stalls, dry_at) = stalls_and_underruns(&String::from_utf8_lossy(text.get(log_from..).unwrap_or(&[])));
         let unexplained = unexplained_underruns(&stalls, &dry_at);
         println!(
-            "qemu-8350: during the session the output pattern ran dry {dry} times (QEMU's log: {} underruns, {} stalls of the machine over 5 ms, {unexplained} underruns with less than 3.2 ms lost just before)",
+            "qemu-8350: during the session the output pattern ran dry {dry} times (QEMU's log: {} underruns, {unexplained} unexplained: less than 3.2 ms lost just before outside critical sections, or 3.2 ms in them)",
             dry_at.len(),
-            stalls.len()
         );
         if dry_at.len() != usize::from(dry) || unexplained != 0 {
-            return Err(format!("{RAN_DRY} {dry} times, {unexplained} of them not after a stall of the machine"));
+            return Err(format!(
+                "{RAN_DRY} {dry} times, {unexplained} of them not after a stall of the machine, or after critical sections of the firmware long enough to cause it"
+            ));
         }
     }
     Ok(())
 }
 
-/// The machine's stalls (when each ended and how long the gap between two SysTicks was) and
-/// the output ring's underruns (when), µs of the guest's clock, in a part of QEMU's log
-/// (boards/qemu: `time.rs`, `digital.rs`).
-fn stalls_and_underruns(log: &str) -> (Vec<(u64, u64)>, Vec<u64>) {
-    let at =
-        |line: &str| line.rsplit_once(", at ").and_then(|(_, t)| t.trim_end_matches(" us").trim().parse::<u64>().ok());
-    let gap = |line: &str| {
-        line.split("stalled ").nth(1).and_then(|r| r.split(' ').next()).and_then(|g| g.parse::<u64>().ok())
+/// A gap of over 5 ms between two SysTicks, as the QEMU board says it (`time.rs`): when it
+/// ended, how long it was, and how much of it the firmware's critical sections held
+/// (interrupts masked), µs of the guest's clock.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Stall {
+    at: u64,
+    gap: u64,
+    masked: u64,
+}
+
+impl Stall {
+    /// The time this PC took from the machine: the gap less the 1 ms SysTick period and less
+    /// the firmware's critical sections. Only interrupts masked or the machine not running
+    /// delay SysTick, and the board measures the first; so a stall a critical section covered
+    /// excuses nothing (a critical section held 10 ms is the firmware's, however the log calls
+    /// the gap it made). A PC that stopped QEMU during a critical section is counted as the
+    /// firmware's too: the error is on the side of failing.
+    fn lost(&self) -> u64 {
+        self.gap.saturating_sub(1_000 + self.masked)
+    }
+}
+
+/// The machine's stalls and the output ring's underruns (when, µs of the guest's clock) in a
+/// part of QEMU's log (boards/qemu: `time.rs`, `digital.rs`). A stall line without its
+/// critical sections (a board before they were measured) counts them as the whole gap: it
+/// excuses nothing.
+fn stalls_and_underruns(log: &str) -> (Vec<Stall>, Vec<u64>) {
+    let number = |text: &str, after: &str| {
+        text.split(after).nth(1).and_then(|r| r.split(' ').next()).and_then(|n| n.parse::<u64>().ok())
     };
     let (mut stalls, mut dry) = (vec![], vec![]);
     for line in log.lines() {
         if line.starts_with("qemu board: the machine stalled") {
-            stalls.extend(at(line).zip(gap(line)));
+            if let (Some(gap), Some(at)) = (number(line, "stalled "), number(line, ", at ")) {
+                let masked = number(line, "; critical sections ").unwrap_or(gap);
+                stalls.push(Stall { at, gap, masked });
+            }
         } else if line.starts_with("qemu board: the output pattern ran dry") {
-            dry.extend(at(line));
+            dry.extend(number(line, ", at "));
         }
     }
     (stalls, dry)
 }
 
-/// The time the machine lost (each gap beyond the 1 ms SysTick period) in stalls ending from
-/// 20 ms before `t` to 2 ms after (the refill that finds the ring dry runs right after the
-/// stall; when the stall caught the I/O loop itself, before the SysTick that says it), µs.
-fn lost_around(stalls: &[(u64, u64)], t: u64) -> u64 {
-    stalls.iter().filter(|&&(s, _)| s + 20_000 >= t && s <= t + 2_000).map(|&(_, gap)| gap.saturating_sub(1_000)).sum()
+/// The firmware's critical sections the QEMU board said in a part of QEMU's log: each new
+/// longest of 1 ms or more (µs), and the most any stall's gap held.
+fn longest_critical_section(log: &str) -> u64 {
+    let number = |text: &str, after: &str| {
+        text.split(after).nth(1).and_then(|r| r.split(' ').next()).and_then(|n| n.parse::<u64>().ok())
+    };
+    log.lines()
+        .filter_map(|line| {
+            if line.starts_with("qemu board: critical section ") {
+                number(line, "critical section ")
+            } else if line.starts_with("qemu board: the machine stalled") {
+                number(line, ", the longest ")
+            } else {
+                None
+            }
+        })
+        .max()
+        .unwrap_or(0)
 }
 
-/// Underruns the machine's stalls do not explain: less than [`EXPLAINS_US`] lost around them.
-fn unexplained_underruns(stalls: &[(u64, u64)], dry: &[u64]) -> usize {
-    dry.iter().filter(|&&t| lost_around(stalls, t) < EXPLAINS_US).count()
+/// The stalls ending from 20 ms before `t` to 2 ms after (the refill that finds the ring dry
+/// runs right after the stall; when the stall caught the I/O loop itself, before the SysTick
+/// that says it).
+fn around(stalls: &[Stall], t: u64) -> impl Iterator<Item = &Stall> {
+    stalls.iter().filter(move |s| s.at + 20_000 >= t && s.at <= t + 2_000)
+}
+
+/// The time this PC took from the machine ([`Stall::lost`]) in the stalls around `t`, µs.
+fn lost_around(stalls: &[Stall], t: u64) -> u64 {
+    around(stalls, t).map(Stall::lost).sum()
+}
+
+/// The time the firmware's critical sections held in the stalls around `t`, µs.
+fn masked_around(stalls: &[Stall], t: u64) -> u64 {
+    around(stalls, t).map(|s| s.masked).sum()
+}
+
+/// Underruns the machine's stalls do not explain: less than [`EXPLAINS_US`] lost around them
+/// outside critical sections, or critical sections around them as long (then the firmware
+/// could have made it by itself, whatever this PC did beside).
+fn unexplained_underruns(stalls: &[Stall], dry: &[u64]) -> usize {
+    dry.iter().filter(|&&t| lost_around(stalls, t) < EXPLAINS_US || masked_around(stalls, t) >= EXPLAINS_US).count()
 }
 
 /// Time lost by the machine just before an underrun that explains it: half the output ring's
@@ -1821,22 +2084,24 @@ fn main() -> ExitCode {
 mod tests {
     use super::*;
 
-    /// Lines as the QEMU board wrote them in a run on a busy PC.
-    const LOG: &str = "qemu board: the machine stalled 8763 us, at 13659892 us
+    /// Lines as the QEMU board wrote them in a run on a busy PC (the critical sections added
+    /// as the board says them now).
+    const LOG: &str =
+        "qemu board: the machine stalled 8763 us, at 13659892 us; critical sections 12 us, the longest 3 us
 qemu board: the output pattern ran dry, at 13669096 us
-qemu board: the machine stalled 9325 us, at 13669217 us
+qemu board: the machine stalled 9325 us, at 13669217 us; critical sections 25 us, the longest 4 us
 bootloader: something else
-qemu board: the machine stalled 2500 us, at 14496000 us
-qemu board: the machine stalled 3000 us, at 14500185 us
+qemu board: the machine stalled 2500 us, at 14496000 us; critical sections 0 us, the longest 0 us
+qemu board: the machine stalled 3000 us, at 14500185 us; critical sections 0 us, the longest 0 us
 qemu board: the output pattern ran dry, at 14500991 us
-qemu board: the machine stalled 2100 us, at 15999000 us
+qemu board: the machine stalled 2100 us, at 15999000 us; critical sections 0 us, the longest 0 us
 qemu board: the output pattern ran dry, at 16000000 us
 ";
 
     #[test]
     fn underruns_after_the_machine_lost_time_are_the_pcs() {
         let (stalls, dry) = stalls_and_underruns(LOG);
-        assert_eq!(stalls[0], (13_659_892, 8_763));
+        assert_eq!(stalls[0], Stall { at: 13_659_892, gap: 8_763, masked: 12 });
         assert_eq!(stalls.len(), 5);
         assert_eq!(dry, [13_669_096, 14_500_991, 16_000_000]);
         // The first follows (or, caught in the I/O loop, precedes by 121 µs) long stalls; the
@@ -1844,5 +2109,35 @@ qemu board: the output pattern ran dry, at 16000000 us
         assert_eq!(lost_around(&stalls, 14_500_991), 3_500);
         assert_eq!(unexplained_underruns(&stalls, &dry), 1);
         assert_eq!(unexplained_underruns(&[], &dry), 3);
+    }
+
+    /// A critical section of the firmware that held SysTick off makes the same gap as a stall of
+    /// the PC, and the same underrun; it explains nothing.
+    #[test]
+    fn a_critical_section_is_the_firmwares() {
+        let log = "qemu board: critical section 10012 us, the longest yet, at 13659892 us
+qemu board: the machine stalled 10230 us, at 13659892 us; critical sections 10040 us, the longest 10012 us
+qemu board: the output pattern ran dry, at 13659990 us
+qemu board: the machine stalled 12000 us, at 20000000 us; critical sections 4000 us, the longest 4000 us
+";
+        let (stalls, dry) = stalls_and_underruns(log);
+        assert_eq!(stalls[0].lost(), 0);
+        assert_eq!(unexplained_underruns(&stalls, &dry), 1);
+        // A stall of this PC just before does not explain an underrun a critical section of the
+        // firmware could have made by itself.
+        let both = format!(
+            "qemu board: the machine stalled 8000 us, at 13650000 us; critical sections 3 us, the longest 2 us\n{log}"
+        );
+        let (stalls, dry) = stalls_and_underruns(&both);
+        assert_eq!(lost_around(&stalls, dry[0]), 6_997);
+        assert_eq!(unexplained_underruns(&stalls, &dry), 1);
+        // Partly covered: only the part no critical section held is the PC's.
+        let (stalls, _) = stalls_and_underruns(log);
+        assert_eq!(stalls[1].lost(), 7_000);
+        assert_eq!(longest_critical_section(log), 10_012);
+        // A line of a board that did not measure them excuses nothing.
+        let (old, _) = stalls_and_underruns("qemu board: the machine stalled 8763 us, at 13659892 us\n");
+        assert_eq!(old, [Stall { at: 13_659_892, gap: 8_763, masked: 8_763 }]);
+        assert_eq!(old[0].lost(), 0);
     }
 }
