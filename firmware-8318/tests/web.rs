@@ -59,9 +59,25 @@ async fn channel_values_follow_the_input_type() {
     let inputs = request(web, "GET", "/api/v1/inputs", &[], "");
     assert!((number(&inputs.body, "cjc").expect("cjc") - 25.0).abs() < 0.01, "{}", inputs.body);
 
+    // The open-input value (extensions §2, 00E8h): channel 3's thermocouple is open; upscale
+    // (0, factory) reads FFFFh, downscale (1) reads 0000h. Written by name, read back by
+    // Modbus, shown by name, and in force on the open channel.
+    let mut page = log_in(web, FACTORY_PASSWORD).unwrap_or_else(|a| panic!("login: {} {}", a.status, a.body));
+    assert!(inputs.body.contains(r#""open_value":"upscale""#), "{}", inputs.body);
+    assert_eq!(ctx.read_holding_registers(0xE8, 1).await.unwrap().unwrap(), [0]);
+    let ch3 = get_until(web, "/api/v1/channels/3", |b| b.contains("\"status\":\"open\"")).await;
+    assert_eq!(number(&ch3, "raw"), Some(65535.0), "{ch3}");
+    let body = r#"{"value":"downscale"}"#;
+    let headers = page.sign("PUT", "/api/v1/inputs/open_value", body);
+    assert_eq!(request(web, "PUT", "/api/v1/inputs/open_value", &headers, body).status, 204);
+    assert_eq!(ctx.read_holding_registers(0xE8, 1).await.unwrap().unwrap(), [1]);
+    let inputs = request(web, "GET", "/api/v1/inputs", &[], "");
+    assert!(inputs.body.contains(r#""open_value":"downscale""#), "{}", inputs.body);
+    let ch3 = get_until(web, "/api/v1/channels/3", |b| number(b, "raw") == Some(0.0)).await;
+    assert_eq!(field(&ch3, "status"), "open", "{ch3}");
+
     // To ±2.5 V (05h) by a signed write: Modbus reads 05h at 40201, the unit becomes mV and
     // channel 1 reads 1.2 V = 1200 mV (one count: 0.076 mV).
-    let mut page = log_in(web, FACTORY_PASSWORD).unwrap_or_else(|a| panic!("login: {} {}", a.status, a.body));
     let body = r#"{"value":5}"#;
     let headers = page.sign("PUT", "/api/v1/inputs/type", body);
     assert_eq!(request(web, "PUT", "/api/v1/inputs/type", &headers, body).status, 204);
@@ -93,4 +109,23 @@ async fn channel_values_follow_the_input_type() {
     assert_eq!(request(web, "PUT", "/api/v1/inputs/cjc_offset", &headers, body).status, 204);
     assert_eq!(ctx.read_holding_registers(0xD7, 1).await.unwrap().unwrap(), [0xFF38]);
     assert!(request(web, "GET", "/api/v1/inputs", &[], "").body.contains("\"cjc_offset\":-2.00"));
+
+    // The channel enable mask (40221, 00DCh: bit n = channel n, spec §2.1): channels 0 and 2
+    // only (05h). Modbus reads it back; each channel shows its own bit, in order; a disabled
+    // channel reads 0000h with the status "disabled" (spec §2.1, extensions §2).
+    let body = r#"{"value":5}"#;
+    let headers = page.sign("PUT", "/api/v1/inputs/enable_mask", body);
+    assert_eq!(request(web, "PUT", "/api/v1/inputs/enable_mask", &headers, body).status, 204);
+    assert_eq!(ctx.read_holding_registers(0xDC, 1).await.unwrap().unwrap(), [5]);
+    assert_eq!(number(&request(web, "GET", "/api/v1/inputs", &[], "").body, "enable_mask"), Some(5.0));
+    let ch = get_until(web, "/api/v1/channels", |b| b.matches("\"status\":\"disabled\"").count() == 6).await;
+    let enabled: Vec<bool> = ch.split("\"enabled\":").skip(1).map(|r| r.starts_with("true")).collect();
+    assert_eq!(enabled, [true, false, true, false, false, false, false, false], "{ch}");
+    for (n, item) in ch.split("},{").enumerate() {
+        let on = n == 0 || n == 2;
+        assert_eq!(field(item, "status") == "disabled", !on, "channel {n}: {item}");
+        if !on {
+            assert_eq!(number(item, "raw"), Some(0.0), "channel {n}: {item}");
+        }
+    }
 }

@@ -72,9 +72,148 @@ fn pages_and_json_answers_carry_their_headers() {
     }
 }
 
+/// What a GET could change, as Modbus shows it without clearing anything (spec §3.1, §3.2,
+/// extensions §3): the DOs, the counters' run bits, the DI and DO modes, the pulse settings,
+/// all DO, and the host watchdog's registers.
+async fn settings_and_outputs(modbus: SocketAddr) -> Vec<Vec<u16>> {
+    let mut ctx = tcp::connect(modbus).await.expect("modbus");
+    let mut seen = Vec::new();
+    let bits = ctx.read_coils(BIT_DO, 6).await.unwrap().expect("no exception");
+    seen.push(bits.iter().map(|&b| u16::from(b)).collect());
+    let mut run = Vec::new();
+    for n in 0..12 {
+        run.push(u16::from(ctx.read_coils(0x20 + 4 * n, 1).await.unwrap().expect("no exception")[0]));
+    }
+    seen.push(run);
+    for (addr, n) in [(0x18, 48), (0x100, 12), (0x110, 6), (0x12E, 1), (0x130, 5)] {
+        seen.push(ctx.read_holding_registers(addr, n).await.unwrap().expect("no exception"));
+    }
+    seen
+}
+
+/// What the web shows of the DIs (states, modes, counters, flags), the DOs and the watchdog:
+/// read as a GET reads, so reading it changes nothing.
+fn shown(web: SocketAddr) -> Vec<String> {
+    ["/api/v1/di", "/api/v1/do", "/api/v1/watchdog"].map(|t| request(web, "GET", t, &[], "").body).to_vec()
+}
+
+/// docs/web.md, "Decisions": "the API sends no CORS headers". Another site's page may send
+/// requests to the module (a browser lets it), but without an `Access-Control-Allow-*` header
+/// the browser shows it none of the answers and sends no preflighted request (a signed write's
+/// headers need one). No answer carries an `Access-Control-*` header: pages, JSON, errors, the
+/// answers to OPTIONS (a preflight) and to requests from another origin.
+#[test]
+fn no_answer_carries_a_cors_header() {
+    let module = SimModule::start_with(BIN, &temp("cors.flash"), &["--listen", "127.0.0.1:0", "--http", "127.0.0.1:0"]);
+    let web = module.web.expect("web address");
+    let foreign = || ("Origin", "http://attacker.example".to_string());
+    let preflight = || {
+        vec![
+            foreign(),
+            ("Access-Control-Request-Method", "PUT".to_string()),
+            ("Access-Control-Request-Headers", "content-type,x-rdaq-session,x-rdaq-counter,x-rdaq-signature".into()),
+        ]
+    };
+    let mut page = log_in(web, FACTORY_PASSWORD).unwrap_or_else(|a| panic!("login: {} {}", a.status, a.body));
+    let off = r#"{"value":false}"#;
+    let mut signed_foreign = page.sign("PUT", "/api/v1/do/0/state", off);
+    signed_foreign.push(foreign());
+    let answers = [
+        ("page", request(web, "GET", "/", &[], "")),
+        ("script", request(web, "GET", "/app.js", &[], "")),
+        ("read", request(web, "GET", "/api/v1/do", &[], "")),
+        ("foreign read", request(web, "GET", "/api/v1/do", &[foreign()], "")),
+        ("foreign page", request(web, "GET", "/", &[foreign()], "")),
+        ("foreign challenge", request(web, "POST", "/api/v1/session/challenge", &[foreign()], "")),
+        ("foreign signed write", request(web, "PUT", "/api/v1/do/0/state", &signed_foreign, off)),
+        ("foreign unsigned write", request(web, "PUT", "/api/v1/do/0/state", &[foreign()], off)),
+        ("preflight of a write", request(web, "OPTIONS", "/api/v1/do/0/state", &preflight(), "")),
+        ("preflight of a login", request(web, "OPTIONS", "/api/v1/session", &preflight(), "")),
+        ("preflight of the page", request(web, "OPTIONS", "/", &preflight(), "")),
+        (
+            "OPTIONS *",
+            send_raw(
+                web,
+                format!("OPTIONS * HTTP/1.1\r\nHost: {web}\r\nOrigin: http://attacker.example\r\n\r\n").as_bytes(),
+            ),
+        ),
+        ("rebound", request_to_host(web, "attacker.example", "GET", "/api/v1/do", &[foreign()], "")),
+        ("no such resource", request(web, "GET", "/api/v1/nothing", &[foreign()], "")),
+    ];
+    for (what, answer) in &answers {
+        assert_ne!(answer.status, 0, "{what}: no answer");
+        let cors: Vec<_> =
+            answer.head.lines().filter(|l| l.to_ascii_lowercase().starts_with("access-control-")).collect();
+        assert!(cors.is_empty(), "{what} ({}): {cors:?}", answer.status);
+    }
+    // A preflight never succeeds: the API has no OPTIONS operation (docs/openapi.yaml).
+    for (what, answer) in answers.iter().filter(|(what, _)| what.starts_with("preflight")) {
+        assert!(!(200..300).contains(&answer.status), "{what}: {} {}", answer.status, answer.head);
+    }
+    // The refusals docs/web.md gives: another origin's state change 403, a rebound Host 421.
+    let status = |what: &str| answers.iter().find(|(w, _)| *w == what).map(|(_, a)| a.status);
+    assert_eq!(status("foreign signed write"), Some(403));
+    assert_eq!(status("rebound"), Some(421));
+    assert_eq!(status("foreign read"), Some(200), "reading needs no login, from anywhere (docs/web.md)");
+}
+
+/// docs/web.md, "Decisions": "a web read does not feed the host watchdog (a browser left open
+/// must not keep a dead master's outputs alive)". The master arms a 0.5 s watchdog fed by any
+/// request (extensions §3: 0130h = 5, 0132h = 0) and goes silent; a browser polls
+/// `GET /api/v1/do` every 100 ms: the watchdog trips 500-600 ms after the arming write, as
+/// with nobody polling, and the DOs take their safe levels.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_web_read_never_feeds_the_host_watchdog() {
+    let module =
+        SimModule::start_with(BIN, &temp("wd-web.flash"), &["--listen", "127.0.0.1:0", "--http", "127.0.0.1:0"]);
+    let (web, modbus) = (module.web.expect("web address"), module.addr);
+    let states =
+        |body: &str| -> Vec<bool> { body.split("\"state\":").skip(1).map(|r| r.starts_with("true")).collect() };
+    let mut master = tcp::connect(modbus).await.expect("modbus");
+    // DO1 on; safe levels (0131h): only DO2 on; mode 0 (0132h): any request feeds it.
+    master.write_single_coil(BIT_DO + 1, true).await.unwrap().expect("DO1 on");
+    master.write_single_register(0x131, 0b00_0100).await.unwrap().expect("safe values");
+    master.write_single_register(0x132, 0).await.unwrap().expect("mode 0");
+    let armed = Instant::now();
+    master.write_single_register(0x130, 5).await.unwrap().expect("0.5 s");
+    let answered = armed.elapsed();
+    drop(master);
+    let on = [false, true, false, false, false, false];
+    let safe = [false, false, true, false, false, false];
+    // The browser polls every 100 ms; the outputs change when the watchdog trips.
+    let mut last_ok = Duration::ZERO;
+    let tripped = loop {
+        let sent = armed.elapsed();
+        let answer = request(web, "GET", "/api/v1/do", &[], "");
+        assert_eq!(answer.status, 200, "{}", answer.body);
+        let now = states(&answer.body);
+        if now == safe {
+            break armed.elapsed();
+        }
+        assert_eq!(now, on, "{}", answer.body);
+        last_ok = sent;
+        assert!(armed.elapsed() < Duration::from_secs(3), "the web reads kept the host watchdog fed");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    };
+    // Extensions §3: it trips when no feeding request arrived for the timeout (within +100
+    // ms). The arming write took effect between its sending and its answer (`answered`); the
+    // trip lies between the last poll that saw the outputs on (sent `last_ok` after the
+    // arming) and the answer that saw them safe (`tripped`): that window must meet 500-600 ms.
+    let earliest = last_ok.saturating_sub(answered);
+    eprintln!("with the page polling, the watchdog tripped between {earliest:?} and {tripped:?} after arming");
+    assert!(tripped >= Duration::from_millis(500), "tripped before 0.5 s without a Modbus request: {tripped:?}");
+    assert!(earliest <= Duration::from_millis(600), "not tripped 0.6 s after the master's last request: {earliest:?}");
+    let watchdog = request(web, "GET", "/api/v1/watchdog", &[], "");
+    assert!(watchdog.body.contains("\"tripped\":1"), "{}", watchdog.body);
+    assert_eq!(coils(modbus).await, safe, "Modbus shows the safe levels");
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn logins_signed_writes_and_the_attacks() {
-    let module = SimModule::start_with(BIN, &temp("web.flash"), &["--listen", "127.0.0.1:0", "--http", "127.0.0.1:0"]);
+    let scenario = temp("attacks.toml");
+    std::fs::write(&scenario, "[di2]\nlevel = false\n").unwrap();
+    let args = ["--listen", "127.0.0.1:0", "--http", "127.0.0.1:0", "--scenario", scenario.to_str().unwrap()];
+    let module = SimModule::start_with(BIN, &temp("web.flash"), &args);
     let (web, modbus) = (module.web.expect("web address"), module.addr);
 
     // Identity, read without a login.
@@ -132,32 +271,94 @@ async fn logins_signed_writes_and_the_attacks() {
     expect_refused(request_to_host(web, rebound, "GET", "/api/v1/do", &[], ""), moved, 421);
     assert_eq!(coils(modbus).await, [false, true, false, false, false, false], "nothing changed");
 
-    // GET never changes state: every resource read with the attacker's writes as queries.
-    for target in [
-        "/api/v1/identity",
-        "/api/v1/coils/16?count=6",
-        "/api/v1/registers/0?count=10",
-        "/api/v1/session",
-        "/api/v1/do",
-        "/api/v1/do/1/state",
-        "/api/v1/di/0",
-        "/api/v1/diagnostics",
-    ] {
-        let _ = request(web, "GET", &format!("{target}&value=false"), &page.sign("GET", target, off), off);
-        let _ = request(web, "GET", target, &page.sign("GET", target, off), off);
+    // GET never changes state. Flags a Modbus read clears (spec §3.1) set first: DI2 as a
+    // low-to-high latch (100h + 2 = 2), then its rising edge; DI0 counting (mode 1, run bit 20h).
+    let mut ctx = tcp::connect(modbus).await.expect("modbus");
+    ctx.write_single_register(0x102, 2).await.unwrap().expect("DI2 latch mode");
+    ctx.write_single_register(0x100, 1).await.unwrap().expect("DI0 counter mode");
+    ctx.write_single_coil(0x20, true).await.unwrap().expect("DI0 counter runs");
+    drop(ctx);
+    std::fs::write(&scenario, "[di2]\nlevel = true\n").unwrap();
+    let started = Instant::now();
+    while !request(web, "GET", "/api/v1/di/2", &[], "").body.contains("\"latch\":true") {
+        assert!(started.elapsed() < Duration::from_secs(10), "the latch was never set");
+        tokio::time::sleep(Duration::from_millis(50)).await;
     }
+    let (before, shown_before) = (settings_and_outputs(modbus).await, shown(web));
+    // Every resource, field and table read, each with the attacker's writes (signed, in the
+    // body, and as a query: `?value=` on a target without one, `&value=` on one with).
+    let targets = [
+        "/api/v1/identity",
+        "/api/v1/coils/16",
+        "/api/v1/coils/16?count=6",
+        "/api/v1/coils/43",
+        "/api/v1/registers/0?count=10",
+        "/api/v1/registers/304?count=5",
+        "/api/v1/session",
+        "/api/v1/session/challenge",
+        "/api/v1/do",
+        "/api/v1/do/1",
+        "/api/v1/do/1/state",
+        "/api/v1/do/0/state",
+        "/api/v1/do/1/mode",
+        "/api/v1/di",
+        "/api/v1/di/0",
+        "/api/v1/di/2/latch",
+        "/api/v1/di/0/clear",
+        "/api/v1/di/0/counting",
+        "/api/v1/watchdog",
+        "/api/v1/watchdog/timeout",
+        "/api/v1/watchdog/tripped",
+        "/api/v1/diagnostics",
+        "/api/v1/network",
+        "/api/v1/access",
+        "/api/v1/password",
+        "/api/v1/password/key",
+        "/api/v1/restart",
+        "/api/v1/firmware",
+        "/api/v1/firmware/0",
+        "/api/v1/firmware/finish",
+    ];
+    let mut statuses = Vec::new();
+    for target in targets {
+        for value in ["false", "true"] {
+            let body = format!(r#"{{"value":{value}}}"#);
+            let query = format!("{target}{}value={value}", if target.contains('?') { '&' } else { '?' });
+            for sent in [target, query.as_str()] {
+                let answer = request(web, "GET", sent, &page.sign("GET", sent, &body), &body);
+                statuses.push((sent.to_string(), answer.status));
+            }
+        }
+    }
+    // The reads were served (not all refused before reaching the resources).
+    for target in ["/api/v1/coils/43", "/api/v1/di/0", "/api/v1/do/1", "/api/v1/watchdog", "/api/v1/access"] {
+        assert!(statuses.contains(&(target.to_string(), 200)), "{target}: {statuses:?}");
+    }
+    assert_eq!(settings_and_outputs(modbus).await, before, "GET changed a setting or an output");
+    assert_eq!(shown(web), shown_before, "GET changed what the module shows");
+    assert!(shown_before[0].contains("\"latch\":true"), "{}", shown_before[0]);
+    // The latch is still set for the master: Modbus reads it set, once (a Modbus read clears it).
+    let mut ctx = tcp::connect(modbus).await.expect("modbus");
+    assert_eq!(ctx.read_coils(0x2B, 1).await.unwrap().unwrap(), [true], "a GET cleared DI2's latch");
+    assert_eq!(ctx.read_coils(0x2B, 1).await.unwrap().unwrap(), [false]);
+    drop(ctx);
     assert_eq!(coils(modbus).await, [false, true, false, false, false, false], "GET changed nothing");
 
-    // A value the module refuses (register 0 is read-only): a 4xx naming the field.
+    // A write of a read-only register (40001, a counter: spec §3.2): Modbus answers exception
+    // 02 (illegal address), which the API answers 404 (docs/openapi.yaml lists 404 for this
+    // write; 422 is for a value the map refuses, exception 03: docs/web.md, "One field per
+    // write"). Nothing changed.
     let bad = r#"{"value":1}"#;
     let headers = page.sign("PUT", "/api/v1/registers/0", bad);
     let refused = request(web, "PUT", "/api/v1/registers/0", &headers, bad);
-    assert!((400..500).contains(&refused.status), "{} {}", refused.status, refused.body);
+    assert_eq!(refused.status, 404, "{}", refused.body);
+    assert_eq!(request(web, "GET", "/api/v1/registers/0", &[], "").body, r#"{"values":[0]}"#);
 
-    // Oversized head and body: refused, and the module goes on serving.
+    // Oversized head and body: refused as docs/web.md says ("a head too large: 431/400 and the
+    // connection closed; a body too large: 413"), and the module goes on serving.
     let huge_header = format!("GET /api/v1/identity HTTP/1.1\r\nX-Junk: {}\r\n\r\n", "x".repeat(8000));
     let answer = send_raw(web, huge_header.as_bytes());
-    assert!(answer.status == 0 || (400..500).contains(&answer.status), "oversized head: {}", answer.status);
+    assert!(matches!(answer.status, 431 | 400), "oversized head: {} {}", answer.status, answer.body);
     let huge_body = "y".repeat(64 * 1024);
     let answer = request(web, "PUT", &target, &[], &huge_body);
     assert!(answer.status == 0 || answer.status == 413, "oversized body: {}", answer.status);

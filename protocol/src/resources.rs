@@ -266,5 +266,64 @@ mod tests {
             [fields[2].addr(5), fields[3].addr(0), fields[4].addr(0), fields[5].addr(5)],
             [0x22, 0x24, 0x30, 0x46]
         );
+
+        // Every field a write or a read names is at the address the spec gives it, found by its
+        // name (a swap of two fields' addresses, or a field moved, fails): the literals are the
+        // spec's (modules.md §2.1, §3.1, §3.2; extensions.md §2, §3), item by item.
+        let at = |resources: &[Resource], resource: &str, field: &str, n: u16| {
+            let r = resources.iter().find(|r| r.name == resource).unwrap_or_else(|| panic!("{resource}"));
+            let f = r.field(field).unwrap_or_else(|| panic!("{resource}.{field}"));
+            (f.table, f.addr(n))
+        };
+        let (reg, bit) = (Table::Registers, Table::Bits);
+        // RemoDAQ-8350, extensions §3: 0130h timeout, 0131h safe output values, 0132h mode,
+        // 0133h status, 0134h power-on output values.
+        for (field, addr) in [
+            ("timeout", 0x130),
+            ("safe_values", 0x131),
+            ("mode", 0x132),
+            ("tripped", 0x133),
+            ("power_on_values", 0x134),
+        ] {
+            assert_eq!(at(M8350, "watchdog", field, 0), (reg, addr), "watchdog.{field}");
+        }
+        // §3.1 bits: DI n state at n, DO n at 10h + n, DI n's counter run, clear, overflow and
+        // latch at 20h + 4n, 21h + 4n, 22h + 4n, 23h + 4n; §3.2 registers: DI n counter at 2n,
+        // DI n mode at 100h + n, DO n mode at 110h + n.
+        for n in [0u16, 1, 11] {
+            assert_eq!(at(M8350, "di", "state", n), (bit, n));
+            assert_eq!(at(M8350, "di", "counter", n), (reg, 2 * n));
+            assert_eq!(at(M8350, "di", "frequency", n), (reg, 2 * n));
+            assert_eq!(at(M8350, "di", "mode", n), (reg, 0x100 + n));
+            for (field, offset) in [("counting", 0x20), ("clear", 0x21), ("overflow", 0x22), ("latch", 0x23)] {
+                assert_eq!(at(M8350, "di", field, n), (bit, offset + 4 * n), "di.{field} {n}");
+            }
+        }
+        for n in [0u16, 1, 5] {
+            assert_eq!(at(M8350, "do", "state", n), (bit, 0x10 + n));
+            assert_eq!(at(M8350, "do", "mode", n), (reg, 0x110 + n));
+            for (field, base) in [("low_width", 0x18), ("high_width", 0x24), ("pulses", 0x30), ("extra_pulses", 0x3C)] {
+                assert_eq!(at(M8350, "do", field, n), (reg, base + 2 * n), "do.{field} {n}");
+            }
+        }
+        // RemoDAQ-8318, §2.1: channel n value at n, input type 00C8h, CJC 0008h, CJC offset
+        // 00D7h, enable mask 00DCh (bit n = channel n); extensions §2: channel n status at
+        // 00E0h + n, the open-input value 00E8h.
+        for (field, addr) in
+            [("type", 0xC8), ("enable_mask", 0xDC), ("cjc", 0x08), ("cjc_offset", 0xD7), ("open_value", 0xE8)]
+        {
+            assert_eq!(at(M8318, "inputs", field, 0), (reg, addr), "inputs.{field}");
+        }
+        for n in [0u16, 3, 7] {
+            assert_eq!(at(M8318, "channels", "value", n), (reg, n));
+            assert_eq!(at(M8318, "channels", "raw", n), (reg, n));
+            assert_eq!(at(M8318, "channels", "status", n), (reg, 0xE0 + n));
+            // One register for every channel, bit n of it.
+            assert_eq!(at(M8318, "channels", "enabled", n), (reg, 0xDC), "channels.enabled {n}");
+        }
+        let enabled = M8318[0].field("enabled").map(|f| f.format);
+        assert_eq!(enabled, Some(Format::MaskBit));
+        // Extensions §2: 0 upscale (factory), 1 downscale.
+        assert_eq!(OPEN_VALUE_NAMES, ["upscale", "downscale"]);
     }
 }

@@ -1015,3 +1015,123 @@ fn a_web_step_answers_its_own_asker_only() {
     };
     assert_eq!(len, 4, "asker 3's step is not carried out");
 }
+
+/// docs/web.md, "Firmware": after a finish verified and marked, the console's connection task
+/// restarts the module once its answer is sent; "should that answer not get out, the update
+/// task restarts the module itself 3 s after the mark". Here the board's update task
+/// (`EmbassyNet::serve_update`, on an embassy-net stack with no wire: nobody connects to the
+/// update port) takes the console's steps through `update::WEB`, and no connection task
+/// restarts anything (its answer was lost): the update task restarts the module 3 s after the
+/// good finish, and not after a refused one. Needs the features `web` and `embassy-net`
+/// (`cargo test -p remodaq-shared --features web,embassy-net --test update`).
+#[cfg(all(feature = "web", feature = "embassy-net"))]
+#[test]
+fn the_update_task_restarts_3_s_after_a_finish_whose_answer_was_lost() {
+    use std::sync::Mutex as StdMutex;
+    use std::time::{Duration, Instant};
+
+    use embassy_futures::select::{select, Either};
+    use embassy_net_driver::{Capabilities, Driver, HardwareAddress, LinkState};
+    use remodaq_shared::board::Network;
+    use remodaq_shared::discovery::Effect;
+    use remodaq_shared::embassy_net::EmbassyNet;
+    use remodaq_shared::update::WEB;
+
+    /// A network interface on which nothing ever arrives or leaves.
+    struct NoWire;
+    struct Nothing;
+    impl embassy_net_driver::RxToken for Nothing {
+        fn consume<R, F: FnOnce(&mut [u8]) -> R>(self, f: F) -> R {
+            f(&mut [])
+        }
+    }
+    impl embassy_net_driver::TxToken for Nothing {
+        fn consume<R, F: FnOnce(&mut [u8]) -> R>(self, len: usize, f: F) -> R {
+            f(&mut vec![0; len])
+        }
+    }
+    impl Driver for NoWire {
+        type RxToken<'a> = Nothing;
+        type TxToken<'a> = Nothing;
+        fn receive(&mut self, _: &mut core::task::Context) -> Option<(Nothing, Nothing)> {
+            None
+        }
+        fn transmit(&mut self, _: &mut core::task::Context) -> Option<Nothing> {
+            None
+        }
+        fn link_state(&mut self, _: &mut core::task::Context) -> LinkState {
+            LinkState::Down
+        }
+        fn capabilities(&self) -> Capabilities {
+            let mut caps = Capabilities::default();
+            caps.max_transmission_unit = 1514;
+            caps
+        }
+        fn hardware_address(&self) -> HardwareAddress {
+            HardwareAddress::Ethernet([2, 0, 0, 0, 0, 1])
+        }
+    }
+
+    /// The board's restart: when it was asked for (it never returns to the update task).
+    struct Restarts(StdMutex<Vec<Instant>>);
+    impl remodaq_shared::board::Effects for Restarts {
+        async fn apply(&self, effect: Effect) {
+            if matches!(effect, Effect::Restart) {
+                self.0.lock().unwrap().push(Instant::now());
+            }
+        }
+    }
+
+    let (old, new) = (image(1, 3000), image(2, 3001));
+    let settings = S { password: credential(), ..S::defaults() };
+    let mut m = module_with(&old);
+    let resources = Box::leak(Box::new(embassy_net::StackResources::<4>::new()));
+    let (stack, _runner) = embassy_net::new(NoWire, embassy_net::Config::default(), resources, 1);
+    let net: &'static EmbassyNet<Restarts> =
+        Box::leak(Box::new(EmbassyNet { stack, port: 8000, effects: Restarts(StdMutex::new(Vec::new())) }));
+    let map: &'static remodaq_shared::board::Shared<Live> = Box::leak(Box::new(Mutex::new(Live(settings))));
+    let store: &'static Mutex<CriticalSectionRawMutex, _> = Box::leak(Box::new(store_with(Some(settings))));
+    let mut aligned = [0u8; 4];
+    let mut target = updater(&mut m.dfu, &mut m.state, &mut aligned);
+    let mut service = UpdateService::new(MODEL, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
+    let restarts = || net.effects.0.lock().unwrap().clone();
+
+    // The console's side: each step asked for as its connection tasks would, the answers
+    // taken, and nobody restarting the module.
+    let console = async {
+        let upload = async |file: &[u8]| {
+            let mut last = None;
+            for step in web_steps(file) {
+                last = WEB.ask(step).await;
+            }
+            (last, Instant::now())
+        };
+        // A finish refused (a changed byte: the signature does not match): no restart.
+        let mut altered = signed(&new, 0xA101, &key());
+        altered[HEADER_LEN + 1000] ^= 1;
+        let (refused, _) = upload(&altered).await;
+        assert_eq!(refused, Some(Err(Status::BadSignature)));
+        // The good image: verified and marked; its answer is "lost" here.
+        let (done, finished) = upload(&signed(&new, 0xA101, &key())).await;
+        assert!(matches!(done, Some(Ok(WebDone::Updated(_)))), "{done:?}");
+        while restarts().is_empty() && finished.elapsed() < Duration::from_secs(6) {
+            embassy_time::Timer::after_millis(20).await;
+        }
+        finished
+    };
+    // The update task first: it waits for steps (`WEB.is_served`) before the console asks.
+    let update_task = net.serve_update(map, store, &mut service, &mut target);
+    let finished = match futures_executor::block_on(select(update_task, console)) {
+        Either::First(never) => never,
+        Either::Second(finished) => finished,
+    };
+    let seen = restarts();
+    assert_eq!(seen.len(), 1, "one restart, by the update task, after the good finish only");
+    let after = seen[0].duration_since(finished);
+    eprintln!("the update task restarted the module {after:?} after the finish was answered");
+    // The answer leaves the update task before its 3 s start: the restart comes no earlier than
+    // 3 s after it (a moment of scheduling aside), and in time (the machine may be loaded).
+    assert!(after >= Duration::from_millis(2950), "restarted {after:?} after the finish, before the 3 s");
+    assert!(after <= Duration::from_millis(4500), "restarted only {after:?} after the finish");
+    assert_eq!((m.boot(None), m.running(&old, &new)), (Ok(State::Swap), "new"), "the image was marked");
+}

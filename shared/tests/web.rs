@@ -4,12 +4,27 @@
 
 use std::sync::Mutex;
 
+#[cfg(feature = "web")]
+mod common;
+
 use remodaq_protocol::auth::{client_proof, derive, server_signature, Credential, KEY_LEN, NONCE_LEN};
 use remodaq_protocol::web::{login_message, request_signature, session_key, SESSION_ID_LEN};
 use remodaq_shared::password::AUTH;
-use remodaq_shared::web::{
-    Login, LoginError, Refusal, Sessions, Signed, Verified, CHALLENGE_MS, IDLE_MS, MAX_AGE_MS, SESSIONS,
-};
+use remodaq_shared::web::{Login, LoginError, Refusal, Sessions, Signed, Verified};
+
+// The rules these tests hold the sessions to, as docs/web.md ("Authentication") gives them: the
+// figures are the document's, never the code's constants (a constant changed by mistake must
+// fail here).
+/// "at most 2 live; a third login ends the one idle the longest".
+const LIVE: usize = 2;
+/// "A session ends after 10 minutes without a signed request".
+const IDLE: u64 = 10 * 60_000;
+/// "8 hours after its login however busy".
+const MAX_AGE: u64 = 8 * 3_600_000;
+/// "a 16-byte nonce for this address, valid 30 s, usable once".
+const CHALLENGE_LIFE: u64 = 30_000;
+/// "(4 outstanding; the oldest is forgotten)".
+const OUTSTANDING: usize = 4;
 
 /// The module's guessing budget is one static: these tests take turns.
 static TURN: Mutex<()> = Mutex::new(());
@@ -152,9 +167,11 @@ fn a_challenge_is_used_once_by_its_address_within_30_s() {
     // Sent from another address than the one that asked.
     let nonce = sessions.challenge(&credential, PAGE, 0).expect("seeded").nonce;
     assert_eq!(sessions.login(&credential, &MAC, &login_for(nonce), [192, 168, 0, 66], 10), Err(LoginError::Challenge));
-    // Too late.
+    // Too late: 30 s after it was handed out; just before, it is still good.
     let nonce = sessions.challenge(&credential, PAGE, 0).expect("seeded").nonce;
-    assert_eq!(sessions.login(&credential, &MAC, &login_for(nonce), PAGE, CHALLENGE_MS), Err(LoginError::Challenge));
+    assert_eq!(sessions.login(&credential, &MAC, &login_for(nonce), PAGE, CHALLENGE_LIFE), Err(LoginError::Challenge));
+    let nonce = sessions.challenge(&credential, PAGE, 1000).expect("seeded").nonce;
+    assert!(sessions.login(&credential, &MAC, &login_for(nonce), PAGE, 1000 + CHALLENGE_LIFE - 1).is_ok());
     // Made for another module (its MAC is in the proof).
     let nonce = sessions.challenge(&credential, PAGE, 0).expect("seeded").nonce;
     let (client_key, _) = derive(PASSWORD, &SALT, 4096);
@@ -174,31 +191,31 @@ fn sessions_end_when_idle_and_at_most_two_live() {
     let mut sessions = Sessions::new();
     let (a, key_a) = log_in(&mut sessions, &credential, PASSWORD, PAGE, 0).expect("login a");
     let (b, key_b) = log_in(&mut sessions, &credential, PASSWORD, PAGE, 1000).expect("login b");
-    assert_eq!(sessions.live(1000), SESSIONS);
+    assert_eq!(sessions.live(1000), LIVE);
     // a is used, so b is now the one idle the longest: a third login ends b.
     assert_eq!(
         sessions.verify(&signed(a, &key_a, "POST", "/x", 1, b""), &credential, 2000),
         Ok(Verified { factory: false })
     );
     let (c, key_c) = log_in(&mut sessions, &credential, PASSWORD, PAGE, 3000).expect("login c");
-    assert_eq!(sessions.live(3000), SESSIONS);
+    assert_eq!(sessions.live(3000), LIVE);
     assert_eq!(sessions.verify(&signed(b, &key_b, "POST", "/x", 1, b""), &credential, 3000), Err(Refusal::NoSession));
-    // Idle for IDLE_MS: ended.
+    // Idle for 10 minutes: ended; a moment less, still live.
     assert_eq!(
-        sessions.verify(&signed(c, &key_c, "POST", "/x", 1, b""), &credential, 3000 + IDLE_MS - 1),
+        sessions.verify(&signed(c, &key_c, "POST", "/x", 1, b""), &credential, 3000 + IDLE - 1),
         Ok(Verified { factory: false })
     );
     assert_eq!(
-        sessions.verify(&signed(a, &key_a, "POST", "/x", 2, b""), &credential, 2000 + IDLE_MS),
+        sessions.verify(&signed(a, &key_a, "POST", "/x", 2, b""), &credential, 2000 + IDLE),
         Err(Refusal::NoSession)
     );
     // Logged out.
     sessions.end(&c);
     assert_eq!(
-        sessions.verify(&signed(c, &key_c, "POST", "/x", 2, b""), &credential, 3000 + IDLE_MS),
+        sessions.verify(&signed(c, &key_c, "POST", "/x", 2, b""), &credential, 3000 + IDLE),
         Err(Refusal::NoSession)
     );
-    assert_eq!(sessions.live(3000 + IDLE_MS), 0);
+    assert_eq!(sessions.live(3000 + IDLE), 0);
 }
 
 #[test]
@@ -207,19 +224,26 @@ fn a_new_password_ends_every_session_and_none_lives_past_8_hours() {
     let credential = credential();
     let mut sessions = Sessions::new();
     let (id, key) = log_in(&mut sessions, &credential, PASSWORD, PAGE, 0).expect("login");
-    // Busy all along: still ended MAX_AGE_MS after the login.
+    // Busy all along (a signed request every minute): live until 8 hours after the login, a
+    // moment less still passes; at 8 hours, ended.
     let mut counter = 0;
     let mut now = 0;
-    while now + IDLE_MS / 2 < MAX_AGE_MS {
-        now += IDLE_MS / 2;
+    while now + 60_000 < MAX_AGE {
+        now += 60_000;
         counter += 1;
         assert_eq!(
             sessions.verify(&signed(id, &key, "POST", "/x", counter, b""), &credential, now),
-            Ok(Verified { factory: false })
+            Ok(Verified { factory: false }),
+            "{now} ms after the login"
         );
     }
+    counter += 1;
     assert_eq!(
-        sessions.verify(&signed(id, &key, "POST", "/x", counter + 1, b""), &credential, MAX_AGE_MS),
+        sessions.verify(&signed(id, &key, "POST", "/x", counter, b""), &credential, MAX_AGE - 1),
+        Ok(Verified { factory: false })
+    );
+    assert_eq!(
+        sessions.verify(&signed(id, &key, "POST", "/x", counter + 1, b""), &credential, MAX_AGE),
         Err(Refusal::NoSession)
     );
     // Another password in force: the session opened with the old one ends.
@@ -265,4 +289,368 @@ fn a_challenge_read_on_the_wire_cannot_be_burnt_and_a_loop_pushes_out_only_its_o
     let proof = client_proof(&client_key, &login_message(&MAC, &owner, &page_nonce));
     let login = Login { module_nonce: owner, page_nonce, proof };
     assert!(sessions.login(&credential, &MAC, &login, PAGE, 25).is_ok());
+}
+
+/// docs/web.md: "4 outstanding; the oldest is forgotten". Five addresses ask in turn: the first
+/// one's nonce is forgotten, the four others' still log in (a table of 3 would lose the second
+/// too, one of 64 would keep the first).
+#[test]
+fn four_challenges_are_outstanding_and_the_oldest_is_forgotten() {
+    let _turn = turn();
+    let credential = credential();
+    let mut sessions = Sessions::new();
+    let addresses: Vec<[u8; 4]> = (1..=OUTSTANDING as u8 + 1).map(|i| [192, 168, 0, 20 + i]).collect();
+    let nonces: Vec<_> = addresses
+        .iter()
+        .enumerate()
+        .map(|(i, &from)| sessions.challenge(&credential, from, i as u64).expect("seeded").nonce)
+        .collect();
+    let page_nonce = [4; NONCE_LEN];
+    let (client_key, _) = derive(PASSWORD, &SALT, 4096);
+    let login_for = |nonce: [u8; NONCE_LEN]| Login {
+        module_nonce: nonce,
+        page_nonce,
+        proof: client_proof(&client_key, &login_message(&MAC, &nonce, &page_nonce)),
+    };
+    let now = 100;
+    assert_eq!(
+        sessions.login(&credential, &MAC, &login_for(nonces[0]), addresses[0], now),
+        Err(LoginError::Challenge),
+        "the oldest of 5 is forgotten"
+    );
+    for (nonce, from) in nonces.iter().zip(&addresses).skip(1) {
+        let result = sessions.login(&credential, &MAC, &login_for(*nonce), *from, now);
+        assert!(result.is_ok(), "{from:?}: {result:?}");
+    }
+}
+
+/// docs/web.md, "Firmware": "One upload at a time, owned by the session that began it; another
+/// session may begin its own once the first has sent nothing for 30 s (409 before that), or at
+/// once when the first logged out". Through the console's HTTP service (picoserve and the API,
+/// as a board serves them) on a clock the test sets, with a task in the update task's place
+/// serving `update::WEB`: a refused begin must not reach it (it would overwrite the owner's
+/// partition).
+#[cfg(feature = "web")]
+mod one_upload_at_a_time {
+    use core::cell::{Cell, RefCell};
+    use std::sync::atomic::{AtomicU64, Ordering};
+
+    use embassy_futures::select::{select, Either};
+    use embassy_sync::blocking_mutex::raw::{CriticalSectionRawMutex, NoopRawMutex};
+    use embassy_sync::blocking_mutex::Mutex as Blocking;
+    use embassy_sync::mutex::Mutex as AsyncMutex;
+    use picoserve::io::Socket;
+    use picoserve::{Router, Timeouts};
+    use remodaq_protocol::auth::KEY_LEN;
+    use remodaq_protocol::web::{request_signature, HEADER_COUNTER, HEADER_SESSION, HEADER_SIGNATURE, SESSION_ID_LEN};
+    use remodaq_shared::discovery::Identity;
+    use remodaq_shared::modbus::{Access, Exception, RegisterMap, Table, WriteValues};
+    use remodaq_shared::module::SettingsAccess;
+    use remodaq_shared::ram_flash::RamFlash;
+    use remodaq_shared::settings::{Schema, SettingsStore};
+    use remodaq_shared::update::{Header, Status, WebDone, WebStep, HEADER_LEN, WEB};
+    use remodaq_shared::web::service::{Api, SharedSessions, CONFIG, HTTP_BUFFER};
+    use remodaq_shared::web::Sessions;
+
+    use super::common::S;
+    use super::{credential, log_in, turn, PAGE, PASSWORD};
+
+    /// docs/web.md: "once the first has sent nothing for 30 s".
+    const ABANDONED: u64 = 30_000;
+
+    type Flash = RamFlash<8192, 1024>;
+
+    /// The module's clock, as the test sets it.
+    static NOW: AtomicU64 = AtomicU64::new(0);
+
+    fn now() -> u64 {
+        NOW.load(Ordering::SeqCst)
+    }
+
+    /// A module with no registers, and a password of its own (an upload is refused with the
+    /// factory one).
+    struct Map(S);
+
+    impl RegisterMap for Map {
+        fn access(&self, _: Table, _: u16) -> Access {
+            Access::None
+        }
+        fn read(&mut self, _: Table, _: u16) -> u16 {
+            0
+        }
+        fn validate(&self, _: u16, _: &WriteValues<'_>) -> Result<(), Exception> {
+            Err(Exception::IllegalDataAddress)
+        }
+    }
+
+    impl SettingsAccess for Map {
+        type Settings = S;
+        fn settings(&self) -> &S {
+            &self.0
+        }
+        fn committed(&mut self, s: &S) {
+            self.0 = *s;
+        }
+    }
+
+    /// The request's bytes; what the module sent.
+    struct Connection<'a> {
+        input: &'a [u8],
+        output: &'a mut Vec<u8>,
+    }
+
+    struct Input<'a>(&'a [u8]);
+
+    impl embedded_io_async::ErrorType for Input<'_> {
+        type Error = core::convert::Infallible;
+    }
+
+    impl embedded_io_async::Read for Input<'_> {
+        async fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
+            let n = buf.len().min(self.0.len());
+            buf[..n].copy_from_slice(&self.0[..n]);
+            self.0 = &self.0[n..];
+            Ok(n)
+        }
+    }
+
+    struct Output<'a>(&'a mut Vec<u8>);
+
+    impl embedded_io_async::ErrorType for Output<'_> {
+        type Error = core::convert::Infallible;
+    }
+
+    impl embedded_io_async::Write for Output<'_> {
+        async fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
+            self.0.extend_from_slice(buf);
+            Ok(buf.len())
+        }
+        async fn flush(&mut self) -> Result<(), Self::Error> {
+            Ok(())
+        }
+    }
+
+    impl picoserve::io::Write for Output<'_> {
+        async fn write_with<F: FnOnce(picoserve::mem::BorrowedCursor<'_>) -> R, R>(
+            &mut self,
+            f: F,
+        ) -> Result<R, Self::Error> {
+            remodaq_shared::web::service::write_with_buffer(self, f).await
+        }
+    }
+
+    impl Socket<picoserve::EmbassyRuntime> for Connection<'_> {
+        type Error = core::convert::Infallible;
+        type ReadHalf<'a>
+            = Input<'a>
+        where
+            Self: 'a;
+        type WriteHalf<'a>
+            = Output<'a>
+        where
+            Self: 'a;
+
+        fn split(&mut self) -> (Self::ReadHalf<'_>, Self::WriteHalf<'_>) {
+            (Input(self.input), Output(self.output))
+        }
+
+        async fn abort<T: picoserve::time::Timer<picoserve::EmbassyRuntime>>(
+            self,
+            _: &Timeouts,
+            _: &T,
+        ) -> Result<(), picoserve::Error<Self::Error>> {
+            Ok(())
+        }
+
+        async fn shutdown<T: picoserve::time::Timer<picoserve::EmbassyRuntime>>(
+            self,
+            _: &Timeouts,
+            _: &T,
+        ) -> Result<(), picoserve::Error<Self::Error>> {
+            Ok(())
+        }
+    }
+
+    /// A page's session: its id, key and last counter.
+    struct Page {
+        id: [u8; SESSION_ID_LEN],
+        key: [u8; KEY_LEN],
+        counter: u64,
+    }
+
+    fn hex(bytes: &[u8]) -> String {
+        bytes.iter().map(|b| format!("{b:02x}")).collect()
+    }
+
+    struct Module {
+        map: AsyncMutex<NoopRawMutex, Map>,
+        store: AsyncMutex<CriticalSectionRawMutex, SettingsStore<Flash, S>>,
+        sessions: SharedSessions,
+        /// The steps the update task was given.
+        steps: RefCell<Vec<String>>,
+    }
+
+    impl Module {
+        fn new() -> Self {
+            let settings = S { password: credential(), ..S::defaults() };
+            let store = embassy_futures::block_on(SettingsStore::open(
+                Flash::new(),
+                const { SettingsStore::<Flash, S>::config(0..8192) },
+            ));
+            Self {
+                map: AsyncMutex::new(Map(settings)),
+                store: AsyncMutex::new(store),
+                sessions: Blocking::new(RefCell::new(Sessions::new())),
+                steps: RefCell::new(Vec::new()),
+            }
+        }
+
+        fn log_in(&self, at: u64) -> Page {
+            NOW.store(at, Ordering::SeqCst);
+            let credential = credential();
+            let (id, key) = self
+                .sessions
+                .lock(|s| log_in(&mut s.borrow_mut(), &credential, PASSWORD, PAGE, at))
+                .expect("the module's password logs in");
+            Page { id, key, counter: 0 }
+        }
+
+        /// `method target` with `body`, signed by `page`, at `at` ms: the status and the body.
+        fn signed(&self, at: u64, page: &mut Page, method: &str, target: &str, body: &[u8]) -> (u16, String) {
+            page.counter += 1;
+            let signature = request_signature(&page.key, method, target, page.counter, body);
+            let mut request = format!(
+                "{method} {target} HTTP/1.1\r\nHost: 192.168.0.1\r\nContent-Length: {}\r\n{HEADER_SESSION}: {}\r\n\
+                 {HEADER_COUNTER}: {}\r\n{HEADER_SIGNATURE}: {}\r\n\r\n",
+                body.len(),
+                hex(&page.id),
+                page.counter,
+                hex(&signature)
+            )
+            .into_bytes();
+            request.extend_from_slice(body);
+            self.serve(at, &request)
+        }
+
+        /// Serves one connection carrying `request` at `at` ms, beside the update task.
+        fn serve(&self, at: u64, request: &[u8]) -> (u16, String) {
+            NOW.store(at, Ordering::SeqCst);
+            let identity = Identity {
+                model: 0x8350,
+                version: 0xA100,
+                name: "RemoDAQ-8350",
+                mac: super::MAC,
+                running: remodaq_protocol::net::NetConfig::FACTORY,
+            };
+            let restart = Cell::new(false);
+            let api = Api {
+                map: &self.map,
+                store: &self.store,
+                identity,
+                sessions: &self.sessions,
+                peer: PAGE,
+                now_ms: now,
+                restart: &restart,
+            };
+            let app = Router::from_service(api);
+            let mut buffer = [0u8; HTTP_BUFFER];
+            let mut output = Vec::new();
+            let connection = Connection { input: request, output: &mut output };
+            let served =
+                picoserve::Server::custom(&app, picoserve::time::EmbassyTimer, &CONFIG, &mut buffer).serve(connection);
+            // The update task: each step is carried out as for a good image.
+            let task = async {
+                loop {
+                    let (number, step) = WEB.next().await;
+                    let done = match step {
+                        WebStep::Begin(header) => {
+                            self.steps.borrow_mut().push("begin".into());
+                            Header::decode(&header).map(WebDone::Begun).ok_or(Status::Invalid)
+                        }
+                        WebStep::Write { offset, len, .. } => {
+                            self.steps.borrow_mut().push(format!("write {offset}"));
+                            Ok(WebDone::Written(offset + len as u32))
+                        }
+                        WebStep::Finish => {
+                            self.steps.borrow_mut().push("finish".into());
+                            Ok(WebDone::NoUpload)
+                        }
+                    };
+                    WEB.answer(number, done);
+                }
+            };
+            // The task first: it waits for steps (`WEB.is_served`) before the request is read.
+            match embassy_futures::block_on(select(task, served)) {
+                Either::First(()) => unreachable!("the update task never ends"),
+                Either::Second(result) => assert!(result.is_ok(), "the connection failed"),
+            }
+            let text = String::from_utf8(output).expect("an HTTP answer");
+            let (head, body) = text.split_once("\r\n\r\n").expect("a head and a body");
+            let status = head.strip_prefix("HTTP/1.1 ").and_then(|r| r.get(..3)).and_then(|c| c.parse().ok());
+            (status.expect("a status line"), body.to_string())
+        }
+
+        fn steps(&self) -> Vec<String> {
+            self.steps.borrow().clone()
+        }
+    }
+
+    fn header() -> Vec<u8> {
+        let header =
+            Header { model: 0x8350, version: 0xA101, counter: 0, length: 3000, digest: [1; 64], signature: [2; 64] };
+        let bytes = header.encode().to_vec();
+        assert_eq!(bytes.len(), HEADER_LEN);
+        bytes
+    }
+
+    #[test]
+    fn a_second_session_waits_30_s_without_a_step_or_the_owners_logout() {
+        let _turn = turn();
+        let module = Module::new();
+        let (mut a, mut b) = (module.log_in(1000), module.log_in(1000));
+        let header = header();
+        let begin = |at, page: &mut Page| module.signed(at, page, "POST", "/api/v1/firmware", &header);
+
+        // A begins its upload.
+        let (status, body) = begin(1500, &mut a);
+        assert_eq!(status, 200, "{body}");
+        // The owner may begin again (a page that starts over): the rule holds other sessions.
+        let (status, body) = begin(2000, &mut a);
+        assert_eq!(status, 200, "{body}");
+        assert_eq!(module.steps(), ["begin"; 2]);
+        // B may not, until A has sent nothing for 30 s: 409, and nothing reaches the update task.
+        for at in [2001, 20_000, 2000 + ABANDONED - 1] {
+            let (status, body) = begin(at, &mut b);
+            assert_eq!(status, 409, "{at} ms: {body}");
+            assert!(body.contains("under way"), "{body}");
+        }
+        assert_eq!(module.steps(), ["begin"; 2], "a refused begin never reaches the update task");
+        // A sends a chunk, later than 30 s after its begin (nobody took its upload): the 30 s
+        // start again from this step.
+        let at = 2000 + ABANDONED + 1000;
+        let (status, body) = module.signed(at, &mut a, "PUT", "/api/v1/firmware/0", &[0xAB; 512]);
+        assert_eq!((status, body.as_str()), (200, r#"{"received":512}"#));
+        let (status, body) = begin(at + ABANDONED - 1, &mut b);
+        assert_eq!(status, 409, "29.999 s after A's last step: {body}");
+        assert_eq!(module.steps(), ["begin", "begin", "write 0"]);
+        // 30 s without a step: B takes over; A's upload is no longer A's.
+        let (status, body) = begin(at + ABANDONED, &mut b);
+        assert_eq!(status, 200, "30 s after A's last step: {body}");
+        assert_eq!(module.steps(), ["begin", "begin", "write 0", "begin"]);
+        let t = at + ABANDONED;
+        let (status, body) = module.signed(t + 1, &mut a, "PUT", "/api/v1/firmware/512", &[0xAB; 512]);
+        assert_eq!(status, 409, "{body}");
+        assert!(body.contains("no upload of this session"), "{body}");
+        assert_eq!(module.steps().len(), 4, "A's chunk never reaches the update task");
+
+        // A logs out: B's upload stays B's (C, logged in since, waits).
+        assert_eq!(module.signed(t + 2, &mut a, "DELETE", "/api/v1/session", b"").0, 204);
+        let mut c = module.log_in(t + 3);
+        assert_eq!(begin(t + 4, &mut c).0, 409, "A's logout releases nothing of B's");
+        // B logs out: its upload is released, and C begins at once.
+        assert_eq!(module.signed(t + 5, &mut b, "DELETE", "/api/v1/session", b"").0, 204);
+        let (status, body) = begin(t + 6, &mut c);
+        assert_eq!(status, 200, "B logged out 1 ms ago: {body}");
+        assert_eq!(module.steps(), ["begin", "begin", "write 0", "begin", "begin"]);
+    }
 }

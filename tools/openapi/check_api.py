@@ -11,7 +11,10 @@ docs/web.md, with Python's hashlib and hmac), signed writes taken and refused, u
 foreign and rebound requests. Each answer's status must be one the file lists for that
 operation, and its body must follow the schema the file gives for that status (OpenAPI 3.0
 Schema Objects: type, nullable, enum, pattern, minimum, maximum, required, properties,
-additionalProperties, items, oneOf, $ref). One check per operation:
+additionalProperties, items, oneOf, $ref). Every signed write the module takes (204) is read
+back: over Modbus at the address the spec gives the field (/work/shared/spec: modules.md §2.1,
+§3.1, §3.2; extensions.md §2, §3), and by a GET of the resource, field by field, so that a write
+that lands on another field, or changes nothing, fails its operation. One check per operation:
 `openapi METHOD PATH ... ok`; the last line `openapi: N passed, M failed`.
 """
 import hashlib
@@ -34,7 +37,57 @@ except ImportError:  # a fresh machine: PyYAML from PyPI
 HERE = os.path.dirname(os.path.abspath(__file__))
 SPEC = os.path.join(HERE, "..", "..", "docs", "openapi.yaml")
 sys.path.insert(0, os.path.join(HERE, "..", "browser"))
-from browser_test import FACTORY_PASSWORD, Module  # noqa: E402  the simulated module, started with --http
+from browser_test import FACTORY_PASSWORD, Module, read_coils, read_registers  # noqa: E402  the simulated module
+
+# Where each writable field of a resource is, as the spec gives it (never as the module's own
+# table says): (model, resource, field) -> (Modbus table, address of item 0, addresses from one
+# item to the next, registers of its value). modules.md §2.1 (8318), §3.1 and §3.2 (8350);
+# extensions.md §2 (8318 open-input value), §3 (8350 host watchdog).
+SPEC_ADDRESSES = {
+    ("8350", "di", "mode"): ("register", 0x100, 1, 1),
+    ("8350", "di", "counting"): ("coil", 0x20, 4, 1),
+    ("8350", "di", "clear"): ("coil", 0x21, 4, 1),
+    ("8350", "di", "overflow"): ("coil", 0x22, 4, 1),
+    ("8350", "di", "latch"): ("coil", 0x23, 4, 1),
+    ("8350", "do", "state"): ("coil", 0x10, 1, 1),
+    ("8350", "do", "mode"): ("register", 0x110, 1, 1),
+    ("8350", "do", "low_width"): ("register", 0x18, 2, 2),
+    ("8350", "do", "high_width"): ("register", 0x24, 2, 2),
+    ("8350", "do", "pulses"): ("register", 0x30, 2, 2),
+    ("8350", "do", "extra_pulses"): ("register", 0x3C, 2, 2),
+    ("8350", "watchdog", "timeout"): ("register", 0x130, 0, 1),
+    ("8350", "watchdog", "safe_values"): ("register", 0x131, 0, 1),
+    ("8350", "watchdog", "mode"): ("register", 0x132, 0, 1),
+    ("8350", "watchdog", "tripped"): ("register", 0x133, 0, 1),
+    ("8350", "watchdog", "power_on_values"): ("register", 0x134, 0, 1),
+    ("8318", "inputs", "type"): ("register", 0xC8, 0, 1),
+    ("8318", "inputs", "cjc_offset"): ("register", 0xD7, 0, 1),
+    ("8318", "inputs", "enable_mask"): ("register", 0xDC, 0, 1),
+    ("8318", "inputs", "open_value"): ("register", 0xE8, 0, 1),
+}
+
+# The register value of each name (the names are docs/openapi.yaml's, the values the spec's):
+# DI modes modules.md §3.2 (0 normal, 1 counter, 2 low-to-high latch, 3 high-to-low latch,
+# 4 frequency), DO modes §3.2 (0 normal, 1 pulse output), open-input value extensions §2
+# (0 upscale, 1 downscale).
+SPEC_NAMES = {
+    ("di", "mode"): {"normal": 0, "counter": 1, "latch rising": 2, "latch falling": 3, "frequency": 4},
+    ("do", "mode"): {"normal": 0, "pulse": 1},
+    ("inputs", "open_value"): {"upscale": 0, "downscale": 1},
+}
+
+
+def spec_words(resource, field, value, words):
+    """The register (or coil) values `value` of `field` is written as, by the spec."""
+    if isinstance(value, bool):
+        return [int(value)]
+    if (resource, field) in SPEC_NAMES:
+        return [SPEC_NAMES[(resource, field)][value]]
+    if field == "cjc_offset":  # modules.md §2.4: 0.01 °C, negative as raw - 10000h
+        return [round(value * 100) & 0xFFFF]
+    if words == 2:  # modules.md §3.2: 32-bit values low word first
+        return [value & 0xFFFF, value >> 16]
+    return [value]
 
 
 def exchange(web, method, target, headers=(), body=b"", host=None):
@@ -162,8 +215,9 @@ class Client:
 
     def __init__(self, api, module):
         host, port = module.web[len("http://"):].rsplit(":", 1)
-        self.api, self.web = api, (host, int(port))
+        self.api, self.web, self.modbus = api, (host, int(port)), module.modbus
         self.session = None
+        self.model = json.loads(exchange(self.web, "GET", "/api/v1/identity")[1])["model"]
 
     def call(self, method, target, value=None, headers=(), raw=None, host=None, expect=200):
         """The request; its answer checked against the file, and its status against `expect`
@@ -183,7 +237,77 @@ class Client:
         message = b"RDAQ web request\n" + f"{method}\n{target}\n{counter}\n".encode() + body
         signature = hmac.new(key, message, hashlib.sha256).hexdigest()
         headers = [("X-RDAQ-Session", session), ("X-RDAQ-Counter", str(counter)), ("X-RDAQ-Signature", signature)]
-        return self.call(method, target, headers=headers + list(extra), raw=body, expect=expect)
+        status, answer = self.call(method, target, headers=headers + list(extra), raw=body, expect=expect)
+        if method == "PUT" and status == 204:
+            try:
+                problem = self.read_back(target, json.loads(body))
+            except Exception as e:  # a read that failed is a failed read-back
+                problem = f"read back: {e!r}"
+            if problem:
+                self.api.wrong(method, target, problem)
+        return status, answer
+
+    def get(self, target, signed=False):
+        """A GET's JSON (signed where the resource needs a session)."""
+        status, answer = (self.signed if signed else self.call)("GET", target, expect=200)
+        return json.loads(answer) if status == 200 else None
+
+    def read_back(self, target, body):
+        """What is wrong with the write of `body` to `target` once read back, or None: the
+        field's registers read over Modbus at the spec's address, and the resource's GET."""
+        parts = target[len("/api/v1/"):].split("/")
+        if parts[0] in ("registers", "coils"):
+            address, value = int(parts[1]), body["value"]
+            if parts[0] == "registers":
+                modbus, words = read_registers(self.modbus, address, 1), [value]
+            else:
+                modbus, words = [int(b) for b in read_coils(self.modbus, address, 1)], [int(value)]
+            shown = self.get(f"/api/v1/{parts[0]}/{address}")
+            if modbus != words or shown != {"values": [value]}:
+                return f"wrote {value!r}, Modbus reads {modbus} at {address}, the GET shows {shown}"
+            return None
+        if parts == ["network"]:
+            stored = (self.get("/api/v1/network") or {}).get("stored")
+            return None if stored == body else f"wrote {body}, stored {stored}"
+        if parts == ["access"]:
+            shown = (self.get("/api/v1/access", signed=True) or {}).get("networks")
+            want = [n if "/" in n else n + "/32" for n in body["networks"]]  # a bare address is /32
+            return None if shown == want else f"wrote {body['networks']}, shown {shown}"
+        if parts == ["password"]:
+            return None  # read back by logging in with the new password (change_password's callers)
+        resource, item, field = (parts[0], None, parts[1]) if len(parts) == 2 else parts
+        value = body["value"]
+        where = SPEC_ADDRESSES.get((self.model, resource, field))
+        if where is None:
+            return f"no spec address to read {resource}.{field} back at"
+        table, base, stride, words = where
+        address = base + stride * int(item or 0)
+        if table == "register":
+            modbus = read_registers(self.modbus, address, words)
+        else:
+            modbus = [int(b) for b in read_coils(self.modbus, address, words)]
+        if field == "clear":
+            # modules.md §3.1: "write 1 clears; reads 0": the counter is back at 0 (the square
+            # wave on DI0 counts on, one edge every 200 ms).
+            counter = read_registers(self.modbus, 2 * int(item), 2)
+            shown = self.get(f"/api/v1/{resource}/{item}")["counter"]
+            if modbus != [0] or counter[1] != 0 or counter[0] > 1 or shown > 1:
+                return f"after the clear: coil {modbus}, Modbus counter {counter}, the GET shows {shown}"
+            return None
+        want = spec_words(resource, field, value, words)
+        if modbus != want:
+            return f"wrote {value!r}: Modbus reads {modbus} at {address:04X}h, the spec's {want}"
+        shown = self.get(f"/api/v1/{resource}" + (f"/{item}" if item is not None else ""))
+        seen = shown.get(field)
+        if field == "type":
+            seen = seen.get("code")
+        if seen != value:
+            return f"wrote {value!r}, the GET shows {field} {seen!r}"
+        if field == "enable_mask":  # modules.md §2.1: bit n = channel n
+            enabled = [ch["enabled"] for ch in self.get("/api/v1/channels")["channels"]]
+            if enabled != [bool(value >> n & 1) for n in range(8)]:
+                return f"mask {value:08b}: the channels show enabled {enabled}"
+        return None
 
     def log_in(self, password):
         """docs/web.md, "Authentication": SCRAM-SHA-256's keys, the web login's message."""
@@ -235,6 +359,13 @@ def exercise_8350(c):
     c.signed("PUT", "/api/v1/di/0/mode", "sideways", expect=422)
     c.signed("PUT", "/api/v1/di/0/counter", 5, expect=405)  # read-only
     c.signed("PUT", "/api/v1/di/12/mode", "normal", expect=404)
+    # DI0 counts its 5 Hz square wave; a clear then brings its counter back to 0.
+    c.signed("PUT", "/api/v1/di/0/counting", True)
+    deadline = time.time() + 5
+    while c.get("/api/v1/di/0")["counter"] < 3 and time.time() < deadline:
+        time.sleep(0.1)
+    if c.get("/api/v1/di/0")["counter"] < 3:  # else the clear's read-back would prove nothing
+        c.api.wrong("PUT", "/api/v1/di/0/counting", "DI0 did not count its 5 Hz square wave in 5 s")
     c.signed("PUT", "/api/v1/di/0/clear", True)
     c.signed("PUT", "/api/v1/do/0/state", True)
     c.signed("PUT", "/api/v1/do/1/mode", "pulse")
@@ -243,7 +374,13 @@ def exercise_8350(c):
     for target in ["/api/v1/di/0", "/api/v1/do/1", "/api/v1/di"]:  # as written
         c.call("GET", target)
     c.signed("PUT", "/api/v1/watchdog/timeout", 6001, expect=422)  # 600 s at most
-    c.signed("PUT", "/api/v1/watchdog/safe_values", 3)
+    # Each field with a value of its own, so that a write landing on another field shows.
+    c.signed("PUT", "/api/v1/watchdog/safe_values", 0b000011)
+    c.signed("PUT", "/api/v1/watchdog/power_on_values", 0b101000)
+    c.signed("PUT", "/api/v1/watchdog/mode", 2)  # automatic clear, fed by any request
+    c.signed("PUT", "/api/v1/watchdog/timeout", 6000)
+    c.signed("PUT", "/api/v1/watchdog/timeout", 0)  # off again
+    c.signed("PUT", "/api/v1/watchdog/tripped", 0)  # a clear (extensions §3: only 0 may be written)
     c.call("GET", "/api/v1/watchdog")
     c.signed("PUT", "/api/v1/inputs/type", 5, expect=404)  # an 8318 resource on the 8350
     c.call("PUT", "/api/v1/do/0/state", raw=b"{" + b" " * 4000 + b"}", expect=413)

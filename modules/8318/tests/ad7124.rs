@@ -191,12 +191,18 @@ fn conversion_timeout_from_the_filter() {
     assert_eq!(sinc4_settling_us(384), 80_000);
 }
 
-/// Spec §2.5: the module is accurate to ±0.1 % of span. Through the whole chain (the driver's
-/// gain choice, the chip's 24-bit conversion as the fake models it, code to mV, scaling), a
-/// voltage or current across each range of spec §2.2 reads within 0.1 % of 65535 codes of the
-/// spec's mapping round((x - lo) / (hi - lo) * 65535). Ranges and points are the spec's.
+/// Through the whole chain (the driver's gain choice, the chip's 24-bit conversion as the fake
+/// models it, code to mV, scaling), a voltage or current across each range of spec §2.2 reads
+/// the spec's mapping round((x - lo) / (hi - lo) * 65535) to within one output code. The fake
+/// chip is ideal (its 2.500 V reference exact, no noise, no offset or gain error), and its
+/// 24-bit quantization is over 100 times finer than one output code at every gain, so the
+/// only error left is the rounding to the output code: one code. The ±0.1 % of span of spec
+/// §2.5 (about 65 codes) is the hardware's budget (reference tolerance, noise, offset and gain
+/// errors of a real AD7124 and its front end), not a tolerance of this arithmetic: a reference
+/// of 2.501 V in `code_to_mv` (0.04 %, about 26 codes at full scale) is a wrong module here.
+/// Ranges are the spec's.
 #[test]
-fn voltage_and_current_ranges_within_a_tenth_of_a_percent_of_span() {
+fn voltage_and_current_ranges_read_the_specs_mapping_within_one_code() {
     use remodaq_8318::acquisition::acquire;
     // The current input's shunt (docs/register-map-8318.md: ±20 mA through 100 ohm).
     const SHUNT_OHMS: f64 = 100.0;
@@ -224,7 +230,7 @@ fn voltage_and_current_ranges_within_a_tenth_of_a_percent_of_span() {
         for (n, x) in points.iter().enumerate() {
             let ideal = ((x - lo) / (hi - lo) * 65535.0).round();
             let got = f64::from(snapshot.values[n]);
-            assert!((got - ideal).abs() <= 65.535, "code {code:02X}, {x}: read {got}, the spec's mapping {ideal}");
+            assert!((got - ideal).abs() <= 1.0, "code {code:02X}, {x}: read {got}, the spec's mapping {ideal}");
         }
     }
 }
