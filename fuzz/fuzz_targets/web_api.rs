@@ -18,7 +18,6 @@ use embassy_sync::blocking_mutex::raw::{CriticalSectionRawMutex, NoopRawMutex};
 use embassy_sync::blocking_mutex::Mutex as Blocking;
 use embassy_sync::mutex::Mutex;
 use libfuzzer_sys::fuzz_target;
-use picoserve::io::Socket;
 use picoserve::{Config, Router, Timeouts};
 use remodaq_protocol::resources::{self, Format};
 use remodaq_shared::discovery::Identity;
@@ -44,85 +43,11 @@ static CONFIG: Config = Config::new(Timeouts {
 })
 .close_connection_after_response();
 
-/// The request's bytes, read in pieces of at most 7 bytes (a request split across reads).
-struct Input<'a>(&'a [u8]);
-
-impl embedded_io_async::ErrorType for Input<'_> {
-    type Error = core::convert::Infallible;
-}
-
-impl embedded_io_async::Read for Input<'_> {
-    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
-        let n = buf.len().min(self.0.len()).min(7);
-        buf[..n].copy_from_slice(&self.0[..n]);
-        self.0 = &self.0[n..];
-        Ok(n)
-    }
-}
-
-/// What the module sent.
-struct Output<'a>(&'a mut Vec<u8>);
-
-impl embedded_io_async::ErrorType for Output<'_> {
-    type Error = core::convert::Infallible;
-}
-
-impl embedded_io_async::Write for Output<'_> {
-    async fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
-        self.0.extend_from_slice(buf);
-        Ok(buf.len())
-    }
-
-    async fn flush(&mut self) -> Result<(), Self::Error> {
-        Ok(())
-    }
-}
-
-impl picoserve::io::Write for Output<'_> {
-    async fn write_with<F: FnOnce(picoserve::mem::BorrowedCursor<'_>) -> R, R>(
-        &mut self,
-        f: F,
-    ) -> Result<R, Self::Error> {
-        remodaq_shared::web::service::write_with_buffer(self, f).await
-    }
-}
-
-struct Connection<'a> {
-    input: &'a [u8],
-    output: &'a mut Vec<u8>,
-}
-
-impl Socket<picoserve::EmbassyRuntime> for Connection<'_> {
-    type Error = core::convert::Infallible;
-    type ReadHalf<'a>
-        = Input<'a>
-    where
-        Self: 'a;
-    type WriteHalf<'a>
-        = Output<'a>
-    where
-        Self: 'a;
-
-    fn split(&mut self) -> (Self::ReadHalf<'_>, Self::WriteHalf<'_>) {
-        (Input(self.input), Output(self.output))
-    }
-
-    async fn abort<T: picoserve::time::Timer<picoserve::EmbassyRuntime>>(
-        self,
-        _: &Timeouts,
-        _: &T,
-    ) -> Result<(), picoserve::Error<Self::Error>> {
-        Ok(())
-    }
-
-    async fn shutdown<T: picoserve::time::Timer<picoserve::EmbassyRuntime>>(
-        self,
-        _: &Timeouts,
-        _: &T,
-    ) -> Result<(), picoserve::Error<Self::Error>> {
-        Ok(())
-    }
-}
+/// The request's bytes, read in pieces of at most 7 bytes (a request split across reads), and
+/// what the module sent: the web tests' connection in memory.
+#[path = "../../shared/tests/common/memory_connection.rs"]
+mod memory_connection;
+use memory_connection::Connection;
 
 fn now_ms() -> u64 {
     embassy_time::Instant::now().as_millis()
@@ -148,7 +73,7 @@ fn serve<M: RegisterMap + SettingsAccess>(
     let app = Router::from_service(api);
     let mut buffer = [0u8; HTTP_BUFFER];
     let mut output = Vec::new();
-    let connection = Connection { input: request, output: &mut output };
+    let connection = Connection { input: request, output: &mut output, piece: 7 };
     let _ = block_on(
         picoserve::Server::custom(&app, picoserve::time::EmbassyTimer, &CONFIG, &mut buffer).serve(connection),
     );

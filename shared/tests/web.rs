@@ -6,6 +6,9 @@ use std::sync::Mutex;
 
 #[cfg(feature = "web")]
 mod common;
+#[cfg(feature = "web")]
+#[path = "common/memory_connection.rs"]
+mod memory_connection;
 
 use remodaq_protocol::auth::{client_proof, derive, server_signature, Credential, KEY_LEN, NONCE_LEN};
 use remodaq_protocol::web::{login_message, request_signature, session_key, SESSION_ID_LEN};
@@ -339,8 +342,7 @@ mod one_upload_at_a_time {
     use embassy_sync::blocking_mutex::raw::{CriticalSectionRawMutex, NoopRawMutex};
     use embassy_sync::blocking_mutex::Mutex as Blocking;
     use embassy_sync::mutex::Mutex as AsyncMutex;
-    use picoserve::io::Socket;
-    use picoserve::{Router, Timeouts};
+    use picoserve::Router;
     use remodaq_protocol::auth::KEY_LEN;
     use remodaq_protocol::web::{request_signature, HEADER_COUNTER, HEADER_SESSION, HEADER_SIGNATURE, SESSION_ID_LEN};
     use remodaq_shared::discovery::Identity;
@@ -353,6 +355,7 @@ mod one_upload_at_a_time {
     use remodaq_shared::web::Sessions;
 
     use super::common::S;
+    use super::memory_connection::Connection;
     use super::{credential, log_in, turn, PAGE, PASSWORD};
 
     /// docs/web.md: "once the first has sent nothing for 30 s".
@@ -390,84 +393,6 @@ mod one_upload_at_a_time {
         }
         fn committed(&mut self, s: &S) {
             self.0 = *s;
-        }
-    }
-
-    /// The request's bytes; what the module sent.
-    struct Connection<'a> {
-        input: &'a [u8],
-        output: &'a mut Vec<u8>,
-    }
-
-    struct Input<'a>(&'a [u8]);
-
-    impl embedded_io_async::ErrorType for Input<'_> {
-        type Error = core::convert::Infallible;
-    }
-
-    impl embedded_io_async::Read for Input<'_> {
-        async fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
-            let n = buf.len().min(self.0.len());
-            buf[..n].copy_from_slice(&self.0[..n]);
-            self.0 = &self.0[n..];
-            Ok(n)
-        }
-    }
-
-    struct Output<'a>(&'a mut Vec<u8>);
-
-    impl embedded_io_async::ErrorType for Output<'_> {
-        type Error = core::convert::Infallible;
-    }
-
-    impl embedded_io_async::Write for Output<'_> {
-        async fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
-            self.0.extend_from_slice(buf);
-            Ok(buf.len())
-        }
-        async fn flush(&mut self) -> Result<(), Self::Error> {
-            Ok(())
-        }
-    }
-
-    impl picoserve::io::Write for Output<'_> {
-        async fn write_with<F: FnOnce(picoserve::mem::BorrowedCursor<'_>) -> R, R>(
-            &mut self,
-            f: F,
-        ) -> Result<R, Self::Error> {
-            remodaq_shared::web::service::write_with_buffer(self, f).await
-        }
-    }
-
-    impl Socket<picoserve::EmbassyRuntime> for Connection<'_> {
-        type Error = core::convert::Infallible;
-        type ReadHalf<'a>
-            = Input<'a>
-        where
-            Self: 'a;
-        type WriteHalf<'a>
-            = Output<'a>
-        where
-            Self: 'a;
-
-        fn split(&mut self) -> (Self::ReadHalf<'_>, Self::WriteHalf<'_>) {
-            (Input(self.input), Output(self.output))
-        }
-
-        async fn abort<T: picoserve::time::Timer<picoserve::EmbassyRuntime>>(
-            self,
-            _: &Timeouts,
-            _: &T,
-        ) -> Result<(), picoserve::Error<Self::Error>> {
-            Ok(())
-        }
-
-        async fn shutdown<T: picoserve::time::Timer<picoserve::EmbassyRuntime>>(
-            self,
-            _: &Timeouts,
-            _: &T,
-        ) -> Result<(), picoserve::Error<Self::Error>> {
-            Ok(())
         }
     }
 
@@ -555,7 +480,7 @@ mod one_upload_at_a_time {
             let app = Router::from_service(api);
             let mut buffer = [0u8; HTTP_BUFFER];
             let mut output = Vec::new();
-            let connection = Connection { input: request, output: &mut output };
+            let connection = Connection { input: request, output: &mut output, piece: usize::MAX };
             let served =
                 picoserve::Server::custom(&app, picoserve::time::EmbassyTimer, &CONFIG, &mut buffer).serve(connection);
             // The update task: each step is carried out as for a good image.

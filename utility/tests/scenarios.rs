@@ -514,7 +514,10 @@ fn s10_firmware_update_on_qemu() {
     let qemu =
         std::process::Command::new("qemu-system-arm").arg("--version").output().is_ok_and(|o| o.status.success());
     assert!(qemu, "no qemu-system-arm");
-    assert!(cfg!(target_os = "linux"), "the QEMU module is reached at a loopback address of its own, which needs Linux");
+    assert!(
+        cfg!(target_os = "linux"),
+        "the QEMU module is reached at a loopback address of its own, which needs Linux"
+    );
     let _alone = alone();
     const NEW: &str = "s10-update-password";
     // The module at a loopback address of this run's own, on the ports the utility uses for
