@@ -8,9 +8,52 @@
 #![cfg_attr(windows, windows_subsystem = "windows")]
 
 use std::net::SocketAddr;
-use std::time::Duration;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
 
+use eframe::egui::Ui;
+use remodaq_utility::app::{model_of, module_label};
 use remodaq_utility::{fonts, Options, Utility};
+
+/// The window; with `REMODAQ_UTILITY_FOUND=FILE` (a test's aid: scripts/utility-wine reads it)
+/// it also writes what it shows to FILE after each frame that changed it, else at most once a
+/// second: `frames N modules M read R`, then `module LABEL model MODEL|unread` per module in
+/// its tree.
+struct Window {
+    utility: Utility,
+    found: Option<PathBuf>,
+    /// The modules' lines last written, and when.
+    written: Option<(String, Instant)>,
+}
+
+impl Window {
+    fn write_found(&mut self) {
+        let Some(path) = &self.found else { return };
+        let u = &self.utility;
+        let modules = u.modules();
+        let reading = |mac| u.latest(mac).map(model_of);
+        let mut lines = String::new();
+        for m in modules {
+            let model = reading(m.mac).map_or("unread".to_string(), |model| format!("model {model:04x}"));
+            lines += &format!("module {} {model}\n", module_label(m));
+        }
+        if self.written.as_ref().is_some_and(|(w, t)| *w == lines && t.elapsed() < Duration::from_secs(1)) {
+            return;
+        }
+        let read = modules.iter().filter(|m| reading(m.mac).is_some()).count();
+        let text = format!("frames {} modules {} read {read}\n{lines}", u.stats.frames, modules.len());
+        // A test's aid: a failure to write it changes nothing in the window.
+        let _ = std::fs::write(path, text);
+        self.written = Some((lines, Instant::now()));
+    }
+}
+
+impl eframe::App for Window {
+    fn ui(&mut self, ui: &mut Ui, frame: &mut eframe::Frame) {
+        eframe::App::ui(&mut self.utility, ui, frame);
+        self.write_found();
+    }
+}
 
 fn options() -> Result<Options, String> {
     let mut o = Options::default();
@@ -105,12 +148,13 @@ fn main() -> std::process::ExitCode {
         renderer: eframe::Renderer::Glow,
         ..Default::default()
     };
+    let found = std::env::var_os("REMODAQ_UTILITY_FOUND").map(PathBuf::from);
     let result = eframe::run_native(
         "RemoDAQ-8300 Utility",
         native,
         Box::new(move |cc| {
             fonts::install(&cc.egui_ctx);
-            Ok(Box::new(Utility::new(&cc.egui_ctx, options)?))
+            Ok(Box::new(Window { utility: Utility::new(&cc.egui_ctx, options)?, found, written: None }))
         }),
     );
     match result {
