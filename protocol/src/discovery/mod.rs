@@ -12,6 +12,14 @@ use crate::access::{AllowList, ENCODED_MAX};
 use crate::auth::{CREDENTIAL_LEN, KEY_LEN, NONCE_LEN, SALT_LEN};
 use crate::net::NetConfig;
 
+mod reply;
+mod request;
+
+pub use reply::{
+    decode_challenge, decode_info, decode_reply, encode_challenge, info_flags, Challenge, Info, Reply, NONCE_LIFETIME_S,
+};
+pub use request::{auth_message, decode_request, encode_request, Auth, Command, Request};
+
 /// The UDP port modules listen on.
 pub const PORT: u16 = 8300;
 /// Datagrams longer than this are ignored.
@@ -109,130 +117,6 @@ impl Status {
     }
 }
 
-/// The authentication block of a command: the PC's nonce, the module's nonce (from a
-/// CHALLENGE answer), and the proof over every other byte of the request.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Auth {
-    /// The PC's nonce.
-    pub cnonce: [u8; NONCE_LEN],
-    /// The module's nonce.
-    pub snonce: [u8; NONCE_LEN],
-    /// ClientProof (`crate::auth::client_proof`); zeros while the request is being built.
-    pub proof: [u8; KEY_LEN],
-}
-
-/// What an authenticated request asks for.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Command {
-    /// SET_NETWORK: store these settings.
-    SetNetwork(NetConfig),
-    /// RESTART.
-    Restart,
-    /// SET_PASSWORD: the PC's ephemeral X25519 key, and the new credential sealed with the key
-    /// agreed with the module's (`crate::auth::seal`).
-    SetPassword {
-        /// The PC's ephemeral X25519 public key.
-        public: [u8; KEY_LEN],
-        /// The new credential, sealed.
-        sealed: [u8; CREDENTIAL_LEN],
-    },
-    /// GET_ACCESS: read the allow-list.
-    GetAccess,
-    /// SET_ACCESS: store this allow-list (empty: writes not restricted).
-    SetAccess(AllowList),
-}
-
-impl Command {
-    /// The command's opcode.
-    pub fn opcode(&self) -> u8 {
-        match self {
-            Command::SetNetwork(_) => op::SET_NETWORK,
-            Command::Restart => op::RESTART,
-            Command::SetPassword { .. } => op::SET_PASSWORD,
-            Command::GetAccess => op::GET_ACCESS,
-            Command::SetAccess(_) => op::SET_ACCESS,
-        }
-    }
-}
-
-/// A decoded request.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Request {
-    /// SEARCH.
-    Search,
-    /// IDENTIFY the module with `mac` (no authentication: it only blinks a LED).
-    Identify {
-        /// Target module.
-        mac: [u8; 6],
-    },
-    /// CHALLENGE: the module with `mac` hands out a nonce.
-    Challenge {
-        /// Target module.
-        mac: [u8; 6],
-        /// The PC's nonce (echoed, so the PC matches the answer).
-        cnonce: [u8; NONCE_LEN],
-    },
-    /// An authenticated command for the module with `mac`.
-    Command {
-        /// Target module.
-        mac: [u8; 6],
-        /// The authentication block.
-        auth: Auth,
-        /// What it asks for.
-        command: Command,
-    },
-}
-
-impl Request {
-    /// The request's opcode.
-    pub fn opcode(&self) -> u8 {
-        match self {
-            Request::Search => op::SEARCH,
-            Request::Identify { .. } => op::IDENTIFY,
-            Request::Challenge { .. } => op::CHALLENGE,
-            Request::Command { command, .. } => command.opcode(),
-        }
-    }
-}
-
-/// Encodes request `id` into `out`; `None` if it does not fit. A command's proof is encoded as
-/// given ([`client::prove`] fills it in).
-pub fn encode_request(id: u16, request: &Request, out: &mut [u8]) -> Option<usize> {
-    let mut w = Writer::new(out, request.opcode(), id);
-    match *request {
-        Request::Search => {}
-        Request::Identify { mac } => {
-            w.bytes(&mac);
-        }
-        Request::Challenge { mac, cnonce } => {
-            w.bytes(&mac).bytes(&cnonce);
-        }
-        Request::Command { mac, auth, command } => {
-            w.bytes(&mac).bytes(&auth.cnonce).bytes(&auth.snonce).bytes(&auth.proof);
-            match command {
-                Command::SetNetwork(net) => {
-                    w.net(&net);
-                }
-                Command::Restart | Command::GetAccess => {}
-                Command::SetPassword { public, sealed } => {
-                    w.bytes(&public).bytes(&sealed);
-                }
-                Command::SetAccess(list) => {
-                    w.allow_list(&list);
-                }
-            }
-        }
-    }
-    w.finish()
-}
-
-/// The AuthMessage of an authenticated request (every byte but the proof), in parts, after
-/// [`CLIENT_LABEL`]; `None` if the datagram is too short to hold a proof.
-pub fn auth_message(datagram: &[u8]) -> Option<[&[u8]; 3]> {
-    let tail = datagram.get(PROOF_AT + KEY_LEN..)?;
-    Some([CLIENT_LABEL, &datagram[..PROOF_AT], tail])
-}
-
 /// A reader over a datagram that fails (None) instead of running past its end.
 struct Reader<'a> {
     rest: &'a [u8],
@@ -284,35 +168,6 @@ impl<'a> Reader<'a> {
     }
 }
 
-/// The request id and request of a datagram; `None` for anything malformed, truncated,
-/// oversized, of another version, or a reply.
-pub fn decode_request(datagram: &[u8]) -> Option<(u16, Request)> {
-    if datagram.len() > MAX_DATAGRAM {
-        return None;
-    }
-    let mut r = Reader { rest: datagram };
-    let (opcode, id) = r.header()?;
-    let request = match opcode {
-        op::SEARCH => Request::Search,
-        op::IDENTIFY => Request::Identify { mac: r.array()? },
-        op::CHALLENGE => Request::Challenge { mac: r.array()?, cnonce: r.array()? },
-        op::SET_NETWORK | op::RESTART | op::SET_PASSWORD | op::GET_ACCESS | op::SET_ACCESS => {
-            let (mac, auth) = (r.array()?, r.auth()?);
-            let command = match opcode {
-                op::SET_NETWORK => Command::SetNetwork(r.net()?),
-                op::RESTART => Command::Restart,
-                op::SET_PASSWORD => Command::SetPassword { public: r.array()?, sealed: r.array()? },
-                op::GET_ACCESS => Command::GetAccess,
-                _ => Command::SetAccess(r.allow_list()?),
-            };
-            Request::Command { mac, auth, command }
-        }
-        _ => return None,
-    };
-    r.end()?;
-    Some((id, request))
-}
-
 /// Builds datagrams into a buffer (requests on the PC side, replies on the module side).
 pub struct Writer<'a> {
     buf: &'a mut [u8],
@@ -359,161 +214,6 @@ impl<'a> Writer<'a> {
     pub fn finish(&self) -> Option<usize> {
         (!self.overflow).then_some(self.len)
     }
-}
-
-/// A decoded INFO reply (the PC side).
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Info<'a> {
-    /// Request id echoed.
-    pub id: u16,
-    /// Module name register value.
-    pub model: u16,
-    /// Firmware version.
-    pub version: u16,
-    /// MAC address.
-    pub mac: [u8; 6],
-    /// Settings in force.
-    pub running: NetConfig,
-    /// Settings stored (in force after a restart).
-    pub stored: NetConfig,
-    /// Seconds since start-up.
-    pub uptime_s: u32,
-    /// Model string (untrusted bytes: sanitise before showing them).
-    pub name: &'a [u8],
-    /// Flags ([`info_flags`]).
-    pub flags: u8,
-    /// The first 8 bytes of the SHA-256 of the public key the module verifies firmware images
-    /// with.
-    pub update_key: [u8; 8],
-}
-
-/// Flags of an INFO reply and a CHALLENGE answer.
-pub mod info_flags {
-    /// The Modbus write allow-list is not empty: writes are restricted (extensions §4).
-    pub const WRITES_RESTRICTED: u8 = 1 << 0;
-    /// The factory password is in force: set one (`remodaq password`).
-    pub const FACTORY_PASSWORD: u8 = 1 << 1;
-}
-
-/// Decodes an INFO reply.
-pub fn decode_info(datagram: &[u8]) -> Option<Info<'_>> {
-    let mut r = Reader { rest: datagram };
-    let (opcode, id) = r.header()?;
-    if opcode != op::INFO {
-        return None;
-    }
-    let info = Info {
-        id,
-        model: r.u16()?,
-        version: r.u16()?,
-        mac: r.array()?,
-        running: r.net()?,
-        stored: r.net()?,
-        uptime_s: r.u32()?,
-        name: r.string()?,
-        flags: r.array::<1>()?[0],
-        update_key: r.array()?,
-    };
-    r.end()?;
-    Some(info)
-}
-
-/// A decoded CHALLENGE answer (the PC side).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Challenge {
-    /// Request id echoed.
-    pub id: u16,
-    /// The module's MAC address.
-    pub mac: [u8; 6],
-    /// The PC's nonce, echoed.
-    pub cnonce: [u8; NONCE_LEN],
-    /// The module's nonce: single use, valid for `crate::discovery` [`NONCE_LIFETIME_S`].
-    pub snonce: [u8; NONCE_LEN],
-    /// The PBKDF2 salt of the module's password.
-    pub salt: [u8; SALT_LEN],
-    /// Its PBKDF2 iterations.
-    pub iterations: u32,
-    /// The module's X25519 key for sealing a new credential.
-    pub public: [u8; KEY_LEN],
-    /// [`info_flags`].
-    pub flags: u8,
-}
-
-/// Seconds a nonce of the module stays valid.
-pub const NONCE_LIFETIME_S: u64 = 30;
-
-/// Encodes a CHALLENGE answer (the module side).
-pub fn encode_challenge(c: &Challenge, out: &mut [u8]) -> Option<usize> {
-    let mut w = Writer::new(out, op::CHALLENGE | op::REPLY, c.id);
-    w.bytes(&c.mac).bytes(&c.cnonce).bytes(&c.snonce).bytes(&c.salt);
-    w.bytes(&c.iterations.to_be_bytes()).bytes(&c.public).bytes(&[c.flags]);
-    w.finish()
-}
-
-/// Decodes a CHALLENGE answer.
-pub fn decode_challenge(datagram: &[u8]) -> Option<Challenge> {
-    let mut r = Reader { rest: datagram };
-    let (opcode, id) = r.header()?;
-    if opcode != op::CHALLENGE | op::REPLY {
-        return None;
-    }
-    let c = Challenge {
-        id,
-        mac: r.array()?,
-        cnonce: r.array()?,
-        snonce: r.array()?,
-        salt: r.array()?,
-        iterations: r.u32()?,
-        public: r.array()?,
-        flags: r.array::<1>()?[0],
-    };
-    r.end()?;
-    Some(c)
-}
-
-/// A decoded command reply (the PC side).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Reply {
-    /// The command's opcode (without the reply bit).
-    pub opcode: u8,
-    /// Request id echoed.
-    pub id: u16,
-    /// The module's MAC address.
-    pub mac: [u8; 6],
-    /// The result.
-    pub status: Status,
-    /// GET_ACCESS answered [`Status::Ok`]: the allow-list.
-    pub list: Option<AllowList>,
-    /// The module's signature, on an answer given after a right proof
-    /// ([`Status::after_proof`]).
-    pub signature: Option<[u8; KEY_LEN]>,
-}
-
-/// Decodes a command reply. A GET_ACCESS reply with [`Status::Ok`] carries the allow-list;
-/// every reply after a right proof ends with the module's signature.
-pub fn decode_reply(datagram: &[u8]) -> Option<Reply> {
-    let mut r = Reader { rest: datagram };
-    let (opcode, id) = r.header()?;
-    if opcode & op::REPLY == 0 || opcode == op::INFO || opcode == op::CHALLENGE | op::REPLY {
-        return None;
-    }
-    let (mac, [status]) = (r.array()?, r.array::<1>()?);
-    let (opcode, status) = (opcode & !op::REPLY, Status::from_code(status)?);
-    let signature = match opcode != op::IDENTIFY && status.after_proof() {
-        true => {
-            let at = r.rest.len().checked_sub(KEY_LEN)?;
-            let (body, signature) = r.rest.split_at(at);
-            r.rest = body;
-            Some(signature.try_into().ok()?)
-        }
-        false => None,
-    };
-    let list = match (opcode, status) {
-        (op::GET_ACCESS, Status::Ok) => Some(r.allow_list()?),
-        _ => None,
-    };
-    r.end()?;
-    Some(Reply { opcode, id, mac, status, list, signature })
 }
 
 /// The PC side of authentication: proofs and the check of the module's signature.
