@@ -47,7 +47,8 @@ use remodaq_board_qemu::QemuBoard as Board;
 use remodaq_board_stm32::Stm32Board as Board;
 
 use embassy_executor::Spawner;
-use remodaq_shared::board::{App, IoFor, Statics};
+use remodaq_shared::app::{App, Statics};
+use remodaq_shared::board::IoFor;
 
 /// The module on this board, running.
 type Running = App<Board, Module>;
@@ -56,36 +57,78 @@ type Io = <Board as IoFor<Module>>::Io;
 
 static STATICS: Statics<Board, Module> = Statics::new();
 
-#[embassy_executor::task(pool_size = remodaq_shared::modbus::server::SOCKETS)]
+/// The network services' transports on this board: each service's own on embassy-net (the STM32
+/// and QEMU boards), the host board's over std sockets. Each is `serve(net, ...)` for the board's
+/// running network.
+#[cfg(target_os = "none")]
+mod transport {
+    pub use remodaq_discovery::embassy::serve as discovery;
+    pub use remodaq_modbus::embassy::serve as modbus;
+    pub use remodaq_update::embassy::serve as update;
+    #[cfg(feature = "web")]
+    pub use remodaq_web::embassy::serve as web;
+}
+#[cfg(not(target_os = "none"))]
+use remodaq_board_host::services as transport;
+
+/// The Modbus server's connection slots (spec §1.1: eviction of the connection idle longest).
+static SLOTS: remodaq_modbus::ModbusSlots = remodaq_modbus::ModbusSlots::new(
+    remodaq_modbus::server::MAX_CONNECTIONS,
+    <Board as remodaq_shared::board::Board>::CONNECTIONS_PER_SOURCE,
+);
+
+/// A Modbus/TCP connection slot (0..SOCKETS): accepts and serves connections, forever.
+#[embassy_executor::task(pool_size = remodaq_modbus::server::SOCKETS)]
 async fn modbus(app: &'static Running, slot: usize) -> ! {
-    app.serve_modbus(slot).await
+    transport::modbus(app.net(), app.map(), &SLOTS, slot).await
 }
 
+/// The discovery and configuration service, forever.
 #[embassy_executor::task]
 async fn discovery(app: &'static Running) -> ! {
-    app.serve_discovery().await
+    transport::discovery(app.net(), app.map(), app.store(), app.identity()).await
 }
 
+/// Confirms a new image after its self-test, then serves firmware updates, forever (a board
+/// without a bootloader: waits for ever). The host board has no bootloader and no such task.
+#[cfg(target_os = "none")]
 #[embassy_executor::task]
 async fn update(app: &'static Running) -> ! {
-    app.serve_update().await
+    match app.take_boot().await {
+        Some((dfu, state)) => {
+            let mac = app.identity().mac;
+            transport::update(app.net(), app.map(), app.store(), <Module as remodaq_shared::board::Module>::MODULE_NAME, mac, dfu, state).await
+        }
+        None => core::future::pending().await,
+    }
 }
 
 /// The web console (docs/web.md): on the host board (`--http`) and in an image built with the
 /// feature `web` (the QEMU board's).
 #[cfg(any(not(target_os = "none"), feature = "web"))]
-#[embassy_executor::task(pool_size = remodaq_shared::web::service::CONNECTIONS)]
+#[embassy_executor::task(pool_size = remodaq_shared::sockets::WEB_CONNECTIONS)]
 async fn web(app: &'static Running) -> ! {
-    app.serve_web().await
+    transport::web(app.net(), app.map(), app.store(), app.identity()).await
 }
 
+/// Brings the module up, then starts its tasks: a Modbus connection task per slot, discovery,
+/// updates (target boards), the module's application (main or realtime executor, by the image
+/// crate), and the web console's connection tasks. A task that cannot be spawned is logged, not
+/// a panic.
 async fn start(spawner: Spawner) {
+    use remodaq_shared::app::spawn;
     remodaq_shared::identity::set_build(build::BUILD);
-    let (app, io) = remodaq_shared::board::start(spawner, &STATICS).await;
-    app.spawn(spawner, io, modbus, discovery, update, spawn_application);
+    let (app, io) = remodaq_shared::app::start(spawner, &STATICS).await;
+    for slot in 0..remodaq_modbus::server::SOCKETS {
+        spawn(spawner, modbus(app, slot), "modbus");
+    }
+    spawn(spawner, discovery(app), "discovery");
+    #[cfg(target_os = "none")]
+    spawn(spawner, update(app), "update");
+    spawn_application(spawner, app, io);
     #[cfg(any(not(target_os = "none"), feature = "web"))]
-    for _ in 0..remodaq_shared::web::service::CONNECTIONS {
-        remodaq_shared::board::spawn(spawner, web(app), "web");
+    for _ in 0..remodaq_shared::sockets::WEB_CONNECTIONS {
+        spawn(spawner, web(app), "web");
     }
 }
 
@@ -100,7 +143,7 @@ async fn main(spawner: Spawner) {
 #[cfg(all(target_os = "none", feature = "board-qemu"))]
 #[cortex_m_rt::entry]
 fn main() -> ! {
-    remodaq_board_qemu::executor::run(|spawner| remodaq_shared::board::spawn(spawner, main_task(spawner), "main"))
+    remodaq_board_qemu::executor::run(|spawner| remodaq_shared::app::spawn(spawner, main_task(spawner), "main"))
 }
 
 #[cfg(all(target_os = "none", feature = "board-qemu"))]

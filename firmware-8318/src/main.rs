@@ -17,5 +17,5 @@ async fn application(app: &'static Running, io: Io) -> ! {
 }
 
 fn spawn_application(spawner: Spawner, app: &'static Running, io: Io) {
-    remodaq_shared::board::spawn(spawner, application(app, io), "app");
+    remodaq_shared::app::spawn(spawner, application(app, io), "app");
 }

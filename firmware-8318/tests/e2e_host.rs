@@ -316,7 +316,7 @@ async fn a_newcomer_is_answered_during_a_flood_of_64_connections() {
     let took = started.elapsed();
     eprintln!("newcomer answered {took:?} after {} flood connections were opened", open.len());
     let rounds = 64 / 8 + 4;
-    let limit = Duration::from_millis(rounds * remodaq_shared::modbus::server::GRACE_MS);
+    let limit = Duration::from_millis(rounds * remodaq_modbus::server::GRACE_MS);
     assert!(took < limit, "the newcomer waited {took:?}, limit {limit:?}");
 }
 

@@ -20,5 +20,5 @@ async fn application(state: &'static <Module as remodaq_shared::board::Module>::
 
 fn spawn_application(spawner: Spawner, app: &'static Running, io: Io) {
     use remodaq_shared::board::Board as _;
-    remodaq_shared::board::spawn_send(Board::realtime(spawner), application(app.state(), io), "app");
+    remodaq_shared::app::spawn_send(Board::realtime(spawner), application(app.state(), io), "app");
 }

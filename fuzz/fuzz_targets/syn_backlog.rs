@@ -15,8 +15,8 @@
 use std::collections::VecDeque;
 
 use libfuzzer_sys::fuzz_target;
-use remodaq_shared::backlog::{syn_to, ModbusBacklog, Peer, Verdict, HANDSHAKE_MS, HELD, HOLD_MS, MAX_SYN_FRAME};
-use remodaq_shared::modbus::server::SOCKETS;
+use remodaq_net::backlog::{syn_to, ModbusBacklog, Peer, Verdict, HANDSHAKE_MS, HELD, HOLD_MS, MAX_SYN_FRAME};
+use remodaq_modbus::server::SOCKETS;
 
 const PORT: u16 = 8000;
 

@@ -20,15 +20,15 @@ use embassy_sync::mutex::Mutex;
 use libfuzzer_sys::fuzz_target;
 use picoserve::{Config, Router, Timeouts};
 use remodaq_protocol::resources::{self, Format};
-use remodaq_shared::discovery::Identity;
+use remodaq_shared::identity::Identity;
 use remodaq_shared::modbus::RegisterMap;
 use remodaq_shared::module::SettingsAccess;
 use remodaq_shared::password::AUTH;
 use remodaq_shared::ram_flash::RamFlash;
 use remodaq_shared::settings::{Schema, SettingsStore};
-use remodaq_shared::web::json::Value;
-use remodaq_shared::web::service::{write_request, Api, SharedSessions};
-use remodaq_shared::web::Sessions;
+use remodaq_web::json::Value;
+use remodaq_web::service::{write_request, Api, SharedSessions};
+use remodaq_web::Sessions;
 
 type Flash = RamFlash<{ 64 * 1024 }, { 16 * 1024 }>;
 
@@ -45,7 +45,7 @@ static CONFIG: Config = Config::new(Timeouts {
 
 /// The request's bytes, read in pieces of at most 7 bytes (a request split across reads), and
 /// what the module sent: the web tests' connection in memory.
-#[path = "../../shared/tests/common/memory_connection.rs"]
+#[path = "../../services/web/tests/common/memory_connection.rs"]
 mod memory_connection;
 use memory_connection::Connection;
 
@@ -110,11 +110,11 @@ fuzz_target!(|data: &[u8]| {
     }
     if which & 0xC0 == 0xC0 {
         // The JSON of the network settings and of the allow-list: what is taken is usable.
-        if let Ok((net, http_port)) = remodaq_shared::web::settings::network_of(rest) {
+        if let Ok((net, http_port)) = remodaq_web::settings::network_of(rest) {
             assert!(net.is_valid(), "{net:?}");
             assert!(http_port != 0 && http_port != net.port, "{http_port}");
         }
-        if let Some(list) = remodaq_shared::web::settings::allow_list_of(rest) {
+        if let Some(list) = remodaq_web::settings::allow_list_of(rest) {
             assert!(list.iter().all(|n| n.prefix <= 32));
         }
         return;
@@ -130,7 +130,7 @@ fuzz_target!(|data: &[u8]| {
         let (r, f) = all[usize::from(pick) % all.len()];
         // The module's JSON reader takes nothing that is not JSON (serde_json as the oracle),
         // and reads the same members.
-        if let Some(object) = remodaq_shared::web::json::Object::parse(body) {
+        if let Some(object) = remodaq_web::json::Object::parse(body) {
             let full: serde_json::Map<String, serde_json::Value> =
                 serde_json::from_slice(body).expect("a body the reader took is a JSON object");
             for (name, value) in &full {

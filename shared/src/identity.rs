@@ -72,3 +72,18 @@ pub fn firmware_version() -> u16 {
 pub fn update_key() -> [u8; 32] {
     core::array::from_fn(|i| UPDATE_KEY[i].load(Ordering::Relaxed))
 }
+
+/// What a module says about itself.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Identity {
+    /// Module name register value (8318h, 8350h).
+    pub model: u16,
+    /// Model string.
+    pub name: &'static str,
+    /// Firmware version register value.
+    pub version: u16,
+    /// MAC address.
+    pub mac: [u8; 6],
+    /// The network settings in force since start-up.
+    pub running: crate::net::NetConfig,
+}

@@ -1,5 +1,9 @@
-//! RemoDAQ-8300 common firmware library (`no_std`, host tested): Modbus/TCP, the settings
-//! store, network settings, board traits and the logging shim.
+//! RemoDAQ-8300 module runtime (`no_std`, host tested): what every network service and every
+//! board uses. The board contract ([`board`], traits only) and the start-up path ([`app`]); the
+//! module and its settings store ([`module`], [`settings`], [`flash`]); the Modbus data model a
+//! module implements ([`modbus`]); diagnostics, health and logging; the password, nonce and
+//! access-control state; the identity, the network settings and the socket plan. The services
+//! are crates of their own (`services/`), and so is the embassy-net part (`shared/net`).
 #![no_std]
 #![warn(missing_docs)]
 
@@ -9,12 +13,9 @@ extern crate std;
 pub mod fmt;
 
 pub mod access;
-pub mod backlog;
+pub mod app;
 pub mod board;
 pub mod diagnostics;
-pub mod discovery;
-#[cfg(feature = "embassy-net")]
-pub mod embassy_net;
 pub mod flash;
 pub mod health;
 pub mod identity;
@@ -25,7 +26,8 @@ pub mod nonces;
 pub mod password;
 pub mod ram_flash;
 pub mod settings;
-pub mod update;
-pub mod web;
+pub mod sockets;
+#[cfg(feature = "web")]
+pub mod upload;
 
 pub use remodaq_protocol as protocol;

@@ -29,9 +29,9 @@ pub trait CommonSettings: Schema + Copy {
     /// Changes it.
     fn set_http_port(&mut self, port: u16);
     /// The firmware update security counters (anti-rollback).
-    fn update_counter(&self) -> crate::update::Counter;
+    fn update_counter(&self) -> crate::settings::Counter;
     /// Changes them.
-    fn set_update_counter(&mut self, counter: crate::update::Counter);
+    fn set_update_counter(&mut self, counter: crate::settings::Counter);
 }
 
 /// The settings store behind its own lock, shared by the register map (Modbus writes) and the
@@ -122,7 +122,7 @@ where
 }
 
 /// Implements [`CommonSettings`] for a settings struct with the fields `net: NetConfig`,
-/// `password: Credential`, `allow: AllowList`, `http_port: u16` and `update: update::Counter`.
+/// `password: Credential`, `allow: AllowList`, `http_port: u16` and `update: settings::Counter`.
 #[macro_export]
 macro_rules! impl_common_settings {
     ($settings:ty) => {
@@ -151,10 +151,10 @@ macro_rules! impl_common_settings {
             fn set_http_port(&mut self, port: u16) {
                 self.http_port = port;
             }
-            fn update_counter(&self) -> $crate::update::Counter {
+            fn update_counter(&self) -> $crate::settings::Counter {
                 self.update
             }
-            fn set_update_counter(&mut self, counter: $crate::update::Counter) {
+            fn set_update_counter(&mut self, counter: $crate::settings::Counter) {
                 self.update = counter;
             }
         }

@@ -72,6 +72,10 @@ pub fn mac_from_uid(uid: &[u8; 12]) -> [u8; 6] {
     [(b[2] & 0xFC) | 0x02, b[3], b[4], b[5], b[6], b[7]]
 }
 
+/// Set once new network settings were stored since the start (by discovery or the web
+/// console): they are in force only after a restart.
+pub static NETWORK_STORED: core::sync::atomic::AtomicBool = core::sync::atomic::AtomicBool::new(false);
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -279,3 +279,39 @@ impl<F: NorFlash, S: Schema> SettingsStore<F, S> {
         self.map.destroy().0
     }
 }
+
+/// The firmware update security counters kept in the settings (anti-rollback, docs/update.md):
+/// the highest counter of an image this module confirmed, and the counter of the image marked
+/// and not yet confirmed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Counter {
+    /// Images with a lower counter are refused (`Status::Downgrade`, the update service).
+    pub confirmed: u32,
+    /// The counter of the image marked for the bootloader: it becomes `confirmed` when that
+    /// image confirms itself.
+    pub pending: u32,
+}
+
+/// The settings tag of the counters.
+const TAG_COUNTER: u8 = 9;
+
+impl Counter {
+    /// Writes the counters into a settings record.
+    pub fn encode(&self, w: &mut RecordWriter<'_>) {
+        let mut b = [0u8; 8];
+        b[..4].copy_from_slice(&self.confirmed.to_le_bytes());
+        b[4..].copy_from_slice(&self.pending.to_le_bytes());
+        w.put(TAG_COUNTER, &b);
+    }
+    /// The counters of a settings record (0, 0 if absent: a record of before counters).
+    pub fn decode(r: &RecordReader<'_>) -> Self {
+        match r.array::<8>(TAG_COUNTER) {
+            Some(b) => Counter {
+                confirmed: u32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+                pending: u32::from_le_bytes([b[4], b[5], b[6], b[7]]),
+            },
+            None => Counter::default(),
+        }
+    }
+}

@@ -10,6 +10,7 @@ pub mod discovery;
 pub mod flash;
 pub mod modbus;
 pub mod scenario;
+pub mod services;
 pub mod testing;
 pub mod web;
 
@@ -18,13 +19,8 @@ use std::path::PathBuf;
 
 use clap::Parser;
 use embassy_executor::{SendSpawner, Spawner};
-use embedded_storage_async::nor_flash::NorFlash;
-use remodaq_shared::board::{Board, Effects, ModbusSlots, Network, Shared};
-use remodaq_shared::discovery::Identity;
-use remodaq_shared::modbus::RegisterMap;
-use remodaq_shared::module::{SettingsAccess, Store};
+use remodaq_shared::board::{Board, Effects, Network};
 use remodaq_shared::net::{mac_from_uid, NetConfig};
-use remodaq_shared::update::{UpdateService, UpdateTarget};
 
 /// Logging to stderr through `log`; `RUST_LOG` overrides the default level (info).
 pub fn init_logging() {
@@ -62,10 +58,12 @@ pub struct Scenario(pub Option<PathBuf>);
 
 /// The simulated module's network: the Modbus/TCP listener and the discovery socket.
 pub struct HostNet {
-    listener: modbus::Listener,
-    discovery: discovery::HostDatagrams,
+    /// The Modbus/TCP listener.
+    pub(crate) listener: modbus::Listener,
+    /// The discovery socket.
+    pub(crate) discovery: discovery::HostDatagrams,
     /// The web console's listener (`--http`).
-    web: Option<web::Listener>,
+    pub(crate) web: Option<web::Listener>,
 }
 
 impl Board for HostBoard {
@@ -166,56 +164,12 @@ impl Board for HostBoard {
 }
 
 impl Network for HostNet {
-    async fn serve_modbus<M: RegisterMap>(
-        &'static self,
-        map: &'static Shared<M>,
-        slots: &'static ModbusSlots,
-        slot: usize,
-    ) -> ! {
-        modbus::connection_task(&self.listener, map, slots, slot).await
-    }
-
-    async fn serve_discovery<A: SettingsAccess, F: NorFlash>(
-        &'static self,
-        map: &'static Shared<A>,
-        store: &'static Store<F, A::Settings>,
-        identity: Identity,
-    ) -> ! {
-        discovery::run(&self.discovery, map, store, identity, &discovery::HostEffects).await
-    }
-
-    /// The simulated module has no bootloader: it serves no firmware updates.
-    async fn serve_update<A: SettingsAccess, F: NorFlash, U: UpdateTarget>(
-        &'static self,
-        _: &'static Shared<A>,
-        _: &'static remodaq_shared::module::Store<F, A::Settings>,
-        _: &mut UpdateService,
-        _: &mut U,
-    ) -> ! {
-        core::future::pending().await
-    }
-
-    async fn serve_web<A: RegisterMap + SettingsAccess, F: NorFlash>(
-        &'static self,
-        map: &'static Shared<A>,
-        store: &'static remodaq_shared::module::Store<F, A::Settings>,
-        identity: Identity,
-    ) -> ! {
-        match &self.web {
-            Some(listener) => {
-                web::connection_task(listener, map, store, identity).await;
-                self.restart().await
-            }
-            None => core::future::pending().await,
-        }
-    }
-
     fn is_up(&self) -> bool {
         true
     }
 
     async fn restart(&self) -> ! {
-        discovery::HostEffects.apply(remodaq_shared::discovery::Effect::Restart).await;
+        discovery::HostEffects.apply(remodaq_shared::board::Effect::Restart).await;
         fail("restart failed")
     }
 }

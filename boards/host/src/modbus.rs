@@ -5,8 +5,9 @@ use std::net::{TcpListener, TcpStream};
 
 use async_io::Async;
 use embedded_io_adapters::futures_03::FromFutures;
-use remodaq_shared::board::{ModbusSlots, Shared};
-use remodaq_shared::modbus::server::serve;
+use remodaq_modbus::server::serve;
+use remodaq_modbus::ModbusSlots;
+use remodaq_shared::board::Shared;
 use remodaq_shared::modbus::RegisterMap;
 
 /// The Modbus/TCP listener.

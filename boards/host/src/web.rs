@@ -1,7 +1,7 @@
 //! The web console of the simulated module (`--http ADDR:PORT`, docs/web.md): the shared
 //! picoserve service on std sockets, at most [`CONNECTIONS`] at a time (each task serves one
 //! connection), apart from the Modbus connections; the buffer, timeouts and sessions are the
-//! module's ([`remodaq_shared::web::service`]).
+//! module's ([`remodaq_web::service`]).
 
 use std::net::{TcpListener, TcpStream};
 
@@ -11,11 +11,11 @@ use embedded_storage_async::nor_flash::NorFlash;
 use picoserve::io::Socket;
 use picoserve::Timeouts;
 use remodaq_shared::board::Shared;
-use remodaq_shared::discovery::Identity;
+use remodaq_shared::identity::Identity;
 use remodaq_shared::modbus::RegisterMap;
 use remodaq_shared::module::{SettingsAccess, Store};
-pub use remodaq_shared::web::service::CONNECTIONS;
-use remodaq_shared::web::service::{serve_connection, HTTP_BUFFER};
+pub use remodaq_web::service::CONNECTIONS;
+use remodaq_web::service::{serve_connection, HTTP_BUFFER};
 
 use crate::modbus::{accept, ipv4};
 
@@ -52,7 +52,7 @@ impl picoserve::io::Write for Sender<'_> {
         &mut self,
         f: F,
     ) -> Result<R, Self::Error> {
-        remodaq_shared::web::service::write_with_buffer(&mut self.0, f).await
+        remodaq_web::service::write_with_buffer(&mut self.0, f).await
     }
 }
 
@@ -95,7 +95,7 @@ pub async fn connection_task<M: RegisterMap + SettingsAccess, F: NorFlash>(
     let mut buffer = [0u8; HTTP_BUFFER];
     // The host build serves where its command line says, not at the stored port.
     if let Ok(addr) = listener.get_ref().local_addr() {
-        remodaq_shared::web::settings::serving_on(addr.port());
+        remodaq_web::settings::serving_on(addr.port());
     }
     loop {
         let (stream, peer) = accept(listener, "web").await;

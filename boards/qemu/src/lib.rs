@@ -31,10 +31,11 @@ use cortex_m::peripheral::NVIC;
 use embassy_executor::{SendSpawner, Spawner};
 use embassy_net::{Ipv4Address, Ipv4Cidr, StackResources, StaticConfigV4};
 use remodaq_lan9118::{Lan9118, Registers};
-use remodaq_shared::backlog::{Backlogged, GATES};
-use remodaq_shared::board::{spawn, Board, Effects};
-use remodaq_shared::discovery::Effect;
-use remodaq_shared::embassy_net::EmbassyNet;
+use remodaq_net::backlog::{Backlogged, GATES};
+use remodaq_shared::app::spawn;
+use remodaq_shared::board::{Board, Effects};
+use remodaq_shared::board::Effect;
+use remodaq_net::EmbassyNet;
 use remodaq_shared::info;
 use remodaq_shared::net::{mac_from_uid, NetConfig};
 use static_cell::StaticCell;
@@ -121,7 +122,7 @@ pub mod test_switches {
     }
 }
 
-use remodaq_shared::embassy_net::STACK_SOCKETS;
+use remodaq_net::STACK_SOCKETS;
 
 /// The MPS2 AN386 as QEMU emulates it.
 pub struct QemuBoard {
@@ -133,7 +134,7 @@ impl Board for QemuBoard {
     type Flash = flash::SettingsFlash;
     const SETTINGS_SIZE: u32 = flash::SIZE as u32;
     /// QEMU's user network shows every client as its gateway, 10.0.2.2: one address for all.
-    const CONNECTIONS_PER_SOURCE: usize = remodaq_shared::modbus::server::MAX_CONNECTIONS;
+    const CONNECTIONS_PER_SOURCE: usize = remodaq_shared::sockets::MODBUS_CONNECTIONS;
     type Net = EmbassyNet<QemuEffects>;
     type Dfu = flash::DfuFlash;
     type BootState = flash::StateFlash;
@@ -226,8 +227,8 @@ impl Board for QemuBoard {
         // Only intact SYNs to this MAC and address wait in the backlog. On the user network every
         // client comes from QEMU's gateway (10.0.2.2), so one source may fill it.
         let held =
-            if test_switches::tap() { remodaq_shared::backlog::HELD_PER_SOURCE } else { remodaq_shared::backlog::HELD };
-        remodaq_shared::backlog::identify(self.mac, running.ip, held);
+            if test_switches::tap() { remodaq_net::backlog::HELD_PER_SOURCE } else { remodaq_net::backlog::HELD };
+        remodaq_net::backlog::identify(self.mac, running.ip, held);
         static RESOURCES: StaticCell<StackResources<STACK_SOCKETS>> = StaticCell::new();
         let (stack, runner) = embassy_net::new(
             Backlogged::new(device, GATES),

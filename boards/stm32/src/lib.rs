@@ -24,10 +24,11 @@ use embassy_stm32::{bind_interrupts, eth, flash, interrupt, peripherals, rng, Co
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Instant, Timer};
-use remodaq_shared::backlog::{Backlogged, GATES};
-use remodaq_shared::board::{spawn, Board, Effects};
-use remodaq_shared::discovery::Effect;
-use remodaq_shared::embassy_net::EmbassyNet;
+use remodaq_net::backlog::{Backlogged, GATES};
+use remodaq_shared::app::spawn;
+use remodaq_shared::board::{Board, Effects};
+use remodaq_shared::board::Effect;
+use remodaq_net::EmbassyNet;
 use remodaq_shared::flash::{Serialized, CONTROLLER};
 use remodaq_shared::health::{self, Heartbeat};
 use remodaq_shared::net::{mac_from_uid, NetConfig};
@@ -56,7 +57,7 @@ pub type DfuFlash = Serialized<Bank2Region3<'static, Async>>;
 /// sector at x8). Bank 1 is read on meanwhile (read-while-write between the banks, §3.6).
 pub type BootStateFlash = Serialized<Bank2Region2<'static, Async>>;
 
-use remodaq_shared::embassy_net::STACK_SOCKETS;
+use remodaq_net::STACK_SOCKETS;
 /// Independent watchdog period, nominal. The IWDG runs from the LSI, 17 to 47 kHz on the
 /// F429 (datasheet DS9405, LSI oscillator characteristics) against the 32 kHz embassy computes
 /// the reload with: 8 s nominal is 5.4 s to 15 s real. Fed every [`FEED_EVERY`] while every
@@ -314,7 +315,7 @@ impl Board for Stm32Board {
     fn start_network(self, spawner: Spawner, net: NetConfig) -> (EmbassyNet<Stm32Effects>, NetConfig) {
         let Stm32Board { eth, seed, led, mac, .. } = self;
         // Only intact SYNs to this MAC and address wait in the ports' backlogs.
-        remodaq_shared::backlog::identify(mac, net.ip, remodaq_shared::backlog::HELD_PER_SOURCE);
+        remodaq_net::backlog::identify(mac, net.ip, remodaq_net::backlog::HELD_PER_SOURCE);
         let prefix = net.prefix_len().unwrap_or(24);
         let gateway = (net.gateway != [0; 4]).then(|| Ipv4Address::from(net.gateway));
         let config = embassy_net::Config::ipv4_static(StaticConfigV4 {

@@ -29,7 +29,7 @@ pub struct Settings {
     /// The web console's TCP port (docs/web.md), in force after a restart.
     pub http_port: u16,
     /// Firmware update security counters (anti-rollback, docs/update.md).
-    pub update: remodaq_shared::update::Counter,
+    pub update: remodaq_shared::settings::Counter,
 }
 
 mod tag {
@@ -54,7 +54,7 @@ impl Schema for Settings {
             downscale: false,
             allow: AllowList::EMPTY,
             http_port: remodaq_shared::net::HTTP_PORT,
-            update: remodaq_shared::update::Counter::default(),
+            update: remodaq_shared::settings::Counter::default(),
         }
     }
 
@@ -89,7 +89,7 @@ impl Schema for Settings {
             downscale: r.array::<1>(tag::OPEN_VALUE).is_some_and(|[v]| v == 1),
             allow: access::decode(r),
             http_port: remodaq_shared::net::decode_http_port(r),
-            update: remodaq_shared::update::Counter::decode(r),
+            update: remodaq_shared::settings::Counter::decode(r),
         }
     }
 }

@@ -35,7 +35,7 @@ pub struct Settings {
     /// The web console's TCP port (docs/web.md), in force after a restart.
     pub http_port: u16,
     /// Firmware update security counters (anti-rollback, docs/update.md).
-    pub update: remodaq_shared::update::Counter,
+    pub update: remodaq_shared::settings::Counter,
 }
 
 /// Whether `v` is a valid output-values register (bits 6-15 zero).
@@ -98,7 +98,7 @@ impl Schema for Settings {
             power_on: 0,
             allow: AllowList::EMPTY,
             http_port: remodaq_shared::net::HTTP_PORT,
-            update: remodaq_shared::update::Counter::default(),
+            update: remodaq_shared::settings::Counter::default(),
         }
     }
 
@@ -147,7 +147,7 @@ impl Schema for Settings {
         s.power_on = values(tag::POWER_ON);
         s.allow = access::decode(r);
         s.http_port = remodaq_shared::net::decode_http_port(r);
-        s.update = remodaq_shared::update::Counter::decode(r);
+        s.update = remodaq_shared::settings::Counter::decode(r);
         s
     }
 }

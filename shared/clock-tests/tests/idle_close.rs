@@ -13,7 +13,7 @@ use std::task::{Context, Poll, Waker};
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::mutex::Mutex;
 use embassy_time::{Duration, MockDriver};
-use remodaq_shared::modbus::server::{serve, Ended, Slots, IDLE_TIMEOUT};
+use remodaq_modbus::server::{serve, Ended, Slots, IDLE_TIMEOUT};
 use remodaq_shared::modbus::{Access, Exception, RegisterMap, Table, WriteValues};
 
 /// One register, 40001, reading 1234h.

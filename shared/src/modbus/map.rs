@@ -4,7 +4,7 @@
 use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::mutex::Mutex;
 
-use super::Exception;
+use super::exception::Exception;
 
 pub use remodaq_protocol::{Access, Table};
 

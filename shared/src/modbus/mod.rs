@@ -1,25 +1,11 @@
-//! Modbus/TCP: MBAP framing ([`frame`]), the PDU engine ([`pdu`]), the register-map
-//! abstraction modules implement ([`map`]) and the connection server ([`server`]).
+//! The Modbus data model a module implements: the register-map abstraction ([`map`]), the PDU
+//! engine over it ([`pdu`]) and the exception codes ([`exception`]). The Modbus/TCP server (its
+//! framing and connections) is a service of its own, `remodaq-modbus`.
 
-pub mod frame;
+pub mod exception;
 pub mod map;
 pub mod pdu;
-pub mod server;
 
+pub use exception::Exception;
 pub use map::{Access, RegisterMap, Table, WriteValues};
 pub use pdu::{handle_pdu, MAX_PDU};
-
-/// Modbus exception codes used by the modules (spec §1.2).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-#[repr(u8)]
-pub enum Exception {
-    /// 01: function code not supported.
-    IllegalFunction = 1,
-    /// 02: an address of the request is not mapped for that access.
-    IllegalDataAddress = 2,
-    /// 03: bad quantity, byte count, coil value or register value.
-    IllegalDataValue = 3,
-    /// 04: the operation failed (e.g. the settings store could not commit).
-    ServerDeviceFailure = 4,
-}

@@ -6,7 +6,8 @@
 use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::mutex::Mutex;
 
-use super::{Exception, RegisterMap, Table, WriteValues};
+use super::exception::Exception;
+use super::map::{RegisterMap, Table, WriteValues};
 
 /// Largest PDU (Modbus/TCP length field 254 = unit id + 253 bytes).
 pub const MAX_PDU: usize = 253;

@@ -127,7 +127,7 @@ pub struct S {
     pub password: remodaq_shared::password::Credential,
     pub allow: AllowList,
     pub http_port: u16,
-    pub update: remodaq_shared::update::Counter,
+    pub update: remodaq_shared::settings::Counter,
 }
 
 impl Schema for S {
@@ -154,7 +154,7 @@ impl Schema for S {
             password: remodaq_shared::password::decode(version, r),
             allow: remodaq_shared::access::decode(r),
             http_port: remodaq_shared::net::decode_http_port(r),
-            update: remodaq_shared::update::Counter::decode(r),
+            update: remodaq_shared::settings::Counter::decode(r),
         }
     }
 }

@@ -34,7 +34,7 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::blocking_mutex::Mutex;
 use heapless::{Deque, Vec};
 
-use crate::modbus::server::SOCKETS;
+use remodaq_shared::sockets::MODBUS_SOCKETS as SOCKETS;
 
 /// SYN frames held at most.
 pub const HELD: usize = 64;
@@ -381,14 +381,14 @@ pub static MODBUS_BACKLOG: ModbusGate = SynGate::new();
 
 /// SYNs for the web console's port held at most: a browser opens up to 6 connections to a
 /// host at once (a page's files), and the console serves
-/// [`CONNECTIONS`](crate::web::service::CONNECTIONS) at a time; the rest wait here instead of
+/// [`WEB_CONNECTIONS`](remodaq_shared::sockets::WEB_CONNECTIONS) at a time; the rest wait here instead of
 /// being reset.
 #[cfg(feature = "web")]
 pub const WEB_HELD: usize = 8;
 
 /// The web console port's gate.
 #[cfg(feature = "web")]
-pub type WebGate = SynGate<WEB_HELD, { crate::web::service::CONNECTIONS }>;
+pub type WebGate = SynGate<WEB_HELD, { remodaq_shared::sockets::WEB_CONNECTIONS }>;
 
 /// The web console port's backlog on the boards that run embassy-net.
 #[cfg(feature = "web")]

@@ -2,6 +2,7 @@
 //! streamed into the update partition and marked; refusals (password, model, signature,
 //! truncation) that change nothing; and embassy-boot's swap and revert with the power cut at
 //! every write and erase: after each cut, the old or the new image boots, never a mix.
+#[path = "../../../shared/tests/common/mod.rs"]
 mod common;
 
 use core::cell::Cell;
@@ -21,10 +22,10 @@ use remodaq_protocol::update::{
 use remodaq_shared::ram_flash::{RamFlash, RamFlashError};
 use remodaq_shared::settings::Schema;
 use remodaq_shared::settings::SettingsStore;
-use remodaq_shared::update::Counter;
-use remodaq_shared::update::{BootUpdater, Header, Outcome, Status, UpdateService};
+use remodaq_shared::settings::Counter;
+use remodaq_update::{BootUpdater, Header, Outcome, Status, UpdateService};
 #[cfg(feature = "web")]
-use remodaq_shared::update::{WebDone, WebStep, WEB_CHUNK};
+use remodaq_shared::upload::{WebDone, WebStep, WEB_CHUNK};
 use sha2::{Digest, Sha512};
 
 /// The swap's page: larger than the service's 1 KiB chunk, as the boards' 128 KiB sectors are.
@@ -767,7 +768,7 @@ fn a_session_erases_each_sector_it_writes_once() {
 ///   is accepted.
 #[test]
 fn confirm_in_boot_swap_and_revert() {
-    use remodaq_shared::update::{confirm, Confirmation, UpdateTarget};
+    use remodaq_update::{confirm, Confirmation, UpdateTarget};
     let (old, new) = (image(1, 3000), image(2, 3001));
     let settings = S { password: credential(), update: Counter { confirmed: 1, pending: 2 }, ..S::defaults() };
     let run = |m: &mut Module, passes: bool| -> (Confirmation, S, u32, bool) {
@@ -828,7 +829,7 @@ fn confirm_in_boot_swap_and_revert() {
     }
 }
 
-/// Uploads `file` through the web console's steps (`remodaq_shared::web::firmware`) to a module
+/// Uploads `file` through the web console's steps (`remodaq_web::firmware`) to a module
 /// with `settings`, chunk by chunk in order; each step's result, and the settings after.
 #[cfg(feature = "web")]
 fn web_upload(
@@ -974,7 +975,7 @@ fn a_web_step_answers_its_own_asker_only() {
     use core::pin::pin;
     use core::task::Poll;
     use embassy_futures::poll_once;
-    use remodaq_shared::update::WebLink;
+    use remodaq_shared::upload::WebLink;
     let link = WebLink::new();
     let write = |len| WebStep::Write { offset: 0, len, data: [0; WEB_CHUNK] };
     assert!(!link.is_served());
@@ -1019,7 +1020,7 @@ fn a_web_step_answers_its_own_asker_only() {
 /// docs/web.md, "Firmware": after a finish verified and marked, the console's connection task
 /// restarts the module once its answer is sent; "should that answer not get out, the update
 /// task restarts the module itself 3 s after the mark". Here the board's update task
-/// (`EmbassyNet::serve_update`, on an embassy-net stack with no wire: nobody connects to the
+/// (`remodaq_update::embassy::serve_sessions`, on an embassy-net stack with no wire: nobody connects to the
 /// update port) takes the console's steps through `update::WEB`, and no connection task
 /// restarts anything (its answer was lost): the update task restarts the module 3 s after the
 /// good finish, and not after a refused one. Needs the features `web` and `embassy-net`
@@ -1032,10 +1033,9 @@ fn the_update_task_restarts_3_s_after_a_finish_whose_answer_was_lost() {
 
     use embassy_futures::select::{select, Either};
     use embassy_net_driver::{Capabilities, Driver, HardwareAddress, LinkState};
-    use remodaq_shared::board::Network;
-    use remodaq_shared::discovery::Effect;
-    use remodaq_shared::embassy_net::EmbassyNet;
-    use remodaq_shared::update::WEB;
+    use remodaq_shared::board::Effect;
+    use remodaq_net::EmbassyNet;
+    use remodaq_shared::upload::WEB;
 
     /// A network interface on which nothing ever arrives or leaves.
     struct NoWire;
@@ -1120,7 +1120,7 @@ fn the_update_task_restarts_3_s_after_a_finish_whose_answer_was_lost() {
         finished
     };
     // The update task first: it waits for steps (`WEB.is_served`) before the console asks.
-    let update_task = net.serve_update(map, store, &mut service, &mut target);
+    let update_task = remodaq_update::embassy::serve_sessions(net, map, store, &mut service, &mut target);
     let finished = match futures_executor::block_on(select(update_task, console)) {
         Either::First(never) => never,
         Either::Second(finished) => finished,

@@ -4,7 +4,7 @@
 //! - length < 2 or > 254: the stream is out of sync, the connection must be closed;
 //! - any unit id is accepted and echoed.
 
-use super::pdu::MAX_PDU;
+use remodaq_shared::modbus::pdu::MAX_PDU;
 
 /// MBAP header length (transaction id, protocol id, length, unit id).
 pub const MBAP_LEN: usize = 7;

@@ -4,16 +4,15 @@
 
 use std::sync::Mutex;
 
-#[cfg(feature = "web")]
+#[path = "../../../shared/tests/common/mod.rs"]
 mod common;
-#[cfg(feature = "web")]
 #[path = "common/memory_connection.rs"]
 mod memory_connection;
 
 use remodaq_protocol::auth::{client_proof, derive, server_signature, Credential, KEY_LEN, NONCE_LEN};
 use remodaq_protocol::web::{login_message, request_signature, session_key, SESSION_ID_LEN};
 use remodaq_shared::password::AUTH;
-use remodaq_shared::web::{Login, LoginError, Refusal, Sessions, Signed, Verified};
+use remodaq_web::{Login, LoginError, Refusal, Sessions, Signed, Verified};
 
 // The rules these tests hold the sessions to, as docs/web.md ("Authentication") gives them: the
 // figures are the document's, never the code's constants (a constant changed by mistake must
@@ -331,9 +330,8 @@ fn four_challenges_are_outstanding_and_the_oldest_is_forgotten() {
 /// session may begin its own once the first has sent nothing for 30 s (409 before that), or at
 /// once when the first logged out". Through the console's HTTP service (picoserve and the API,
 /// as a board serves them) on a clock the test sets, with a task in the update task's place
-/// serving `update::WEB`: a refused begin must not reach it (it would overwrite the owner's
+/// serving `upload::WEB`: a refused begin must not reach it (it would overwrite the owner's
 /// partition).
-#[cfg(feature = "web")]
 mod one_upload_at_a_time {
     use core::cell::{Cell, RefCell};
     use std::sync::atomic::{AtomicU64, Ordering};
@@ -345,14 +343,15 @@ mod one_upload_at_a_time {
     use picoserve::Router;
     use remodaq_protocol::auth::KEY_LEN;
     use remodaq_protocol::web::{request_signature, HEADER_COUNTER, HEADER_SESSION, HEADER_SIGNATURE, SESSION_ID_LEN};
-    use remodaq_shared::discovery::Identity;
+    use remodaq_shared::identity::Identity;
     use remodaq_shared::modbus::{Access, Exception, RegisterMap, Table, WriteValues};
     use remodaq_shared::module::SettingsAccess;
     use remodaq_shared::ram_flash::RamFlash;
     use remodaq_shared::settings::{Schema, SettingsStore};
-    use remodaq_shared::update::{Header, Status, WebDone, WebStep, HEADER_LEN, WEB};
-    use remodaq_shared::web::service::{Api, SharedSessions, CONFIG, HTTP_BUFFER};
-    use remodaq_shared::web::Sessions;
+    use remodaq_protocol::update::{Header, Status, HEADER_LEN};
+    use remodaq_shared::upload::{WebDone, WebStep, WEB};
+    use remodaq_web::service::{Api, SharedSessions, CONFIG, HTTP_BUFFER};
+    use remodaq_web::Sessions;
 
     use super::common::S;
     use super::memory_connection::Connection;

@@ -1,11 +1,12 @@
 //! Framing tests through the connection server (spec §1.1): MBAP rules, pipelining, segments.
+#[path = "../../../shared/tests/common/mod.rs"]
 mod common;
 
 use common::{hex, Script, TestMap};
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::mutex::Mutex;
 use futures_executor::block_on;
-use remodaq_shared::modbus::server::{serve, Admit, Ended, Slots, GRACE_MS, PER_SOURCE};
+use remodaq_modbus::server::{serve, Admit, Ended, Slots, GRACE_MS, PER_SOURCE};
 
 fn run(segments: &[&[u8]]) -> (Vec<u8>, Ended) {
     let map = Mutex::<NoopRawMutex, _>::new(TestMap::default());

@@ -55,7 +55,7 @@ impl picoserve::io::Write for Output<'_> {
         &mut self,
         f: F,
     ) -> Result<R, Self::Error> {
-        remodaq_shared::web::service::write_with_buffer(self, f).await
+        remodaq_web::service::write_with_buffer(self, f).await
     }
 }
 

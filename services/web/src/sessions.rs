@@ -1,13 +1,13 @@
 //! The web console's sessions (issue #25, docs/web.md): logins by the challenge-response of
 //! the discovery service and the update session (`remodaq_protocol::web`), within the same
-//! module-wide guessing budget ([`crate::password::AUTH`]), and the check of every signed,
+//! module-wide guessing budget ([`remodaq_shared::password::AUTH`]), and the check of every signed,
 //! state-changing request. No HTTP here: the server hands over the parsed headers and body.
 
 use remodaq_protocol::auth::{same, Credential, KEY_LEN, NONCE_LEN};
 use remodaq_protocol::web::{login_message, login_signature, request_signature, session_key, SESSION_ID_LEN};
 
-use crate::nonces::Nonces;
-use crate::password::{Check, AUTH};
+use remodaq_shared::nonces::Nonces;
+use remodaq_shared::password::{Check, AUTH};
 
 /// Sessions live at once; a login beyond them ends the one idle the longest.
 pub const SESSIONS: usize = 2;

@@ -1,49 +1,31 @@
-//! The module side of the discovery and configuration protocol: [`Service::handle`] turns one
-//! datagram into at most one reply and an effect for the board; [`serve`] runs it on a socket.
-//! The codec is `remodaq_protocol::discovery` (re-exported here).
+//! The discovery and configuration service (spec §1.4): [`Service::handle`] turns one datagram
+//! into at most one reply and an effect for the board; [`serve`] runs it on any datagram socket,
+//! and [`embassy`] (feature `embassy-net`) on an embassy-net UDP socket (the STM32 and QEMU
+//! boards; the host board has its own). The codec is `remodaq_protocol::discovery` (re-exported
+//! here).
+#![no_std]
+#![warn(missing_docs)]
+
+#[cfg(test)]
+extern crate std;
+
+#[cfg(feature = "embassy-net")]
+pub mod embassy;
 
 pub use remodaq_protocol::discovery::*;
+pub use remodaq_shared::board::Effect;
+pub use remodaq_shared::identity::Identity;
 
 use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::mutex::Mutex;
 use embedded_storage_async::nor_flash::NorFlash;
 
-use crate::access::AllowList;
-use crate::module::{commit_change, CommonSettings, SettingsAccess, Store};
-use crate::net::NetConfig;
-use crate::nonces::Nonces;
-use crate::password::{Check, Credential, AUTH, CREDENTIAL_LEN, KEY_LEN};
+use remodaq_shared::access::AllowList;
+use remodaq_shared::module::{commit_change, CommonSettings, SettingsAccess, Store};
+use remodaq_shared::net::NETWORK_STORED;
+use remodaq_shared::nonces::Nonces;
+use remodaq_shared::password::{Check, Credential, AUTH, CREDENTIAL_LEN, KEY_LEN};
 use remodaq_protocol::auth::{fingerprint, seal, x25519, BASE_POINT};
-
-/// What a module says about itself.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Identity {
-    /// Module name register value (8318h, 8350h).
-    pub model: u16,
-    /// Model string.
-    pub name: &'static str,
-    /// Firmware version register value.
-    pub version: u16,
-    /// MAC address.
-    pub mac: [u8; 6],
-    /// The network settings in force since start-up.
-    pub running: NetConfig,
-}
-
-/// Set once new network settings were stored since the start (by discovery or the web
-/// console): they are in force only after a restart.
-pub static NETWORK_STORED: core::sync::atomic::AtomicBool = core::sync::atomic::AtomicBool::new(false);
-
-/// What the board must do after sending the reply.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Effect {
-    /// Nothing.
-    None,
-    /// Restart the module (new network settings take effect).
-    Restart,
-    /// Blink the identify LED for 10 s.
-    Identify,
-}
 
 /// Nonces handed out and not used yet.
 pub const NONCES: usize = 16;
@@ -187,8 +169,8 @@ impl Service {
                 self.agreement = None;
                 let status = commit(map, store, |s| s.set_password(new)).await;
                 if status == Status::Ok {
-                    crate::diagnostics::DIAGNOSTICS.factory_password(false);
-                    crate::info!("discovery: password changed");
+                    remodaq_shared::diagnostics::DIAGNOSTICS.factory_password(false);
+                    remodaq_shared::info!("discovery: password changed");
                 }
                 status
             }
@@ -201,7 +183,7 @@ impl Service {
         w.bytes(&i.model.to_be_bytes()).bytes(&i.version.to_be_bytes()).bytes(&i.mac);
         w.net(&i.running).net(&settings.net());
         w.bytes(&((now_ms / 1000) as u32).to_be_bytes()).string(i.name.as_bytes());
-        w.bytes(&[flags(settings)]).bytes(&fingerprint(&crate::identity::update_key()));
+        w.bytes(&[flags(settings)]).bytes(&fingerprint(&remodaq_shared::identity::update_key()));
         w.finish()
     }
 }
@@ -250,7 +232,7 @@ fn result(
 #[allow(async_fn_in_trait)]
 pub trait Datagrams {
     /// A socket error.
-    type Error: crate::fmt::Loggable;
+    type Error: remodaq_shared::fmt::Loggable;
     /// Receives one datagram: its length, source address and port. A datagram longer than the
     /// buffer may be truncated; the buffer is one byte longer than [`MAX_DATAGRAM`], so the
     /// decoder still sees that it is oversized.
@@ -282,7 +264,7 @@ where
         let (n, ip, port) = match socket.recv(&mut rx).await {
             Ok(received) => received,
             Err(e) => {
-                crate::warn!("discovery: receive failed: {:?}", e);
+                remodaq_shared::warn!("discovery: receive failed: {:?}", e);
                 continue;
             }
         };
@@ -291,7 +273,7 @@ where
         let Some((len, what)) = reply else { continue };
         let to = if identity.running.same_subnet(ip) { ip } else { [255; 4] };
         if let Err(e) = socket.send(&tx[..len], to, port).await {
-            crate::warn!("discovery: send failed: {:?}", e);
+            remodaq_shared::warn!("discovery: send failed: {:?}", e);
         }
         effect(what).await;
     }

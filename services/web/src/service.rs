@@ -23,13 +23,13 @@ use remodaq_protocol::resources::{self, Field, Format, Resource};
 use remodaq_protocol::web::{hex, unhex, HEADER_COUNTER, HEADER_SESSION, HEADER_SIGNATURE, SESSION_ID_LEN};
 use remodaq_protocol::{u32_low_first, words_low_first, Table};
 
-use super::json::Object;
-use super::{Login, LoginError, Refusal, Sessions, Signed, Verified};
-use crate::discovery::Identity;
-use crate::modbus::pdu::{handle_pdu, MAX_PDU};
-use crate::modbus::RegisterMap;
-use crate::module::{CommonSettings as _, SettingsAccess, Store};
-use crate::password::Credential;
+use crate::json::Object;
+use crate::sessions::{Login, LoginError, Refusal, Sessions, Signed, Verified};
+use remodaq_shared::identity::Identity;
+use remodaq_shared::modbus::pdu::{handle_pdu, MAX_PDU};
+use remodaq_shared::modbus::RegisterMap;
+use remodaq_shared::module::{CommonSettings as _, SettingsAccess, Store};
+use remodaq_shared::password::Credential;
 use embedded_storage_async::nor_flash::NorFlash;
 
 /// The sessions of the module's web console (one set for both connections).
@@ -40,7 +40,7 @@ pub static SESSIONS: SharedSessions = Blocking::new(RefCell::new(Sessions::new()
 
 /// HTTP connections served at once (issue #25: at most 2, each in a task of its own, never a
 /// Modbus slot).
-pub const CONNECTIONS: usize = 2;
+pub const CONNECTIONS: usize = remodaq_shared::sockets::WEB_CONNECTIONS;
 
 /// The request head and body together must fit (a larger head: 431 and closed; a larger
 /// body: 413). A login is about 300 bytes of head and 150 of body.
@@ -404,7 +404,7 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
                 Ok(_) => {
                     if let Some(id) = signed.session {
                         self.sessions.lock(|s| s.borrow_mut().end(&id));
-                        super::firmware::release(&id);
+                        crate::firmware::release(&id);
                     }
                     Answer::no_content()
                 }

@@ -1,7 +1,17 @@
-//! The module side of the firmware update service (`remodaq_protocol::update`, re-exported):
-//! one session streams a signed image into the update (DFU) partition with a bounded buffer,
-//! then has it verified and marked for the bootloader. A session cut at any point leaves the
-//! running image, its state and the settings untouched, and can simply be started again.
+//! The firmware update service (docs/update.md; the codec is `remodaq_protocol::update`,
+//! re-exported): one session streams a signed image into the update (DFU) partition with a
+//! bounded buffer, then has it verified and marked for the bootloader. A session cut at any
+//! point leaves the running image, its state and the settings untouched, and can simply be
+//! started again. [`start`] confirms a new image on trial; [`embassy`] (feature `embassy-net`)
+//! serves the sessions on an embassy-net socket, and the web console's uploads between them.
+#![no_std]
+#![warn(missing_docs)]
+
+#[cfg(test)]
+extern crate std;
+
+#[cfg(feature = "embassy-net")]
+pub mod embassy;
 
 pub use remodaq_protocol::update::*;
 
@@ -11,45 +21,12 @@ use embassy_time::{with_timeout, Duration};
 use embedded_io_async::{Read, Write};
 use embedded_storage_async::nor_flash::NorFlash;
 
-use crate::module::{CommonSettings, SettingsAccess, Store};
-use crate::password::{Check, AUTH, KEY_LEN, NONCE_LEN};
+use remodaq_shared::board::{Network, Shared};
+use remodaq_shared::module::{CommonSettings, SettingsAccess, Store};
+#[cfg(feature = "web")]
+use remodaq_shared::upload::{WebDone, WebStep, WEB_CHUNK};
+use remodaq_shared::password::{Check, AUTH, KEY_LEN, NONCE_LEN};
 use remodaq_protocol::auth::server_signature;
-
-/// The firmware update security counters kept in the settings (anti-rollback, docs/update.md):
-/// the highest counter of an image this module confirmed, and the counter of the image marked
-/// and not yet confirmed.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct Counter {
-    /// Images with a lower counter are refused ([`Status::Downgrade`]).
-    pub confirmed: u32,
-    /// The counter of the image marked for the bootloader: it becomes `confirmed` when that
-    /// image confirms itself.
-    pub pending: u32,
-}
-
-/// The settings tag of the counters.
-const TAG_COUNTER: u8 = 9;
-
-impl Counter {
-    /// Writes the counters into a settings record.
-    pub fn encode(&self, w: &mut crate::settings::RecordWriter<'_>) {
-        let mut b = [0u8; 8];
-        b[..4].copy_from_slice(&self.confirmed.to_le_bytes());
-        b[4..].copy_from_slice(&self.pending.to_le_bytes());
-        w.put(TAG_COUNTER, &b);
-    }
-    /// The counters of a settings record (0, 0 if absent: a record of before counters).
-    pub fn decode(r: &crate::settings::RecordReader<'_>) -> Self {
-        match r.array::<8>(TAG_COUNTER) {
-            Some(b) => Counter {
-                confirmed: u32::from_le_bytes([b[0], b[1], b[2], b[3]]),
-                pending: u32::from_le_bytes([b[4], b[5], b[6], b[7]]),
-            },
-            None => Counter::default(),
-        }
-    }
-}
 
 /// How long a new image may take to pass its self-test before the module restarts (and the
 /// bootloader reverts to the previous image).
@@ -92,7 +69,7 @@ pub enum Outcome {
 }
 
 /// The update service of a module: its model, MAC and the size of its update partition.
-/// Wrong proofs count against the module-wide guessing budget (`crate::password::AUTH`).
+/// Wrong proofs count against the module-wide guessing budget (`remodaq_shared::password::AUTH`).
 pub struct UpdateService {
     model: u16,
     mac: [u8; 6],
@@ -184,13 +161,13 @@ impl UpdateService {
             self.upload = None;
         }
         if let Err(status) = target.begin().await {
-            crate::error!("update: the update partition could not be erased");
+            remodaq_shared::error!("update: the update partition could not be erased");
             return answer(io, status, &sign(0, status)).await;
         }
         if !send_signed(io, Status::Ok, &sign(0, Status::Ok)).await {
             return Outcome::NotUpdated;
         }
-        crate::info!("update: receiving {} bytes, version {:04X}", header.length, header.version);
+        remodaq_shared::info!("update: receiving {} bytes, version {:04X}", header.length, header.version);
 
         // The firmware, a chunk at a time; the last one padded to the write size.
         let mut buf = [0u8; CHUNK];
@@ -198,26 +175,26 @@ impl UpdateService {
         while offset < header.length {
             let n = ((header.length - offset) as usize).min(CHUNK);
             let Some(()) = read_exact(io, &mut buf[..n]).await else {
-                crate::warn!("update: cut after {} bytes; nothing marked", offset);
+                remodaq_shared::warn!("update: cut after {} bytes; nothing marked", offset);
                 return Outcome::NotUpdated;
             };
             let padded = n.next_multiple_of(U::WRITE_SIZE).min(CHUNK);
             buf[n..padded].fill(0xFF);
             if let Err(status) = target.write(offset, &buf[..padded]).await {
-                crate::error!("update: the update partition could not be written");
+                remodaq_shared::error!("update: the update partition could not be written");
                 return answer(io, status, &sign(1, status)).await;
             }
             offset += n as u32;
         }
         match finish(&header, map, store, target).await {
             Ok(()) => {
-                crate::info!("update: version {:04X} verified and marked", header.version);
+                remodaq_shared::info!("update: version {:04X} verified and marked", header.version);
                 // Marked: the bootloader swaps it in at the next start, answer sent or not.
                 send_signed(io, Status::Ok, &sign(1, Status::Ok)).await;
                 Outcome::Updated { version: header.version }
             }
             Err(status) => {
-                crate::warn!("update: refused after verification: {}", status as u8);
+                remodaq_shared::warn!("update: refused after verification: {}", status as u8);
                 refused_update(from);
                 answer(io, status, &sign(1, status)).await
             }
@@ -240,7 +217,7 @@ impl UpdateService {
         read_exact(io, cnonce).await.ok_or(Refused::Gone)?;
         let mut flags = 0;
         if credential.is_factory() {
-            flags |= crate::discovery::info_flags::FACTORY_PASSWORD;
+            flags |= remodaq_protocol::discovery::info_flags::FACTORY_PASSWORD;
         }
         let greeting = Greeting {
             mac: self.mac,
@@ -262,7 +239,7 @@ impl UpdateService {
             Check::Limited => return Err(Refused::Early(Status::RateLimited)),
         }
         if credential.is_factory() {
-            crate::warn!("update: refused, the factory password is in force");
+            remodaq_shared::warn!("update: refused, the factory password is in force");
             return Err(Refused::Late(Status::SetPasswordFirst));
         }
         self.check_header(header, settings).map_err(Refused::Late)
@@ -275,7 +252,7 @@ impl UpdateService {
             Some(h) if h.model == self.model && h.length > 0 && h.length <= self.capacity => {
                 let confirmed = settings.update_counter().confirmed;
                 if h.counter < confirmed {
-                    crate::warn!("update: refused, counter {} below the module's {}", h.counter, confirmed);
+                    remodaq_shared::warn!("update: refused, counter {} below the module's {}", h.counter, confirmed);
                     return Err(Status::Downgrade);
                 }
                 Ok(h)
@@ -309,7 +286,7 @@ impl UpdateService {
                 let settings = *map.lock().await.settings();
                 let header = self.check_header(bytes, &settings)?;
                 target.begin().await?;
-                crate::info!("update: receiving {} bytes from the web console", header.length);
+                remodaq_shared::info!("update: receiving {} bytes from the web console", header.length);
                 self.upload = Some((header, 0));
                 Ok(WebDone::Begun(header))
             }
@@ -336,7 +313,7 @@ impl UpdateService {
                     return Err(Status::Invalid);
                 }
                 finish(&header, map, store, target).await?;
-                crate::info!("update: version {:04X} verified and marked (web console)", header.version);
+                remodaq_shared::info!("update: version {:04X} verified and marked (web console)", header.version);
                 Ok(WebDone::Updated(header))
             }
         }
@@ -359,7 +336,7 @@ where
 {
     target.verify(header).await?;
     // The counter of the image to come, kept until it confirms itself.
-    crate::module::commit_change(map, store, |s| {
+    remodaq_shared::module::commit_change(map, store, |s| {
         let mut c = s.update_counter();
         c.pending = header.counter;
         s.set_update_counter(c);
@@ -369,164 +346,8 @@ where
     target.mark(header).await
 }
 
-/// Firmware bytes of one chunk of an upload through the web console (`PUT
-/// /api/v1/firmware/{offset}`): a request's head and this fit the console's buffer.
-#[cfg(feature = "web")]
-pub const WEB_CHUNK: usize = remodaq_protocol::web::FIRMWARE_CHUNK;
-
-/// A step of an upload through the web console, for the update task ([`WEB`]).
-#[cfg(feature = "web")]
-// The steps channel holds one step in static memory, the size of the largest variant whatever
-// its shape; there is no heap to box the chunk into.
-#[allow(clippy::large_enum_variant)]
-pub enum WebStep {
-    /// A new upload: the image's header.
-    Begin([u8; HEADER_LEN]),
-    /// `len` bytes of firmware at `offset`.
-    Write {
-        /// Where in the image.
-        offset: u32,
-        /// How many bytes of `data`.
-        len: usize,
-        /// The bytes.
-        data: [u8; WEB_CHUNK],
-    },
-    /// The whole image is sent: verify and mark it.
-    Finish,
-}
-
-/// What a step did.
-#[cfg(feature = "web")]
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum WebDone {
-    /// The upload of this image began (the partition ready).
-    Begun(Header),
-    /// Bytes written so far.
-    Written(u32),
-    /// The image is verified and marked: restart into it.
-    Updated(Header),
-    /// No upload is under way: a session of the update service began since, or the last step
-    /// failed writing or verifying and ended it.
-    NoUpload,
-}
-
-/// The web console's way to the update task: one step at a time (a lock), carried out between
-/// two sessions of the update service. Each step carries a number its answer repeats: an
-/// answer to an asker that gave up (its time ran out, its connection was cut) is no answer to
-/// the next, and a step nobody waits for any more is not carried out.
-#[cfg(feature = "web")]
-pub struct WebLink {
-    lock: Mutex<embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex, ()>,
-    steps:
-        embassy_sync::channel::Channel<embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex, (u32, WebStep), 1>,
-    done: embassy_sync::channel::Channel<
-        embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex,
-        (u32, Result<WebDone, Status>),
-        1,
-    >,
-    served: core::sync::atomic::AtomicBool,
-    /// The number of the last step asked for.
-    asked: core::sync::atomic::AtomicU32,
-    /// The number of the step whose asker waits for it (0: none).
-    waiting: core::sync::atomic::AtomicU32,
-}
-
-/// The link of this module.
-#[cfg(feature = "web")]
-pub static WEB: WebLink = WebLink::new();
-
-/// How long a step may take: a sector erase of the STM32 within a chunk's write (a 128 KiB
-/// sector takes 1 to 2 s, the datasheet's flash characteristics), or a whole image's
-/// verification. The wait for another asker's step is bounded the same.
-#[cfg(feature = "web")]
-pub const WEB_STEP: Duration = Duration::from_secs(8);
-
-/// While an asker waits: when it stops (answered, out of time, or dropped with its
-/// connection), its step is no longer wanted.
-#[cfg(feature = "web")]
-struct Waiting<'a>(&'a WebLink, u32);
-
-#[cfg(feature = "web")]
-impl Drop for Waiting<'_> {
-    fn drop(&mut self) {
-        use core::sync::atomic::Ordering;
-        let _ = self.0.waiting.compare_exchange(self.1, 0, Ordering::AcqRel, Ordering::Acquire);
-        // A step not taken yet is taken back.
-        self.0.steps.clear();
-    }
-}
-
-#[cfg(feature = "web")]
-impl WebLink {
-    /// A link with no step asked for.
-    pub const fn new() -> Self {
-        Self {
-            lock: Mutex::new(()),
-            steps: embassy_sync::channel::Channel::new(),
-            done: embassy_sync::channel::Channel::new(),
-            served: core::sync::atomic::AtomicBool::new(false),
-            asked: core::sync::atomic::AtomicU32::new(0),
-            waiting: core::sync::atomic::AtomicU32::new(0),
-        }
-    }
-
-    /// Whether an update task takes steps (a board with a bootloader, its image confirmed).
-    pub fn is_served(&self) -> bool {
-        self.served.load(core::sync::atomic::Ordering::Acquire)
-    }
-
-    /// Has the update task carry out `step`; `None` when no task takes it in time (or another
-    /// asker's step holds the task that long).
-    pub async fn ask(&self, step: WebStep) -> Option<Result<WebDone, Status>> {
-        use core::sync::atomic::Ordering;
-        if !self.is_served() {
-            return None;
-        }
-        let _one = with_timeout(WEB_STEP, self.lock.lock()).await.ok()?;
-        // Never 0, which stands for nobody.
-        let number = self.asked.fetch_add(1, Ordering::AcqRel).wrapping_add(1).max(1);
-        self.waiting.store(number, Ordering::Release);
-        let _waiting = Waiting(self, number);
-        with_timeout(WEB_STEP, async {
-            self.steps.send((number, step)).await;
-            loop {
-                let (answered, done) = self.done.receive().await;
-                if answered == number {
-                    return done;
-                }
-            }
-        })
-        .await
-        .ok()
-    }
-
-    /// The update task: the next step asked for whose asker still waits, and its number.
-    pub async fn next(&self) -> (u32, WebStep) {
-        self.served.store(true, core::sync::atomic::Ordering::Release);
-        loop {
-            let (number, step) = self.steps.receive().await;
-            if self.waiting.load(core::sync::atomic::Ordering::Acquire) == number {
-                return (number, step);
-            }
-        }
-    }
-
-    /// The update task: what step `number` did.
-    pub fn answer(&self, number: u32, done: Result<WebDone, Status>) {
-        self.done.clear();
-        let _ = self.done.try_send((number, done));
-    }
-}
-
-#[cfg(feature = "web")]
-impl Default for WebLink {
-    fn default() -> Self {
-        Self::new()
-    }
-}
-
 fn refused_update(from: [u8; 4]) {
-    crate::diagnostics::DIAGNOSTICS.security(crate::diagnostics::Security::UpdateRefusal, from);
+    remodaq_shared::diagnostics::DIAGNOSTICS.security(remodaq_shared::diagnostics::Security::UpdateRefusal, from);
 }
 
 /// Sends a signed refusal: the session ends with nothing updated.
@@ -552,7 +373,7 @@ async fn send<T: Write>(io: &mut T, bytes: &[u8]) -> bool {
     .await;
     let ok = matches!(sent, Ok(Ok(())));
     if !ok {
-        crate::warn!("update: the answer could not be sent");
+        remodaq_shared::warn!("update: the answer could not be sent");
     }
     ok
 }
@@ -691,26 +512,29 @@ where
 /// (the front end answers: first acquisition done, no front-end fault), and the settings store
 /// working (no failed commit).
 pub fn self_test_passed(network_up: bool) -> bool {
-    use crate::diagnostics::{status, DIAGNOSTICS};
+    use remodaq_shared::diagnostics::{status, DIAGNOSTICS};
     let s = DIAGNOSTICS.status();
     network_up && s & (status::INPUTS_PENDING | status::FRONT_END_FAULT | status::STORE_FAULT) == 0
 }
 
-/// The update task of a board with a bootloader: confirms a new (or reverted-to) image once its
-/// self-test passes, or restarts it (the bootloader then reverts) when it has not passed after
-/// [`TRIAL`]; then serves update sessions forever on `net`.
+/// The start of the update task of a board with a bootloader: confirms a new (or reverted-to)
+/// image once its self-test passes, or restarts it (the bootloader then reverts) when it has not
+/// passed after [`TRIAL`]. Returns the update partition's writer (over `aligned`, the state
+/// partition's write buffer) and the service, which then serve update sessions forever on the
+/// board's network ([`embassy::serve`] on the embassy-net boards).
 #[allow(clippy::too_many_arguments)]
-pub async fn run<N, A, F, DFU, STATE>(
+pub async fn start<'d, N, A, F, DFU, STATE>(
     net: &'static N,
-    map: &'static crate::board::Shared<A>,
+    map: &'static Shared<A>,
     store: &'static Store<F, A::Settings>,
     model: u16,
     mac: [u8; 6],
     dfu: DFU,
     state: STATE,
-) -> !
+    aligned: &'d mut [u8; 32],
+) -> (BootUpdater<'d, DFU, STATE>, UpdateService)
 where
-    N: crate::board::Network,
+    N: Network,
     A: SettingsAccess,
     F: NorFlash,
     DFU: NorFlash,
@@ -718,20 +542,18 @@ where
 {
     // The state buffer is STATE's write size: at most 32 bytes on the targets.
     const { assert!(STATE::WRITE_SIZE <= 32 && STATE::READ_SIZE <= STATE::WRITE_SIZE) };
-    let mut aligned = [0u8; 32];
     // The update partition is the running one plus a page for the swap.
     let capacity = (dfu.capacity() - DFU::ERASE_SIZE) as u32;
     let mut target =
-        BootUpdater::new(dfu, state, &mut aligned[..STATE::WRITE_SIZE], crate::identity::update_key(), capacity);
+        BootUpdater::new(dfu, state, &mut aligned[..STATE::WRITE_SIZE], remodaq_shared::identity::update_key(), capacity);
     let self_test = || self_test_passed(net.is_up()) && !cfg!(feature = "never-confirm");
     if confirm(&mut target, map, store, self_test, TRIAL).await == Confirmation::NotPassed {
-        crate::error!("update: self-test not passed in time: restarting (the bootloader reverts)");
+        remodaq_shared::error!("update: self-test not passed in time: restarting (the bootloader reverts)");
         net.restart().await;
     }
     #[cfg(feature = "test-unsigned-swap")]
     forge_unsigned_swap(net, &mut target).await;
-    let mut service = UpdateService::new(model, mac, capacity);
-    net.serve_update(map, store, &mut service, &mut target).await
+    (target, UpdateService::new(model, mac, capacity))
 }
 
 /// Test images only (feature `test-unsigned-swap`, the QEMU check of the bootloader): once
@@ -742,14 +564,14 @@ where
 #[cfg(feature = "test-unsigned-swap")]
 async fn forge_unsigned_swap<N, DFU, STATE>(net: &N, target: &mut BootUpdater<'_, DFU, STATE>)
 where
-    N: crate::board::Network,
+    N: Network,
     DFU: NorFlash,
     STATE: NorFlash,
 {
     const MARK: &[u8; 8] = b"RDQ-JUNK";
     let mut first = [0u8; 8];
     if target.read_dfu(0, &mut first).await.is_ok() && first == *MARK {
-        crate::warn!("update: the forged swap was refused: still running this image");
+        remodaq_shared::warn!("update: the forged swap was refused: still running this image");
         return;
     }
     let mut junk = [0xA5u8; 4096];
@@ -768,10 +590,10 @@ where
     };
     match written.await {
         Ok(()) => {
-            crate::warn!("update: junk with a forged manifest marked for a swap: restarting");
+            remodaq_shared::warn!("update: junk with a forged manifest marked for a swap: restarting");
             net.restart().await
         }
-        Err(_) => crate::error!("update: the forged swap could not be written"),
+        Err(_) => remodaq_shared::error!("update: the forged swap could not be written"),
     }
 }
 
@@ -799,7 +621,7 @@ pub enum Confirmation {
 /// (anti-rollback, docs/update.md).
 pub async fn confirm<A, F, DFU, STATE>(
     target: &mut BootUpdater<'_, DFU, STATE>,
-    map: &crate::board::Shared<A>,
+    map: &Shared<A>,
     store: &Store<F, A::Settings>,
     mut self_test: impl FnMut() -> bool,
     trial: Duration,
@@ -824,20 +646,20 @@ where
         }
     };
     match target.state().await {
-        Ok(State::Swap) => crate::info!("update: running a new image on trial"),
+        Ok(State::Swap) => remodaq_shared::info!("update: running a new image on trial"),
         Ok(State::Revert) => {
-            crate::warn!("update: the new image did not confirm itself; running the previous one");
+            remodaq_shared::warn!("update: the new image did not confirm itself; running the previous one");
             if target.mark_booted().await.is_err() {
-                crate::error!("update: the previous image could not be confirmed");
+                remodaq_shared::error!("update: the previous image could not be confirmed");
             }
-            if crate::module::commit_change(map, store, settle(true)).await.is_err() {
-                crate::error!("update: the counters could not be stored");
+            if remodaq_shared::module::commit_change(map, store, settle(true)).await.is_err() {
+                remodaq_shared::error!("update: the counters could not be stored");
             }
             return Confirmation::Reverted;
         }
         Ok(_) => return Confirmation::Confirmed,
         Err(_) => {
-            crate::error!("update: the bootloader's state cannot be read");
+            remodaq_shared::error!("update: the bootloader's state cannot be read");
             return Confirmation::Unreadable;
         }
     }
@@ -845,16 +667,16 @@ where
     loop {
         if self_test() {
             if target.mark_booted().await.is_ok() {
-                crate::info!("update: self-test passed, image confirmed");
+                remodaq_shared::info!("update: self-test passed, image confirmed");
                 // Anti-rollback: from now on, images below this one's counter are refused.
-                if crate::module::commit_change(map, store, settle(false)).await.is_err() {
-                    crate::error!("update: the security counter could not be stored");
+                if remodaq_shared::module::commit_change(map, store, settle(false)).await.is_err() {
+                    remodaq_shared::error!("update: the security counter could not be stored");
                 }
                 return Confirmation::Passed;
             }
             // Tried again until the trial ends; then the restart reverts, and the counter never
             // moved.
-            crate::error!("update: the image could not be confirmed");
+            remodaq_shared::error!("update: the image could not be confirmed");
         }
         if embassy_time::Instant::now() > deadline {
             return Confirmation::NotPassed;

@@ -1,4 +1,5 @@
 //! The discovery / configuration protocol on the module side, without sockets.
+#[path = "../../../shared/tests/common/mod.rs"]
 mod common;
 
 use common::{Live, S};
@@ -9,7 +10,7 @@ use futures_executor::block_on;
 use remodaq_protocol::auth;
 use remodaq_protocol::discovery::client::{self, transact, Ask, Failure};
 use remodaq_shared::access::{AllowList, Network};
-use remodaq_shared::discovery::{
+use remodaq_discovery::{
     decode_challenge, decode_info, decode_reply, decode_request, encode_request, info_flags, op, Auth, Command, Effect,
     Identity, Reply, Request, Service, Status, Writer, MAX_DATAGRAM,
 };
@@ -118,7 +119,7 @@ fn set_password(new: &str) -> Ask<'_> {
 /// the key a build without REMODAQ_UPDATE_KEY takes), from the file.
 fn test_key_fingerprint() -> [u8; 8] {
     use sha2::Digest;
-    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../keys/test-update.key.pub")).unwrap();
+    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../keys/test-update.key.pub")).unwrap();
     let text = text.trim();
     let key: Vec<u8> = (0..32).map(|i| u8::from_str_radix(&text[2 * i..2 * i + 2], 16).unwrap()).collect();
     sha2::Sha256::digest(&key)[..8].try_into().unwrap()

@@ -26,14 +26,14 @@ use embassy_sync::signal::Signal;
 use embassy_time::{with_timeout, Duration};
 use embedded_io_async::{Read, Write};
 
-use super::frame::{classify, write_header, Frame, Header, MAX_ADU, MBAP_LEN};
-use super::pdu::{handle_pdu, MAX_PDU};
-use super::RegisterMap;
+use crate::frame::{classify, write_header, Frame, Header, MAX_ADU, MBAP_LEN};
+use remodaq_shared::modbus::pdu::{handle_pdu, MAX_PDU};
+use remodaq_shared::modbus::RegisterMap;
 
 /// Clients served at once.
-pub const MAX_CONNECTIONS: usize = 8;
+pub const MAX_CONNECTIONS: usize = remodaq_shared::sockets::MODBUS_CONNECTIONS;
 /// Connections one source address may hold at once.
-pub const PER_SOURCE: usize = 4;
+pub const PER_SOURCE: usize = remodaq_shared::sockets::MODBUS_PER_SOURCE;
 /// A connection is in an exchange for at most this long (ms) without being idle: from its
 /// opening until its client is heard from (a client sends its request right behind its
 /// handshake; under QEMU's user network, in a flood, a few ms later), and from a request
@@ -41,10 +41,9 @@ pub const PER_SOURCE: usize = 4;
 /// flood of silent connections makes room soon, and a newcomer holds a connection task (there
 /// are two spare) briefly: a client stalling longer is idle.
 pub const GRACE_MS: u64 = 50;
-/// Connection tasks a board runs: two more than [`MAX_CONNECTIONS`], so that while one accepts a
-/// newcomer (and the connection idle the longest is being closed to make room) another still
-/// listens: a TCP stack without a listen backlog (smoltcp) refuses a SYN no socket listens for.
-pub const SOCKETS: usize = MAX_CONNECTIONS + 2;
+/// Connection tasks a board runs (`remodaq_shared::sockets::MODBUS_SOCKETS`: two more than
+/// [`MAX_CONNECTIONS`]).
+pub const SOCKETS: usize = remodaq_shared::sockets::MODBUS_SOCKETS;
 /// A connection without a byte received for this long is closed.
 pub const IDLE_TIMEOUT: Duration = Duration::from_secs(300);
 
@@ -307,21 +306,21 @@ pub async fn serve<R: RawMutex, M: RegisterMap, T: Read + Write, const N: usize>
     slots: &Slots<R, N>,
     slot: usize,
 ) -> Ended {
-    crate::diagnostics::DIAGNOSTICS.connection(true);
+    remodaq_shared::diagnostics::DIAGNOSTICS.connection(true);
     let protected = map.lock().await.protects(from);
     let ended = match slots.enter(slot, from, protected).await {
         Err(()) => {
-            crate::info!("modbus: connection limit reached, only admitted clients left: newcomer closed");
+            remodaq_shared::info!("modbus: connection limit reached, only admitted clients left: newcomer closed");
             Ended::Evicted
         }
         Ok(Some(victim)) => {
-            crate::info!("modbus: connection limit reached, closing idle connection {}", victim);
+            remodaq_shared::info!("modbus: connection limit reached, closing idle connection {}", victim);
             serve_frames(io, from, map, slots, slot).await
         }
         Ok(None) => serve_frames(io, from, map, slots, slot).await,
     };
     slots.close(slot);
-    crate::diagnostics::DIAGNOSTICS.connection(false);
+    remodaq_shared::diagnostics::DIAGNOSTICS.connection(false);
     ended
 }
 
@@ -452,6 +451,6 @@ fn split(out: &mut [u8; MAX_ADU]) -> Option<(&mut [u8; MBAP_LEN], &mut [u8; MAX_
 #[inline]
 fn finish(head: &mut [u8; MBAP_LEN], header: Header, body: &[u8; MAX_PDU], n: usize) -> usize {
     write_header(head, header, n);
-    crate::diagnostics::DIAGNOSTICS.answered(body[0] & 0x80 != 0);
+    remodaq_shared::diagnostics::DIAGNOSTICS.answered(body[0] & 0x80 != 0);
     MBAP_LEN + n
 }

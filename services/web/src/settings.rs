@@ -19,11 +19,11 @@ use remodaq_protocol::auth::{seal, x25519, Credential, BASE_POINT, CREDENTIAL_LE
 use remodaq_protocol::net::{parse_ipv4, NetConfig};
 use remodaq_protocol::web::{agreement_proof, hex, unhex, PASSWORD_SEAL_LABEL, SESSION_ID_LEN};
 
-use super::json::Object;
-use super::service::{Answer, Api};
-use crate::discovery::NETWORK_STORED;
-use crate::modbus::RegisterMap;
-use crate::module::{commit_change, CommonSettings as _, SettingsAccess};
+use crate::json::Object;
+use crate::service::{Answer, Api};
+use remodaq_shared::net::NETWORK_STORED;
+use remodaq_shared::modbus::RegisterMap;
+use remodaq_shared::module::{commit_change, CommonSettings as _, SettingsAccess};
 
 /// The port the console is served on since the start (0 until a board serves it).
 static RUNNING_PORT: AtomicU16 = AtomicU16::new(0);
@@ -179,7 +179,7 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
             return Answer::error(StatusCode::UNAUTHORIZED, "no session", None);
         };
         let mut secret = [0u8; KEY_LEN];
-        crate::password::AUTH.random(&(self.now_ms)().to_le_bytes(), &mut secret);
+        remodaq_shared::password::AUTH.random(&(self.now_ms)().to_le_bytes(), &mut secret);
         let public = x25519(&secret, &BASE_POINT);
         AGREEMENT.lock(|a| a.set(Some((secret, public, session))));
         let (mut key, mut proof) = ([0u8; 2 * KEY_LEN], [0u8; 2 * KEY_LEN]);
@@ -226,8 +226,8 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
         }
         let answer = self.commit(|s| s.set_password(new)).await;
         if answer.status == StatusCode::NO_CONTENT {
-            crate::diagnostics::DIAGNOSTICS.factory_password(false);
-            crate::info!("web: password changed");
+            remodaq_shared::diagnostics::DIAGNOSTICS.factory_password(false);
+            remodaq_shared::info!("web: password changed");
         }
         answer
     }
