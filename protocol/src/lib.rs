@@ -18,6 +18,7 @@ pub mod m8318;
 pub mod m8350;
 pub mod net;
 pub mod resources;
+mod status;
 pub mod update;
 pub mod web;
 

@@ -233,7 +233,7 @@ where
 /// The module's answers in a session: the status codes of the discovery protocol's commands
 /// (0 ok, 1 wrong password, 2 rate limited, 3 not an image for this module, 4 the update
 /// partition could not be written), and 5 for a signature that does not match.
-pub use crate::discovery::Status;
+pub use crate::status::Status;
 
 #[cfg(test)]
 mod tests {

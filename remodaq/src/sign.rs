@@ -7,10 +7,9 @@
 use std::path::{Path, PathBuf};
 
 use ed25519_dalek::{Signer, SigningKey};
+use remodaq_client::Error;
 use remodaq_protocol::update::{Header, SIGNED_LEN};
 use sha2::{Digest, Sha512};
-
-use crate::Error;
 
 fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()

@@ -89,7 +89,7 @@ def sccs(graph):
 
 
 COMMENT = re.compile(r"//.*$")
-PATH = re.compile(r"(?<![$\w:])(crate|super|self)((?:::\w+)+)")
+PATH = re.compile(r"(?<![$\w:])(crate|super|self)((?:::\w+)+|::\*)")
 USE_GROUP = re.compile(r"\buse\s+(crate|super|self)((?:::\w+)*)::\{([^;]*)\};", re.S)
 INCLUDE = re.compile(r'include!\(\s*"([^"]+)"\s*\)')
 PATH_ATTR = re.compile(r'#\[path\s*=\s*"([^"]+)"\]')
@@ -192,7 +192,7 @@ def file_edges(crate, path, module):
             first = [p for p in item.split("::") if p and not p.startswith("{")]
             resolve(anchor, prefix + first)
     for m in PATH.finditer(body):
-        resolve(m.group(1), [p for p in m.group(2).split("::") if p])
+        resolve(m.group(1), [p for p in m.group(2).split("::") if p and p != "*"])
     # A path that starts with one of this file's own submodules (`pub use request::Request`,
     # `reply::decode(..)`): an edge to that submodule.
     for child in re.findall(r"(?:pub(?:\([^)]*\))?\s+)?mod\s+(\w+)\s*;", body):

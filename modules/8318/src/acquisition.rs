@@ -11,6 +11,7 @@ use remodaq_shared::warn;
 use crate::input::{InputType, Kind};
 use crate::map::Map8318;
 use crate::settings::Settings;
+pub use crate::snapshot::Snapshot;
 use crate::thermocouple::{Inverse, Reference};
 pub use remodaq_protocol::m8318::ChannelStatus;
 
@@ -43,33 +44,6 @@ pub trait AnalogFrontEnd {
 
     /// The temperature of the terminals (cold junction), °C.
     async fn cold_junction_c(&mut self) -> Result<f64, Self::Error>;
-}
-
-/// One cycle's published values.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Snapshot {
-    /// Registers 40001-40008.
-    pub values: [u16; CHANNELS],
-    /// Registers 40225-40232: why each value reads what it reads.
-    pub status: [ChannelStatus; CHANNELS],
-    /// Register 40009: corrected CJC temperature, 0.01 °C.
-    pub cjc: i16,
-    /// A conversion of this cycle failed (the front end did not answer, or timed out).
-    pub front_end_fault: bool,
-    /// The cold-junction sensor could not be read this cycle.
-    pub cjc_fault: bool,
-}
-
-impl Default for Snapshot {
-    fn default() -> Self {
-        Self {
-            values: [0; CHANNELS],
-            status: [ChannelStatus::Ok; CHANNELS],
-            cjc: 0,
-            front_end_fault: false,
-            cjc_fault: false,
-        }
-    }
 }
 
 /// The register value of one channel and its status (extensions §2). `cj_emf_mv` is

@@ -10,6 +10,7 @@ pub mod ad7124;
 pub mod input;
 pub mod map;
 pub mod settings;
+mod snapshot;
 pub mod thermocouple;
 
 use embedded_storage_async::nor_flash::NorFlash;

@@ -3,7 +3,7 @@
 use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::mutex::Mutex;
 use embedded_storage_async::nor_flash::NorFlash;
-use remodaq_protocol::m8318::{decode, Reg, CHANNELS, REG_CJC, REG_STATUS, REG_VALUE};
+use remodaq_protocol::m8318::{decode, Reg, CHANNELS, MODULE_NAME, REG_CJC, REG_STATUS, REG_VALUE};
 use remodaq_shared::access;
 use remodaq_shared::diagnostics::DIAGNOSTICS;
 use remodaq_shared::identity::firmware_version;
@@ -12,10 +12,9 @@ use remodaq_shared::modbus::{Access, Exception, RegisterMap, Table, WriteValues}
 use remodaq_shared::module::{write_update, SettingsAccess, Store};
 use remodaq_shared::warn;
 
-use crate::acquisition::Snapshot;
 use crate::input::InputType;
 use crate::settings::{cjc_offset_from_register, cjc_offset_to_register, Settings};
-use crate::MODULE_NAME;
+use crate::snapshot::Snapshot;
 
 /// The 8318's Modbus view: the settings in force (the store behind its own lock) and the last
 /// acquisition cycle.

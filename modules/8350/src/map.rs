@@ -9,7 +9,7 @@ use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::mutex::Mutex;
 use embedded_storage_async::nor_flash::NorFlash;
 use remodaq_protocol::m8350::{
-    decode, Point, PulseField, Word, BIT_COUNTER, BIT_DI, BIT_DO, DI_CHANNELS, DO_CHANNELS, REG_COUNTER,
+    decode, Point, PulseField, Word, BIT_COUNTER, BIT_DI, BIT_DO, DI_CHANNELS, DO_CHANNELS, MODULE_NAME, REG_COUNTER,
 };
 use remodaq_shared::access;
 use remodaq_shared::diagnostics::{status, DIAGNOSTICS};
@@ -23,7 +23,6 @@ use crate::di::DiMode;
 use crate::io::{self, IoCell};
 use crate::pulse::{self, DoMode, PulseConfig};
 use crate::settings::{output_values, watchdog_mode, watchdog_timeout, Settings};
-use crate::MODULE_NAME;
 
 fn field(p: &mut PulseConfig, f: PulseField) -> Option<&mut u32> {
     match f {

@@ -7,8 +7,8 @@ use remodaq_8350::settings::Settings;
 use remodaq_protocol::auth::Credential;
 use remodaq_shared::access::{AllowList, Network};
 use remodaq_shared::net::NetConfig;
-use remodaq_shared::settings::{decode_record, encode_record, Schema};
 use remodaq_shared::settings::Counter;
+use remodaq_shared::settings::{decode_record, encode_record, Schema};
 
 #[test]
 fn settings_round_trip() {

@@ -1,7 +1,11 @@
 //! The reply side: the module's INFO reply, CHALLENGE answer and command replies, their
 //! decoding on the PC and the encoding of a CHALLENGE answer.
 
-use super::*;
+use super::wire::{op, Reader, Writer};
+use crate::access::AllowList;
+use crate::auth::{KEY_LEN, NONCE_LEN, SALT_LEN};
+use crate::net::NetConfig;
+use crate::status::Status;
 
 /// A decoded INFO reply (the PC side).
 #[derive(Clone, Debug, PartialEq, Eq)]

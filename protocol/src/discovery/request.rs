@@ -1,7 +1,10 @@
 //! The request side: what a PC asks (the requests, their authentication block and commands),
 //! its encoding, and the module's total decoding of a datagram into a request.
 
-use super::*;
+use super::wire::{op, Reader, Writer, CLIENT_LABEL, MAX_DATAGRAM, PROOF_AT};
+use crate::access::AllowList;
+use crate::auth::{CREDENTIAL_LEN, KEY_LEN, NONCE_LEN};
+use crate::net::NetConfig;
 
 /// The authentication block of a command: the PC's nonce, the module's nonce (from a
 /// CHALLENGE answer), and the proof over every other byte of the request.
@@ -13,6 +16,12 @@ pub struct Auth {
     pub snonce: [u8; NONCE_LEN],
     /// ClientProof (`crate::auth::client_proof`); zeros while the request is being built.
     pub proof: [u8; KEY_LEN],
+}
+
+impl Reader<'_> {
+    fn auth(&mut self) -> Option<Auth> {
+        Some(Auth { cnonce: self.array()?, snonce: self.array()?, proof: self.array()? })
+    }
 }
 
 /// What an authenticated request asks for.
@@ -90,7 +99,7 @@ impl Request {
 }
 
 /// Encodes request `id` into `out`; `None` if it does not fit. A command's proof is encoded as
-/// given ([`client::prove`] fills it in).
+/// given ([`client::prove`](super::client::prove) fills it in).
 pub fn encode_request(id: u16, request: &Request, out: &mut [u8]) -> Option<usize> {
     let mut w = Writer::new(out, request.opcode(), id);
     match *request {

@@ -6,10 +6,14 @@ use embassy_executor::Spawner;
 use embassy_time::{Duration, Instant, Timer};
 use embedded_storage_async::nor_flash::NorFlash;
 use remodaq_8318::settings::Settings;
-use remodaq_shared::board::{spawn, spawn_send, Board};
+use remodaq_shared::app::{spawn, spawn_send};
+use remodaq_shared::board::Board;
 use remodaq_shared::settings::SettingsStore;
 
-use crate::Board as B;
+#[cfg(feature = "board-qemu")]
+use remodaq_board_qemu::QemuBoard as B;
+#[cfg(not(feature = "board-qemu"))]
+use remodaq_board_stm32::Stm32Board as B;
 
 /// Prints a line: over RTT (defmt) on the STM32, over semihosting under QEMU.
 macro_rules! say {

@@ -25,11 +25,6 @@ compile_error!("choose one board: `board-stm32` (default) or `--no-default-featu
 #[cfg(target_os = "none")]
 mod checks;
 
-#[cfg(all(target_os = "none", feature = "board-qemu"))]
-use remodaq_board_qemu::QemuBoard as Board;
-#[cfg(all(target_os = "none", not(feature = "board-qemu")))]
-use remodaq_board_stm32::Stm32Board as Board;
-
 #[cfg(target_os = "none")]
 use embassy_executor::Spawner;
 
@@ -42,7 +37,7 @@ async fn main(spawner: Spawner) {
 #[cfg(all(target_os = "none", feature = "board-qemu"))]
 #[cortex_m_rt::entry]
 fn main() -> ! {
-    remodaq_board_qemu::executor::run(|spawner| remodaq_shared::board::spawn(spawner, main_task(spawner), "main"))
+    remodaq_board_qemu::executor::run(|spawner| remodaq_shared::app::spawn(spawner, main_task(spawner), "main"))
 }
 
 #[cfg(all(target_os = "none", feature = "board-qemu"))]

@@ -27,6 +27,7 @@ use zeroize::Zeroizing;
 mod diagnostics;
 mod events;
 mod firmware;
+mod forms;
 mod network;
 mod panel_8318;
 mod panel_8350;
@@ -37,8 +38,7 @@ mod toolbar;
 mod tree;
 mod trends;
 
-use network::NetForm;
-use password::Ask;
+use forms::{Ask, NetForm};
 pub use stats::{FrameStats, WARM_UP};
 
 /// How the utility is started.

@@ -2,19 +2,10 @@
 
 use eframe::egui::{self, Color32, RichText, Ui};
 
-use super::password::Purpose;
+use super::forms::{NetForm, Purpose};
 use super::{field, tr, Utility};
 use crate::validate::{self, Problem};
 use crate::worker::Located;
-
-/// The fields of the Network Settings tab, as typed.
-#[derive(Default)]
-pub(super) struct NetForm {
-    pub(super) ip: String,
-    pub(super) mask: String,
-    pub(super) gateway: String,
-    pub(super) port: String,
-}
 
 impl Utility {
     fn problem(&self, p: Option<Problem>) -> Option<&'static str> {

@@ -1,35 +1,12 @@
 //! The configuration password dialog, and the commands it sends once the password is given.
 
-use std::path::PathBuf;
-
 use eframe::egui;
-use remodaq_protocol::access::AllowList;
 use zeroize::Zeroizing;
 
+use super::forms::Ask;
+pub(super) use super::forms::Purpose;
 use super::{forget_text, tr, Utility};
 use crate::worker::{Config, Job, Located};
-
-/// What a password is asked for.
-#[derive(Clone, Debug)]
-pub(super) enum Purpose {
-    SetNetwork(remodaq_client::lan::NetChange),
-    Restart,
-    SetPassword(Zeroizing<String>),
-    GetAccess,
-    SetAccess(AllowList),
-    Update(PathBuf),
-}
-
-/// The password dialog.
-pub(super) struct Ask {
-    purpose: Purpose,
-    module: Located,
-    password: Zeroizing<String>,
-    focus: bool,
-    /// The text field's id: its own for each dialog, and its state (an undo history holding
-    /// the password) dropped when the dialog closes.
-    field: egui::Id,
-}
 
 impl Utility {
     pub(super) fn ask(&mut self, purpose: Purpose, m: &Located) {

@@ -16,17 +16,9 @@
 
 mod nist;
 mod other;
+mod piece;
 
-/// One subrange of a reference function: E(t) = sum c_i t^i for lo <= t <= hi.
-pub struct Piece {
-    /// Lowest temperature of the subrange, °C.
-    pub lo: f64,
-    /// Highest temperature of the subrange, °C.
-    pub hi: f64,
-    /// Coefficients, mV / °C^i, constant term first.
-    pub c: &'static [f64],
-}
-
+pub use piece::Piece;
 pub use remodaq_protocol::m8318::TcType;
 
 /// The result of converting an emf to a temperature.

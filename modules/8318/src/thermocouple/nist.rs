@@ -3,7 +3,7 @@
 //! coefficient with that file. E = sum c_i t^i (mV, °C), per subrange; type K adds
 //! a0 exp(a1 (t - a2)^2) above 0 °C.
 
-use super::Piece;
+use super::piece::Piece;
 
 /// Type B subranges.
 pub const B: &[Piece] = &[

@@ -3,7 +3,7 @@
 //! (GOST R 8.585-2001). E = sum c_i t^i (mV, °C). The L constants are not zero (E(0) = -1.9e-5
 //! mV): kept as published.
 
-use super::Piece;
+use super::piece::Piece;
 
 /// Type C subranges.
 pub const C: &[Piece] = &[
