@@ -6,8 +6,8 @@ use std::net::{SocketAddr, SocketAddrV4, UdpSocket};
 
 use async_io::Async;
 use embedded_storage_async::nor_flash::NorFlash;
-use remodaq_shared::board::{Effects, Shared};
 use remodaq_discovery::{serve, Datagrams, Effect, Identity};
+use remodaq_shared::board::{Effects, Shared};
 use remodaq_shared::module::{SettingsAccess, Store};
 
 /// The service's socket, and the interface the last request came in on (Linux).

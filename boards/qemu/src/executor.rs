@@ -10,7 +10,7 @@ use cortex_m::peripheral::NVIC;
 use embassy_executor::{raw, SendSpawner, Spawner};
 use static_cell::StaticCell;
 
-use crate::Irq;
+use crate::irq::Irq;
 
 static PENDING: AtomicBool = AtomicBool::new(true);
 

@@ -22,20 +22,20 @@ pub mod analog;
 pub mod digital;
 pub mod executor;
 pub mod flash;
+mod irq;
 mod time;
 
 use core::sync::atomic::{AtomicBool, Ordering};
 
-use cortex_m::interrupt::InterruptNumber;
 use cortex_m::peripheral::NVIC;
 use embassy_executor::{SendSpawner, Spawner};
 use embassy_net::{Ipv4Address, Ipv4Cidr, StackResources, StaticConfigV4};
 use remodaq_lan9118::{Lan9118, Registers};
 use remodaq_net::backlog::{Backlogged, GATES};
-use remodaq_shared::app::spawn;
-use remodaq_shared::board::{Board, Effects};
-use remodaq_shared::board::Effect;
 use remodaq_net::EmbassyNet;
+use remodaq_shared::app::spawn;
+use remodaq_shared::board::Effect;
+use remodaq_shared::board::{Board, Effects};
 use remodaq_shared::info;
 use remodaq_shared::net::{mac_from_uid, NetConfig};
 use static_cell::StaticCell;
@@ -56,16 +56,6 @@ impl Registers for Mmio {
     fn write(&self, offset: usize, value: u32) {
         // SAFETY: as for `read`.
         unsafe { core::ptr::write_volatile((LAN9118_BASE + offset) as *mut u32, value) }
-    }
-}
-
-#[derive(Clone, Copy)]
-pub(crate) struct Irq(pub(crate) u16);
-
-// SAFETY: the number is a valid external interrupt of this machine.
-unsafe impl InterruptNumber for Irq {
-    fn number(self) -> u16 {
-        self.0
     }
 }
 
@@ -210,7 +200,7 @@ impl Board for QemuBoard {
             device
         };
         // SAFETY: the handler is in the vector table and touches only the driver's waker.
-        unsafe { NVIC::unmask(Irq(LAN9118_IRQ)) };
+        unsafe { NVIC::unmask(irq::Irq(LAN9118_IRQ)) };
         // On a TAP device the stored settings, as on a real LAN; on QEMU's user network its
         // fixed guest address (the stored port still applies).
         let running = if test_switches::tap() {

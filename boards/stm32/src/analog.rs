@@ -7,7 +7,7 @@
 use embassy_stm32::adc::{Adc, SampleTime};
 use embassy_stm32::gpio::{Level, Output, Speed};
 use embassy_stm32::mode::Async;
-use embassy_stm32::peripherals::{ADC1, DMA2_CH2, DMA2_CH3, PA3, PB3, PB4, PB5, PD14, SPI1};
+use embassy_stm32::peripherals::{ADC1, DMA2_CH2, DMA2_CH3, PA3};
 use embassy_stm32::spi::{self, Spi, MODE_3};
 use embassy_stm32::time::Hertz;
 use embassy_stm32::{bind_interrupts, dma, Peri};
@@ -17,7 +17,8 @@ use remodaq_8318::ad7124::{Ad7124FrontEnd, NtcDivider};
 use remodaq_8318::M8318;
 use remodaq_shared::board::IoFor;
 
-use crate::{Io, Stm32Board};
+use crate::resources::{AnalogPeripherals, Io};
+use crate::Stm32Board;
 
 bind_interrupts!(struct Irqs {
     DMA2_STREAM2 => dma::InterruptHandler<DMA2_CH2>;
@@ -26,19 +27,6 @@ bind_interrupts!(struct Irqs {
 
 /// The AD7124-8 as an `embedded-hal-async` SPI device.
 pub type AdcSpi = ExclusiveDevice<Spi<'static, Async, spi::mode::Master>, Output<'static>, Delay>;
-
-/// The peripherals reserved for the analog front end.
-pub struct AnalogPeripherals {
-    pub(crate) spi: Peri<'static, SPI1>,
-    pub(crate) sck: Peri<'static, PB3>,
-    pub(crate) miso: Peri<'static, PB4>,
-    pub(crate) mosi: Peri<'static, PB5>,
-    pub(crate) cs: Peri<'static, PD14>,
-    pub(crate) tx_dma: Peri<'static, DMA2_CH3>,
-    pub(crate) rx_dma: Peri<'static, DMA2_CH2>,
-    pub(crate) adc: Peri<'static, ADC1>,
-    pub(crate) ntc: Peri<'static, PA3>,
-}
 
 /// The cold-junction sensor input.
 pub struct NtcInput {

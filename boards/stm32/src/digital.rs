@@ -13,11 +13,11 @@
 //!   (read from NDTR), so it reaches the pin about 0.3 ms after the output task runs.
 
 use embassy_stm32::dma::{Channel, ReadableRingBuffer, TransferOptions, WritableRingBuffer};
-use embassy_stm32::gpio::{AnyPin, Input, Level, Output, Pull, Speed};
+use embassy_stm32::gpio::{Input, Level, Output, Pull, Speed};
 use embassy_stm32::peripherals::{DMA2_CH1, DMA2_CH5, TIM1, TIM8};
 use embassy_stm32::time::Hertz;
 use embassy_stm32::timer::low_level::{RoundTo, Timer};
-use embassy_stm32::{bind_interrupts, dma, pac, Peri};
+use embassy_stm32::{bind_interrupts, dma, pac};
 use remodaq_8350::di::SAMPLE_RATE_HZ;
 use remodaq_8350::io::{InputCapture, OutputPattern, PatternUnderrun, SamplesLost, FORCE_AHEAD, OUTPUT_CHUNK};
 use remodaq_8350::pulse::TICK_HZ;
@@ -25,7 +25,8 @@ use remodaq_8350::M8350;
 use remodaq_shared::board::IoFor;
 use static_cell::StaticCell;
 
-use crate::{Io, Stm32Board};
+use crate::resources::{DigitalPeripherals, Io};
+use crate::Stm32Board;
 
 bind_interrupts!(struct Irqs {
     DMA2_STREAM5 => dma::InterruptHandler<DMA2_CH5>;
@@ -43,18 +44,6 @@ const TIM8_UP_REQUEST: u8 = 7;
 const DO_PINS: [u8; 6] = [12, 13, 14, 15, 3, 5];
 /// GPIOE bit of DI0.
 const DI_SHIFT: u16 = 2;
-
-/// The peripherals reserved for the digital I/O.
-pub struct DigitalPeripherals {
-    pub(crate) tim_in: Peri<'static, TIM1>,
-    pub(crate) tim_out: Peri<'static, TIM8>,
-    pub(crate) dma_in: Peri<'static, DMA2_CH5>,
-    pub(crate) dma_out: Peri<'static, DMA2_CH1>,
-    /// PE2..PE13, in DI order.
-    pub(crate) di: [Peri<'static, AnyPin>; 12],
-    /// PF12, PF13, PF14, PF15, PF3, PF5, in DO order (see `DO_PINS`).
-    pub(crate) outputs: [Peri<'static, AnyPin>; 6],
-}
 
 /// The running input capture.
 pub struct Capture {

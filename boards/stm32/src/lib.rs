@@ -7,6 +7,7 @@
 pub mod analog;
 pub mod digital;
 pub mod phy;
+pub mod resources;
 
 use defmt_rtt as _;
 use panic_probe as _;
@@ -25,15 +26,17 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Instant, Timer};
 use remodaq_net::backlog::{Backlogged, GATES};
-use remodaq_shared::app::spawn;
-use remodaq_shared::board::{Board, Effects};
-use remodaq_shared::board::Effect;
 use remodaq_net::EmbassyNet;
+use remodaq_shared::app::spawn;
+use remodaq_shared::board::Effect;
+use remodaq_shared::board::{Board, Effects};
 use remodaq_shared::flash::{Serialized, CONTROLLER};
 use remodaq_shared::health::{self, Heartbeat};
 use remodaq_shared::net::{mac_from_uid, NetConfig};
 use remodaq_shared::{error, info};
 use static_cell::{ConstStaticCell, StaticCell};
+
+pub use resources::Io;
 
 bind_interrupts!(struct Irqs {
     ETH => eth::InterruptHandler;
@@ -96,15 +99,6 @@ pub struct Stm32Board {
     /// finds PA12 so (`flash/f4.rs`). PA12 is the Nucleo's USB OTG FS D+, unused here.
     _pa12: Flex<'static>,
     boot: Option<(DfuFlash, BootStateFlash)>,
-}
-
-/// The peripherals reserved for the modules' I/O; each module's image starts its own part
-/// (`IoFor`, in `analog.rs` and `digital.rs`) and leaves the rest unused.
-pub struct Io {
-    /// The 8318's analog front end.
-    pub analog: analog::AnalogPeripherals,
-    /// The 8350's digital inputs and outputs.
-    pub digital: digital::DigitalPeripherals,
 }
 
 /// Clocks at 180 MHz from the ST-LINK's 8 MHz MCO (HSE bypass), the flash caches, the
@@ -206,7 +200,7 @@ fn init(spawner: Spawner) -> (Stm32Board, SettingsFlash, Io) {
     let factory_reset = Input::new(p.PC13, Pull::Down).is_high();
 
     let io = Io {
-        analog: analog::AnalogPeripherals {
+        analog: resources::AnalogPeripherals {
             spi: p.SPI1,
             sck: p.PB3,
             miso: p.PB4,
@@ -217,7 +211,7 @@ fn init(spawner: Spawner) -> (Stm32Board, SettingsFlash, Io) {
             adc: p.ADC1,
             ntc: p.PA3,
         },
-        digital: digital::DigitalPeripherals {
+        digital: resources::DigitalPeripherals {
             tim_in: p.TIM1,
             tim_out: p.TIM8,
             dma_in: p.DMA2_CH5,
