@@ -1,4 +1,4 @@
-//! The Modbus port's SYN backlog (shared::backlog), fed what any peer on the LAN can send,
+//! The Modbus port's SYN backlog (remodaq_net::backlog), fed what any peer on the LAN can send,
 //! against a model of the frames it holds. The input is a list of operations: a frame arrives
 //! (arbitrary bytes, well-formed SYNs to the Modbus port from 80 clients, one or a flood, or a
 //! client's RST), a connection task listens, a task accepts (a client, or fails), the clock
@@ -15,8 +15,8 @@
 use std::collections::VecDeque;
 
 use libfuzzer_sys::fuzz_target;
-use remodaq_net::backlog::{syn_to, ModbusBacklog, Peer, Verdict, HANDSHAKE_MS, HELD, HOLD_MS, MAX_SYN_FRAME};
 use remodaq_modbus::server::SOCKETS;
+use remodaq_net::backlog::{syn_to, ModbusBacklog, Peer, Verdict, HANDSHAKE_MS, HELD, HOLD_MS, MAX_SYN_FRAME};
 
 const PORT: u16 = 8000;
 

@@ -1,4 +1,4 @@
-//! The web console's API (shared::web::service, docs/web.md) with both modules' real register
+//! The web console's API (remodaq_web::service, docs/web.md) with both modules' real register
 //! maps: the input is an HTTP request as bytes, parsed by picoserve within the module's buffer
 //! and answered by the API, as the host build serves it. Invariants: an answer is an HTTP/1.1
 //! status line with a known status and, when it is JSON, valid JSON; and nothing the module

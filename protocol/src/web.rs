@@ -148,7 +148,7 @@ mod tests {
     /// A whole login computed independently with Python's `hashlib` and `hmac` (docs/web.md's
     /// recipe: password "correct horse battery", salt 00..0f, 4096 iterations, MAC
     /// 02:00:00:83:50:01, module nonce a0..af, page nonce 10..1f, session id 01..08); the same
-    /// values check the page's JavaScript (`shared/web/test/auth.test.js`).
+    /// values check the page's JavaScript (`services/web/web/test/auth.test.js`).
     #[test]
     fn a_login_computed_elsewhere_verifies() {
         use crate::auth::{server_signature, verify_proof};

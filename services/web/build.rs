@@ -6,7 +6,7 @@
 
 use std::io::Write;
 
-/// The pages' files, as `shared::web::service` serves them.
+/// The pages' files, as `remodaq_web::service` serves them.
 const FILES: [&str; 4] = ["index.html", "app.js", "auth.js", "style.css"];
 
 fn main() {

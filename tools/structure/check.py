@@ -51,7 +51,7 @@ def layer_of(path):
 
 def metadata():
     out = subprocess.run(
-        ["cargo", "metadata", "--format-version", "1", "--no-deps", "--locked", "--offline"],
+        ["cargo", "metadata", "--format-version", "1", "--no-deps", "--locked"],
         cwd=ROOT, check=True, capture_output=True, text=True).stdout
     return json.loads(out)
 

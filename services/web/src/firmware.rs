@@ -20,11 +20,11 @@ use embedded_storage_async::nor_flash::NorFlash;
 use picoserve::response::StatusCode;
 use remodaq_protocol::web::SESSION_ID_LEN;
 
-use crate::service::{Answer, Api};
+use crate::service::api::{Answer, Api};
+use remodaq_protocol::update::{Status, HEADER_LEN};
 use remodaq_shared::diagnostics::{Security, DIAGNOSTICS};
 use remodaq_shared::modbus::RegisterMap;
 use remodaq_shared::module::SettingsAccess;
-use remodaq_protocol::update::{Status, HEADER_LEN};
 use remodaq_shared::upload::{WebDone, WebStep, WEB, WEB_CHUNK};
 
 /// A session that owns the upload under way, and when it last sent a step.

@@ -20,10 +20,10 @@ use remodaq_protocol::net::{parse_ipv4, NetConfig};
 use remodaq_protocol::web::{agreement_proof, hex, unhex, PASSWORD_SEAL_LABEL, SESSION_ID_LEN};
 
 use crate::json::Object;
-use crate::service::{Answer, Api};
-use remodaq_shared::net::NETWORK_STORED;
+use crate::service::api::{Answer, Api};
 use remodaq_shared::modbus::RegisterMap;
 use remodaq_shared::module::{commit_change, CommonSettings as _, SettingsAccess};
+use remodaq_shared::net::NETWORK_STORED;
 
 /// The port the console is served on since the start (0 until a board serves it).
 static RUNNING_PORT: AtomicU16 = AtomicU16::new(0);

@@ -342,13 +342,13 @@ mod one_upload_at_a_time {
     use embassy_sync::mutex::Mutex as AsyncMutex;
     use picoserve::Router;
     use remodaq_protocol::auth::KEY_LEN;
+    use remodaq_protocol::update::{Header, Status, HEADER_LEN};
     use remodaq_protocol::web::{request_signature, HEADER_COUNTER, HEADER_SESSION, HEADER_SIGNATURE, SESSION_ID_LEN};
     use remodaq_shared::identity::Identity;
     use remodaq_shared::modbus::{Access, Exception, RegisterMap, Table, WriteValues};
     use remodaq_shared::module::SettingsAccess;
     use remodaq_shared::ram_flash::RamFlash;
     use remodaq_shared::settings::{Schema, SettingsStore};
-    use remodaq_protocol::update::{Header, Status, HEADER_LEN};
     use remodaq_shared::upload::{WebDone, WebStep, WEB};
     use remodaq_web::service::{Api, SharedSessions, CONFIG, HTTP_BUFFER};
     use remodaq_web::Sessions;

@@ -94,7 +94,7 @@
       "not a usable password": "模块不接受该密码。",
       "not a usable value": "该值不可用。", "at most 4 networks, a.b.c.d/n each": "最多 4 个网络，格式 a.b.c.d/n。",
       "the settings could not be stored": "设置无法保存。",
-      // The module's error texts (shared/src/web/service.rs).
+      // The module's error texts (services/web/src/).
       unsigned: "请求未签名。", "no session": "会话已结束，请重新登录。", "stale counter": "过期的请求（重放）。",
       "bad signature": "签名错误。", "value refused": "模块拒绝了该值。", "not a value of this field": "该字段不接受此值。",
       "the field is read-only": "该字段只读。", "no such item": "没有该通道。", "no such resource": "没有该资源。",

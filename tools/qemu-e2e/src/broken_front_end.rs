@@ -24,7 +24,7 @@ use crate::session::{reverted, session};
 /// a 20 s timer could do. The watch was 180 s before (issue #36).
 const NO_RESTART_FOR: Duration = Duration::from_secs(3 * TRIAL_WINDOW_S + 2);
 /// A trial window under QEMU, s: an image on trial restarts 20 s after its start when its
-/// self-test has not passed (`shared::update::TRIAL`), and starts again within about 1 s
+/// self-test has not passed (`remodaq_update::TRIAL`), and starts again within about 1 s
 /// (docs/update.md: "reverted 21 s after its start").
 const TRIAL_WINDOW_S: u64 = 21;
 /// The watch polls the uptime this often.

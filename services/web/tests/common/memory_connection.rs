@@ -1,5 +1,5 @@
 //! A web console connection in memory, for picoserve: the request's bytes in, what the module
-//! sent out. Used by the web tests (`shared/tests/web.rs`) and the fuzz target `web_api`
+//! sent out. Used by the web tests (`services/web/tests/web.rs`) and the fuzz target `web_api`
 //! (`#[path]`), so both drive the real router the same way.
 
 use picoserve::io::Socket;

@@ -4,7 +4,7 @@
 // Each check runs twice: on WebCrypto, and on the page's own SHA-256, HMAC and PBKDF2 (what a
 // browser uses on plain http://, where it offers no WebCrypto), which is also checked against
 // FIPS 180-2, RFC 4231 and RFC 7914's published values and against WebCrypto on random input.
-// Run: node shared/web/test/auth.test.js (scripts/test runs it).
+// Run: node services/web/web/test/auth.test.js (scripts/test runs it).
 "use strict";
 
 const assert = require("node:assert/strict");

@@ -1,0 +1,128 @@
+//! The registers and coils as Modbus numbers them (`/api/v1/registers/{addr}`,
+//! `/api/v1/coils/{addr}`): runs read as they stand, and every write of the API, as a Modbus
+//! write request ([`Pdu`]) through the PDU engine.
+
+use core::fmt::Write as _;
+
+use embassy_sync::blocking_mutex::raw::RawMutex;
+use embedded_storage_async::nor_flash::NorFlash;
+use picoserve::response::StatusCode;
+use remodaq_protocol::{words_low_first, Table};
+use remodaq_shared::modbus::pdu::{handle_pdu, MAX_PDU};
+use remodaq_shared::modbus::RegisterMap;
+use remodaq_shared::module::SettingsAccess;
+
+use super::api::{Answer, Api};
+use crate::json::Object;
+
+/// The most registers or coils one GET reads: Modbus's limit for registers (125 of at most
+/// "65535," fit [`MAX_ANSWER`](super::api::MAX_ANSWER)); 150 coils (150 "false," fit it,
+/// Modbus's 2000 would not).
+pub(super) const MAX_READ_REGISTERS: u16 = 125;
+pub(super) const MAX_READ_COILS: u16 = 150;
+
+/// The status and text of a Modbus exception as an API error.
+fn exception_answer(code: u8, field: &str) -> Answer {
+    match code {
+        2 => Answer::error(StatusCode::NOT_FOUND, "address not mapped for this access", Some("address")),
+        3 => Answer::error(StatusCode::UNPROCESSABLE_ENTITY, "value refused", Some(field)),
+        4 => Answer::error(StatusCode::INTERNAL_SERVER_ERROR, "the module could not apply it", None),
+        // 01 (not a known function) and the access rules' refusal of a write.
+        _ => Answer::error(StatusCode::FORBIDDEN, "refused by the module", None),
+    }
+}
+
+impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F> {
+    /// A run of registers or coils as they stand (no flag cleared: [`RegisterMap::observe`]),
+    /// read under one lock of the map. Reads are never refused by the allow-list and, unlike a
+    /// Modbus read, do not feed the host watchdog (docs/web.md).
+    pub(super) async fn read(&self, registers: bool, addr: u16, n: u16) -> Answer {
+        let table = if registers { Table::Registers } else { Table::Bits };
+        let mut values = [0u16; MAX_READ_COILS as usize];
+        let values = &mut values[..usize::from(n)];
+        {
+            let mut map = self.map.lock().await;
+            if !readable(&*map, table, addr, n) {
+                return exception_answer(2, "address");
+            }
+            // addr + i stays within 16 bits: checked above.
+            for (i, v) in (0..n).zip(values.iter_mut()) {
+                *v = map.observe(table, addr + i);
+            }
+        }
+        let mut a = Answer::new(StatusCode::OK);
+        a.json.push_str("{\"values\":[");
+        for (i, v) in values.iter().enumerate() {
+            let sep = if i == 0 { "" } else { "," };
+            let _ = if registers { write!(a.json, "{sep}{v}") } else { write!(a.json, "{sep}{}", *v != 0) };
+        }
+        a.json.push_str("]}");
+        a
+    }
+
+    /// A write of registers or coils at `addr` from a body `{"value": ...}`.
+    pub(super) async fn write(&self, registers: bool, addr: u16, body: &[u8]) -> Answer {
+        let request = if registers {
+            match Object::parse(body).and_then(|o| o.u16("value")) {
+                Some(v) => Pdu::word(addr, v),
+                None => return Answer::error(StatusCode::BAD_REQUEST, "expected {value: 0..65535}", Some("value")),
+            }
+        } else {
+            match Object::parse(body).and_then(|o| o.bool("value")) {
+                Some(v) => Pdu::bit(addr, v),
+                None => return Answer::error(StatusCode::BAD_REQUEST, "expected {value: true|false}", Some("value")),
+            }
+        };
+        self.apply(&request, "value").await
+    }
+
+    /// Carries out a write request through the Modbus PDU engine, with this client's address:
+    /// the map's admission (the allow-list), checks and commit, as a Modbus write.
+    pub(super) async fn apply(&self, request: &Pdu, field: &str) -> Answer {
+        let mut resp = [0u8; MAX_PDU];
+        let len = handle_pdu(self.map, self.peer, request.bytes(), &mut resp).await;
+        if len >= 5 && resp[0] == request.bytes()[0] {
+            Answer::no_content()
+        } else {
+            exception_answer(resp[1], field)
+        }
+    }
+}
+
+/// Whether `n` addresses from `addr` lie inside the 16-bit space and the map lets them be read.
+pub(super) fn readable<M: RegisterMap>(map: &M, table: Table, addr: u16, n: u16) -> bool {
+    u32::from(addr) + u32::from(n) <= 0x1_0000 && map.allows(table, addr, n, false)
+}
+
+/// A Modbus write request PDU (at most code 16 with two registers).
+pub struct Pdu {
+    bytes: [u8; 10],
+    len: usize,
+}
+
+impl Pdu {
+    /// The request's bytes, from the function code.
+    pub fn bytes(&self) -> &[u8] {
+        &self.bytes[..self.len]
+    }
+
+    /// Code 05: one coil.
+    pub(super) fn bit(addr: u16, on: bool) -> Self {
+        let [a, b] = addr.to_be_bytes();
+        Self { bytes: [0x05, a, b, if on { 0xFF } else { 0 }, 0, 0, 0, 0, 0, 0], len: 5 }
+    }
+
+    /// Code 06: one register.
+    pub(super) fn word(addr: u16, value: u16) -> Self {
+        let ([a, b], [c, d]) = (addr.to_be_bytes(), value.to_be_bytes());
+        Self { bytes: [0x06, a, b, c, d, 0, 0, 0, 0, 0], len: 5 }
+    }
+
+    /// Code 16: a 32-bit value in two registers, low word first (spec §3.2), in one request
+    /// (all or nothing).
+    pub(super) fn long(addr: u16, value: u32) -> Self {
+        let [low, high] = words_low_first(value);
+        let ([a, b], [lh, ll], [hh, hl]) = (addr.to_be_bytes(), low.to_be_bytes(), high.to_be_bytes());
+        Self { bytes: [0x10, a, b, 0, 2, 4, lh, ll, hh, hl], len: 10 }
+    }
+}
