@@ -85,14 +85,7 @@ where
     let (net, running) = board.start_network(spawner, stored);
     let identity = Identity { model: M::MODULE_NAME, name: M::MODEL, version: firmware_version(), mac, running };
     crate::info!("{} running, firmware {:04X}", M::MODEL, firmware_version());
-    let app = statics.app.init(App {
-        map,
-        store,
-        boot,
-        net,
-        identity,
-        state,
-    });
+    let app = statics.app.init(App { map, store, boot, net, identity, state });
     (app, io)
 }
 

@@ -152,4 +152,3 @@ impl Default for WebLink {
         Self::new()
     }
 }
-

@@ -7,13 +7,13 @@ use common::{Live, S};
 use embassy_sync::blocking_mutex::raw::{CriticalSectionRawMutex, NoopRawMutex};
 use embassy_sync::mutex::Mutex;
 use futures_executor::block_on;
-use remodaq_protocol::auth;
-use remodaq_protocol::discovery::client::{self, transact, Ask, Failure};
-use remodaq_shared::access::{AllowList, Network};
 use remodaq_discovery::{
     decode_challenge, decode_info, decode_reply, decode_request, encode_request, info_flags, op, Auth, Command, Effect,
     Identity, Reply, Request, Service, Status, Writer, MAX_DATAGRAM,
 };
+use remodaq_protocol::auth;
+use remodaq_protocol::discovery::client::{self, transact, Ask, Failure};
+use remodaq_shared::access::{AllowList, Network};
 use remodaq_shared::net::NetConfig;
 use remodaq_shared::ram_flash::RamFlash;
 use remodaq_shared::settings::SettingsStore;

@@ -3,15 +3,18 @@
 //! `web`).
 
 use embassy_net::tcp::TcpSocket;
+use embassy_time::Instant;
 #[cfg(feature = "web")]
 use embassy_time::Timer;
-use embassy_time::Instant;
 use embedded_storage_async::nor_flash::NorFlash;
 use remodaq_net::{accept_one, close, peer, reset, EmbassyNet};
 use remodaq_shared::board::{Effects, Network as _, Shared};
 use remodaq_shared::module::{SettingsAccess, Store};
 
-use crate::{Outcome, UpdateService, UpdateTarget, PORT};
+use remodaq_protocol::update::PORT;
+
+use crate::session::{Outcome, UpdateService};
+use crate::target::UpdateTarget;
 
 /// The update task of an embassy-net board: confirms the running image ([`crate::start`]), then
 /// serves update sessions forever; restarts the module after an image was verified and marked.
@@ -33,7 +36,7 @@ where
     STATE: NorFlash,
 {
     let mut aligned = [0u8; 32];
-    let (mut target, mut service) = crate::start(net, map, store, model, mac, dfu, state, &mut aligned).await;
+    let (mut target, mut service) = crate::trial::start(net, map, store, model, mac, dfu, state, &mut aligned).await;
     serve_sessions(net, map, store, &mut service, &mut target).await
 }
 

@@ -20,12 +20,12 @@ use remodaq_protocol::update::{
     answer_message, auth_message, check_before_swap, BeforeSwap, Greeting, GREETING_LEN, HEADER_LEN, SIGNED_LEN,
 };
 use remodaq_shared::ram_flash::{RamFlash, RamFlashError};
+use remodaq_shared::settings::Counter;
 use remodaq_shared::settings::Schema;
 use remodaq_shared::settings::SettingsStore;
-use remodaq_shared::settings::Counter;
-use remodaq_update::{BootUpdater, Header, Outcome, Status, UpdateService};
 #[cfg(feature = "web")]
 use remodaq_shared::upload::{WebDone, WebStep, WEB_CHUNK};
+use remodaq_update::{BootUpdater, Header, Outcome, Status, UpdateService};
 use sha2::{Digest, Sha512};
 
 /// The swap's page: larger than the service's 1 KiB chunk, as the boards' 128 KiB sectors are.
@@ -1033,8 +1033,8 @@ fn the_update_task_restarts_3_s_after_a_finish_whose_answer_was_lost() {
 
     use embassy_futures::select::{select, Either};
     use embassy_net_driver::{Capabilities, Driver, HardwareAddress, LinkState};
-    use remodaq_shared::board::Effect;
     use remodaq_net::EmbassyNet;
+    use remodaq_shared::board::Effect;
     use remodaq_shared::upload::WEB;
 
     /// A network interface on which nothing ever arrives or leaves.

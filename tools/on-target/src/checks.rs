@@ -420,7 +420,7 @@ async fn ad7124(
 /// read from NDTR, to the first rewritten: 40326), and DI0 must follow through the jumper.
 #[cfg(not(feature = "board-qemu"))]
 async fn loopback(
-    digital: remodaq_board_stm32::digital::DigitalPeripherals,
+    digital: remodaq_board_stm32::resources::DigitalPeripherals,
 ) -> (Result<(), &'static str>, Result<(), &'static str>) {
     use core::cell::RefCell;
 
