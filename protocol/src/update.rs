@@ -186,8 +186,13 @@ pub enum BeforeSwap {
     /// A swap is requested and its image checks out: go on.
     Verified,
     /// A swap is requested, but the update partition holds no image signed with the key (its
-    /// manifest missing or changed, its firmware changed): cancel the swap (mark booted).
+    /// manifest missing or changed, its firmware changed): cancel the swap (mark booted). A
+    /// cancel that fails must not lead to the swap either: the bootloader restarts and checks
+    /// again.
     Refuse,
+    /// The state partition cannot be read, so nobody knows whether a swap is asked for: neither
+    /// swap nor start anything; the bootloader restarts and reads again (fail closed).
+    Unreadable,
 }
 
 /// The bootloaders' check before a swap: if the state partition asks for one that has not
@@ -207,12 +212,18 @@ where
     let write = S::WRITE_SIZE.clamp(1, 32);
     let mut word = [0u8; 32];
     let mut read_word = |at: usize, out: &mut [u8; 32]| state.read((at * write) as u32, &mut out[..write]).is_ok();
-    if !read_word(0, &mut word) || word[..write].iter().any(|&b| b != SWAP_MAGIC) {
+    if !read_word(0, &mut word) {
+        return BeforeSwap::Unreadable;
+    }
+    if word[..write].iter().any(|&b| b != SWAP_MAGIC) {
         return BeforeSwap::Nothing;
     }
     // Progress valid (word 1) and the first progress index (word 2) still erased: not started.
     for at in [1, 2] {
-        if !read_word(at, &mut word) || word[..write].iter().any(|&b| b != ERASED) {
+        if !read_word(at, &mut word) {
+            return BeforeSwap::Unreadable;
+        }
+        if word[..write].iter().any(|&b| b != ERASED) {
             return BeforeSwap::Nothing;
         }
     }

@@ -94,11 +94,19 @@ pub struct Stm32Board {
     entropy: [u8; 32],
     led: Output<'static>,
     reset_cause: remodaq_shared::diagnostics::ResetCause,
-    /// PA12 held as an output, pulled down, low: embassy-stm32 0.6 refuses (panics on) flash
-    /// reads on silicon before revision 3 (REV_ID < 0x2001, errata ES0206 2.2.11) unless it
-    /// finds PA12 so (`flash/f4.rs`). PA12 is the Nucleo's USB OTG FS D+, unused here.
-    _pa12: Flex<'static>,
     boot: Option<(DfuFlash, BootStateFlash)>,
+}
+
+/// Whether PA12 is held as embassy's bank-2 reads need it on silicon before revision 3
+/// (output, pull-down, low), read back from GPIOA's MODER, PUPDR and ODR (RM0090 §8.4): the
+/// on-target check that the hold outlives `start_network` (stm32 review D1).
+pub fn pa12_held() -> bool {
+    use embassy_stm32::pac::gpio::vals::{Moder, Odr, Pupdr};
+    use embassy_stm32::pac::GPIOA;
+    const PIN: usize = 12;
+    GPIOA.moder().read().moder(PIN) == Moder::OUTPUT
+        && GPIOA.pupdr().read().pupdr(PIN) == Pupdr::PULL_DOWN
+        && GPIOA.odr().read().odr(PIN) == Odr::LOW
 }
 
 /// Clocks at 180 MHz from the ST-LINK's 8 MHz MCO (HSE bypass), the flash caches, the
@@ -153,7 +161,14 @@ fn init(spawner: Spawner) -> (Stm32Board, SettingsFlash, Io) {
         w.set_icen(true);
         w.set_dcen(true);
     });
-    let mut pa12 = Flex::new(p.PA12);
+    // PA12 held as an output, pulled down, low, for the program's life: embassy-stm32 0.6
+    // refuses (panics on) bank-2 flash reads on silicon before revision 3 (REV_ID < 0x2001,
+    // errata ES0206 2.2.11) unless it finds PA12 so (`flash/f4.rs`). PA12 is the Nucleo's USB
+    // OTG FS D+, unused here. In a static: a `Flex` dropped returns its pin to analog (embassy
+    // `gpio.rs`, `impl Drop for Flex`), which a field of the board did when `start_network`
+    // took the board apart (stm32 review D1).
+    static PA12: StaticCell<Flex<'static>> = StaticCell::new();
+    let pa12 = PA12.init(Flex::new(p.PA12));
     pa12.set_low();
     pa12.set_as_input_output_pull(Speed::Low, Pull::Down);
 
@@ -233,17 +248,7 @@ fn init(spawner: Spawner) -> (Stm32Board, SettingsFlash, Io) {
             outputs: [p.PF12.into(), p.PF13.into(), p.PF14.into(), p.PF15.into(), p.PF3.into(), p.PF5.into()],
         },
     };
-    let board = Stm32Board {
-        mac,
-        factory_reset,
-        eth,
-        seed: u64::from_le_bytes(seed),
-        entropy,
-        led,
-        reset_cause,
-        _pa12: pa12,
-        boot,
-    };
+    let board = Stm32Board { mac, factory_reset, eth, seed: u64::from_le_bytes(seed), entropy, led, reset_cause, boot };
     (board, settings_flash, io)
 }
 

@@ -495,6 +495,63 @@ fn the_bootloader_checks_the_manifest_before_the_swap() {
     assert!(seen.contains_key("Nothing"), "{seen:?}");
 }
 
+/// A state partition whose reads fail from `from` on (a flash fault), for the bootloaders' check.
+struct ReadsFail<'a> {
+    flash: &'a mut StateFlash,
+    from: u32,
+}
+
+impl ErrorType for ReadsFail<'_> {
+    type Error = RamFlashError;
+}
+
+impl ReadNorFlash for ReadsFail<'_> {
+    const READ_SIZE: usize = <StateFlash as ReadNorFlash>::READ_SIZE;
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+        if offset >= self.from {
+            return Err(RamFlashError::PowerCut);
+        }
+        self.flash.read(offset, bytes)
+    }
+    fn capacity(&self) -> usize {
+        self.flash.capacity()
+    }
+}
+
+impl NorFlash for ReadsFail<'_> {
+    const WRITE_SIZE: usize = <StateFlash as NorFlash>::WRITE_SIZE;
+    const ERASE_SIZE: usize = <StateFlash as NorFlash>::ERASE_SIZE;
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+        self.flash.erase(from, to)
+    }
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+        self.flash.write(offset, bytes)
+    }
+}
+
+/// The bootloaders fail closed (stm32 review D2, N5; security review finding 10): a state whose
+/// words cannot be read is no "nothing to do", whether the swap word itself or the progress
+/// words behind it fail; the bootloader then neither swaps nor starts anything.
+#[test]
+fn a_state_that_cannot_be_read_is_neither_a_swap_nor_nothing() {
+    let (old, new) = (image(1, 3000), image(2, 3001));
+    let public = key().verifying_key().to_bytes();
+    let mut m = module_with(&old);
+    let file = signed(&new, 0xA101, &key());
+    let (answers, _) = session(&mut m.dfu, &mut m.state, session_bytes(PASSWORD, &file, None));
+    assert_eq!(answers, [0, 0]);
+    assert_eq!(check_before_swap(&mut m.dfu, &mut m.state, MANIFEST_AT, &public), BeforeSwap::Verified);
+    let word = <StateFlash as NorFlash>::WRITE_SIZE as u32;
+    for (what, from) in [("the swap word", 0), ("the progress words", word), ("the first progress index", 2 * word)] {
+        let mut state = ReadsFail { flash: &mut m.state, from };
+        assert_eq!(check_before_swap(&mut m.dfu, &mut state, MANIFEST_AT, &public), BeforeSwap::Unreadable, "{what}");
+    }
+    // Nothing asked for, and unreadable: still no "nothing to do".
+    let mut fresh = module_with(&old);
+    let mut state = ReadsFail { flash: &mut fresh.state, from: 0 };
+    assert_eq!(check_before_swap(&mut fresh.dfu, &mut state, MANIFEST_AT, &public), BeforeSwap::Unreadable);
+}
+
 #[test]
 fn no_update_while_the_factory_password_is_in_force() {
     let (old, new) = (image(1, 3000), image(2, 3001));

@@ -395,6 +395,13 @@ async fn board_checks(report: &mut Report, spawner: Spawner, board: B, (): ()) {
 async fn board_checks(report: &mut Report, spawner: Spawner, board: B, io: remodaq_board_stm32::Io) {
     let (net, _) = board.start_network(spawner, remodaq_shared::net::NetConfig::FACTORY);
     report.check("PHY: link up (Ethernet cable to a switch)", passed(link_up(net.stack).await));
+    // The board was taken apart by `start_network`: the PA12 hold must have outlived it.
+    let held = if remodaq_board_stm32::pa12_held() {
+        Ok(())
+    } else {
+        Err("PA12 released: bank-2 reads panic on silicon before rev 3")
+    };
+    report.check("PA12 held (output, pull-down, low) after the network started (errata ES0206 2.2.11)", passed(held));
     let (spi, ntc) = io.analog.start();
     report.check("AD7124-8: reset, id and set-up over SPI1", passed(ad7124(spi, ntc).await));
     let (train, latency) = loopback(io.digital).await;

@@ -66,12 +66,19 @@ mod boot {
             }
         }
         // The manifest sits where the swap's scratch page starts: right after ACTIVE's size.
-        if check_before_swap(&mut dfu, &mut state, size as u32, &UPDATE_KEY) == BeforeSwap::Refuse {
-            cortex_m_semihosting::hprintln!("bootloader: the marked update is not signed with the key: not swapped");
-            let mut word = [0u8; 4];
-            if BlockingFirmwareState::new(&mut state, &mut word).mark_booted().is_err() {
-                fail("cancelling the swap failed");
+        match check_before_swap(&mut dfu, &mut state, size as u32, &UPDATE_KEY) {
+            BeforeSwap::Nothing | BeforeSwap::Verified => {}
+            BeforeSwap::Refuse => {
+                cortex_m_semihosting::hprintln!(
+                    "bootloader: the marked update is not signed with the key: not swapped"
+                );
+                let mut word = [0u8; 4];
+                if BlockingFirmwareState::new(&mut state, &mut word).mark_booted().is_err() {
+                    fail("cancelling the swap failed");
+                }
             }
+            // Fail closed: no swap and no start when nobody knows whether one is asked for.
+            BeforeSwap::Unreadable => fail("the bootloader's state cannot be read"),
         }
         let mut aligned = [0u8; 1024];
         let config = BootLoaderConfig { active: &mut active, dfu: &mut dfu, state: &mut state };

@@ -71,8 +71,18 @@ mod boot {
             // The manifest sits where the swap's scratch page starts: right after ACTIVE's size.
             let mut dfu = BlockingPartition::new(&dfu, 0, DFU_SIZE);
             let mut state = BlockingPartition::new(&state, STATE_OFFSET, STATE_SIZE);
-            if check_before_swap(&mut dfu, &mut state, ACTIVE_SIZE, &UPDATE_KEY) == BeforeSwap::Refuse {
-                cancel(state);
+            match check_before_swap(&mut dfu, &mut state, ACTIVE_SIZE, &UPDATE_KEY) {
+                BeforeSwap::Nothing | BeforeSwap::Verified => {}
+                // A refused image is never swapped in: if the cancel cannot be written (the
+                // state would still ask for the swap), nothing starts; this bootloader runs
+                // again and checks again.
+                BeforeSwap::Refuse => {
+                    if !cancel(state) {
+                        cortex_m::peripheral::SCB::sys_reset()
+                    }
+                }
+                // Nobody knows whether a swap is asked for: no swap, no start; again.
+                BeforeSwap::Unreadable => cortex_m::peripheral::SCB::sys_reset(),
             }
         }
         let config = BootLoaderConfig {
@@ -104,13 +114,15 @@ mod boot {
          or ask for the test key explicitly (feature test-update-key, test builds only)"
     );
 
-    /// Cancels a swap: the state marked booted (embassy-boot's own marking).
-    fn cancel<S: NorFlash>(state: S) {
+    /// Cancels a swap: the state marked booted (embassy-boot's own marking). Whether the marking
+    /// was written: embassy-boot writes "progress invalid" first, so a failure there leaves
+    /// the swap asked for and not started (stm32 review D2), and the caller must not go on.
+    fn cancel<S: NorFlash>(state: S) -> bool {
         #[repr(align(32))]
         struct Aligned([u8; 32]);
         let mut aligned = Aligned([0; 32]);
         const { assert!(S::WRITE_SIZE <= 32) };
-        let _ = BlockingFirmwareState::new(state, &mut aligned.0[..S::WRITE_SIZE]).mark_booted();
+        BlockingFirmwareState::new(state, &mut aligned.0[..S::WRITE_SIZE]).mark_booted().is_ok()
     }
 
     #[panic_handler]
