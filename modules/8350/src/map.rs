@@ -56,6 +56,11 @@ pub struct Map8350<'a, F: NorFlash, R: RawMutex> {
     store: &'a Store<F, Settings>,
     settings: Settings,
     io: &'a IoCell<R>,
+    /// Whether the request being served may clear the flags it reads (extensions §4): set by
+    /// [`RegisterMap::admit`], which the engine calls first for every request, under the same
+    /// lock as the reads. False for a client outside a set allow-list, so it cannot consume the
+    /// master's latch, overflow and "samples lost" events.
+    reads_clear: bool,
 }
 
 /// Exception 04 for a write that would move an output while the host watchdog is tripped.
@@ -65,7 +70,7 @@ impl<'a, F: NorFlash, R: RawMutex> Map8350<'a, F, R> {
     /// A map over the store with `settings` in force; configures the engines from them.
     pub fn new(store: &'a Store<F, Settings>, settings: &Settings, io: &'a IoCell<R>) -> Self {
         io::with(io, |state| state.configure(settings));
-        Self { store, settings: *settings, io }
+        Self { store, settings: *settings, io, reads_clear: true }
     }
 
     /// A register write planned on `settings`; the errors are the request's exception 03.
@@ -227,6 +232,9 @@ impl<F: NorFlash, R: RawMutex> RegisterMap for Map8350<'_, F, R> {
     }
 
     fn admit(&mut self, from: [u8; 4], function: u8) -> Result<(), Exception> {
+        // Reads with a side effect (clear-on-read) are for those who may write: anyone while no
+        // allow-list is set, else its clients only; the others read the flags as they stand.
+        self.reads_clear = self.settings.allow.allows(from);
         access::admit(&self.settings.allow, from, function)?;
         // With an allow-list, only its clients feed (and auto-clear) the host watchdog: a
         // reader elsewhere on the LAN cannot keep a dead master's outputs alive (docs/security.md).
@@ -237,6 +245,9 @@ impl<F: NorFlash, R: RawMutex> RegisterMap for Map8350<'_, F, R> {
     }
 
     fn read(&mut self, table: Table, addr: u16) -> u16 {
+        if !self.reads_clear {
+            return self.observe(table, addr);
+        }
         decode(table, addr).map_or(0, |point| self.read_point(point))
     }
 

@@ -7,10 +7,11 @@ use futures_executor::block_on;
 use remodaq_8350::io::{self, Io, IoCell};
 use remodaq_8350::map::Map8350;
 use remodaq_8350::settings::Settings;
+use remodaq_shared::access::{AllowList, Network};
 use remodaq_shared::modbus::{handle_pdu, MAX_PDU};
 use remodaq_shared::module::Store;
 use remodaq_shared::ram_flash::RamFlash;
-use remodaq_shared::settings::SettingsStore;
+use remodaq_shared::settings::{Schema, SettingsStore};
 
 type Flash = RamFlash<{ 4 * 1024 }, 1024>;
 
@@ -46,9 +47,14 @@ impl Module {
 
     /// Sends an RTU-style example (station, then PDU) and answers the same way.
     fn ask(&mut self, frame: &str) -> String {
+        self.ask_from([127, 0, 0, 1], frame)
+    }
+
+    /// [`Module::ask`] from the client at `from`.
+    fn ask_from(&mut self, from: [u8; 4], frame: &str) -> String {
         let frame = hex(frame);
         let mut resp = [0u8; MAX_PDU];
-        let n = block_on(handle_pdu(&self.map, [127, 0, 0, 1], &frame[1..], &mut resp));
+        let n = block_on(handle_pdu(&self.map, from, &frame[1..], &mut resp));
         format!("{:02X} {}", frame[0], show(&resp[..n]))
     }
 
@@ -145,6 +151,34 @@ fn flags_clear_on_read_and_on_writing_0() {
         "01 01 06 11 11 11 11 11 11",
         "per channel: run 1, clear 0, overflow 0, latch 0"
     );
+}
+
+/// Extensions §4, reads with a side effect (security review finding 2): while an allow-list is
+/// set, a client outside it reads the latch and overflow flags and the "samples lost" bit as
+/// they stand, without clearing them, so it cannot consume the master's events; the master's
+/// own read clears them as before. Without a list, anyone's read clears (spec §3.1).
+#[test]
+fn only_a_client_that_may_write_clears_flags_by_reading_them() {
+    let mut store = block_on(SettingsStore::open(Flash::new(), const { SettingsStore::<Flash, Settings>::config(0..4096) }));
+    let master = [10, 0, 0, 5];
+    let outsider = [192, 168, 1, 7];
+    let mut s = Settings::defaults();
+    s.allow = AllowList::of(&[Network::new([10, 0, 0, 0], 8).unwrap()]).unwrap();
+    block_on(store.commit(s)).unwrap();
+    let mut m = Module::with_flash(store.into_flash());
+    assert_eq!(m.ask_from(master, "01 06 01 00 00 02"), "01 06 01 00 00 02", "DI0 low-to-high latch");
+    m.inputs(&[0, 1]);
+    for _ in 0..3 {
+        assert_eq!(m.ask_from(outsider, "01 01 00 23 00 01"), "01 01 01 01", "the outsider sees the latch");
+    }
+    assert_eq!(m.ask_from(master, "01 01 00 23 00 01"), "01 01 01 01", "the master's event is still there");
+    assert_eq!(m.ask_from(master, "01 01 00 23 00 01"), "01 01 01 00", "the master's read cleared it");
+    // The same with no list: the first reader clears, whoever it is.
+    let mut open = Module::new();
+    open.ask("01 06 01 00 00 02");
+    open.inputs(&[0, 1]);
+    assert_eq!(open.ask_from(outsider, "01 01 00 23 00 01"), "01 01 01 01");
+    assert_eq!(open.ask_from(outsider, "01 01 00 23 00 01"), "01 01 01 00", "no list: cleared by any read");
 }
 
 #[test]
