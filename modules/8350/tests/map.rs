@@ -159,7 +159,8 @@ fn flags_clear_on_read_and_on_writing_0() {
 /// own read clears them as before. Without a list, anyone's read clears (spec §3.1).
 #[test]
 fn only_a_client_that_may_write_clears_flags_by_reading_them() {
-    let mut store = block_on(SettingsStore::open(Flash::new(), const { SettingsStore::<Flash, Settings>::config(0..4096) }));
+    let mut store =
+        block_on(SettingsStore::open(Flash::new(), const { SettingsStore::<Flash, Settings>::config(0..4096) }));
     let master = [10, 0, 0, 5];
     let outsider = [192, 168, 1, 7];
     let mut s = Settings::defaults();
