@@ -40,8 +40,7 @@ impl Trend {
         }
         let mut out = String::from("time_s");
         for n in names {
-            // A name never holds a quote or a comma, but a CSV reader should not have to trust that.
-            let _ = write!(out, ",\"{}\"", n.replace('"', "\"\""));
+            let _ = write!(out, ",\"{}\"", header_cell(n));
         }
         out.push_str("\r\n");
         for (ms, row) in rows {
@@ -58,9 +57,37 @@ impl Trend {
     }
 }
 
+/// A series name as a CSV header cell a spreadsheet shows as text and never runs (security
+/// review finding 15): its quotes doubled (a module's name comes from its unauthenticated INFO
+/// answer, so a CSV reader should not have to trust it), and a leading `=`, `+`, `-`, `@`, tab
+/// or carriage return, which a spreadsheet would take for a formula, behind a `'` (OWASP's
+/// advice for CSV injection).
+fn header_cell(name: &str) -> String {
+    let mut cell = name.replace('"', "\"\"");
+    if cell.starts_with(['=', '+', '-', '@', '\t', '\r']) {
+        cell.insert(0, '\'');
+    }
+    cell
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_name_that_looks_like_a_formula_is_exported_as_text() {
+        let mut t = Trend::default();
+        let evil = "=HYPERLINK(\"http://x\";\"y\") CH0 (mV)";
+        t.push(evil, 1.0, 1.0);
+        t.push("@SUM(A1) DI0 (count)", 1.0, 2.0);
+        t.push("8318 CH1 (mV)", 1.0, 3.0);
+        let csv = t.csv(&[evil.into(), "@SUM(A1) DI0 (count)".into(), "8318 CH1 (mV)".into()], None);
+        let header = csv.lines().next().unwrap();
+        assert_eq!(
+            header,
+            "time_s,\"'=HYPERLINK(\"\"http://x\"\";\"\"y\"\") CH0 (mV)\",\"'@SUM(A1) DI0 (count)\",\"8318 CH1 (mV)\""
+        );
+    }
 
     #[test]
     fn keeps_ten_minutes_and_exports_aligned_rows() {
