@@ -156,6 +156,10 @@ async fn vias(to: SocketAddr, only: Option<&str>) -> Result<Vec<(Option<Iface>, 
 pub struct Answer {
     pub mac: [u8; 6],
     pub found: Found,
+    /// Where the answer came from: the address the module was reached at, which a PC tool
+    /// talks to (Modbus, updates), never the unauthenticated `found.running.ip` the answer
+    /// reports (security review finding 3).
+    pub from: SocketAddr,
 }
 
 /// Sends `request` (search id `id`) by `socket` and collects the INFO answers until
@@ -175,7 +179,7 @@ async fn collect(
     let mut seen = std::collections::HashSet::new();
     let mut rx = [0u8; 512];
     while let Ok(received) = tokio::time::timeout_at(deadline.into(), socket.recv_from(&mut rx)).await {
-        let Some(n) = datagram(received) else { continue };
+        let Ok((n, from)) = received else { continue };
         let Some(info) = decode_info(&rx[..n]) else { continue };
         // Each module once (a set, not a scan of the list), and at most MAX_FOUND of them: a
         // flood of forged answers cannot grow the list without bound (nor hide `want`).
@@ -184,6 +188,7 @@ async fn collect(
             continue;
         }
         answers.push(Answer {
+            from,
             mac: info.mac,
             found: Found {
                 model: format!("{:04X}", info.model),

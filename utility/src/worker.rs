@@ -279,13 +279,12 @@ pub async fn search(
                         if found.iter().any(|f| f.mac.0 == a.mac) {
                             continue;
                         }
-                        let ip = a.found.running.ip;
-                        let modbus = if to.ip().is_loopback() {
-                            // A simulated module on this PC: its Modbus server is on loopback.
-                            SocketAddr::new(to.ip(), a.found.modbus_port)
-                        } else {
-                            SocketAddr::new(ip.into(), a.found.modbus_port)
-                        };
+                        // Modbus (polls, writes, updates) goes to the address the module
+                        // answered from, never to the unauthenticated address its INFO reports
+                        // (security review finding 3): a forged answer naming another address
+                        // cannot redirect them. A simulated module on this PC answers from
+                        // loopback, where its Modbus server listens.
+                        let modbus = SocketAddr::new(a.from.ip(), a.found.modbus_port);
                         found.push(Located { mac: Mac(a.mac), found: a.found, to, iface: iface.clone(), modbus });
                     }
                 }
@@ -385,5 +384,43 @@ async fn configure(
         // The module answers a store with its status only: what is in force is the list sent.
         Config::SetAccess(sent) => Ok(Done::Access(outcome.list.unwrap_or(sent))),
         _ => Ok(Done::Said(said.into())),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::net::{Ipv4Addr, SocketAddr};
+    use std::time::Duration;
+
+    use remodaq_protocol::discovery::{decode_request, op, Request, Writer};
+    use remodaq_protocol::net::NetConfig;
+
+    /// Security review finding 3: a search answer reporting another address (here 10.9.8.7)
+    /// does not redirect Modbus and updates: they go to the address the answer came from.
+    #[test]
+    fn modbus_goes_where_the_answer_came_from_not_where_it_says() {
+        let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+        runtime.block_on(async {
+            let module = tokio::net::UdpSocket::bind((Ipv4Addr::LOCALHOST, 0)).await.unwrap();
+            let at = module.local_addr().unwrap();
+            let answer = tokio::spawn(async move {
+                let mut rx = [0u8; 512];
+                let (n, pc) = module.recv_from(&mut rx).await.unwrap();
+                let Some((id, Request::Search)) = decode_request(&rx[..n]) else { panic!("not a search") };
+                let claimed = NetConfig { ip: [10, 9, 8, 7], mask: [255, 0, 0, 0], gateway: [0; 4], port: 8123 };
+                let mut tx = [0u8; 512];
+                let mut w = Writer::new(&mut tx, op::INFO, id);
+                w.bytes(&0x8350u16.to_be_bytes()).bytes(&0xA100u16.to_be_bytes()).bytes(&[2, 0, 0, 0, 0, 7]);
+                w.net(&claimed).net(&claimed).bytes(&5u32.to_be_bytes()).string(b"ADAM-8350");
+                w.bytes(&[0]).bytes(&[0; 8]);
+                let len = w.finish().unwrap();
+                module.send_to(&tx[..len], pc).await.unwrap();
+            });
+            let (found, _) = super::search(&[at], None, Duration::from_millis(500)).await.unwrap();
+            answer.await.unwrap();
+            assert_eq!(found.len(), 1);
+            assert_eq!(found[0].found.running.ip, Ipv4Addr::new(10, 9, 8, 7), "what the answer claims");
+            assert_eq!(found[0].modbus, SocketAddr::from((Ipv4Addr::LOCALHOST, 8123)), "where it came from");
+        });
     }
 }
