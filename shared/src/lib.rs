@@ -15,6 +15,7 @@ pub mod fmt;
 pub mod access;
 pub mod app;
 pub mod board;
+pub mod budget;
 pub mod diagnostics;
 pub mod flash;
 pub mod health;

@@ -163,7 +163,8 @@ pub struct SettingsStore<F: NorFlash, S: Schema> {
     current: S,
     /// The commit budget of Modbus writes: a token bucket kept as the time (ms since start) at
     /// which it is full again.
-    write_budget_full_at: u64,
+    /// The commit budget of Modbus writes.
+    writes: crate::budget::Budget,
 }
 
 impl<F: NorFlash, S: Schema> SettingsStore<F, S> {
@@ -178,23 +179,18 @@ impl<F: NorFlash, S: Schema> SettingsStore<F, S> {
             map: MapStorage::new(flash, config, Cache::new_uncached()),
             buf: Buffer([0; BUF_LEN]),
             current: S::defaults(),
-            write_budget_full_at: 0,
+            writes: crate::budget::Budget::new(COMMIT_BURST, COMMIT_REFILL_MS),
         };
         store.current = store.load().await;
         let now = embassy_time::Instant::now().as_millis();
-        store.write_budget_full_at = now + u64::from(COMMIT_BURST - COMMIT_AT_START) * COMMIT_REFILL_MS;
+        store.writes = crate::budget::Budget::holding(COMMIT_BURST, COMMIT_REFILL_MS, COMMIT_AT_START, now);
         store
     }
 
     /// Takes one commit from the Modbus writes' budget at `now_ms`; false (nothing taken) when
     /// it is spent.
     pub fn take_write(&mut self, now_ms: u64) -> bool {
-        let debt = self.write_budget_full_at.saturating_sub(now_ms);
-        if debt + COMMIT_REFILL_MS > u64::from(COMMIT_BURST) * COMMIT_REFILL_MS {
-            return false;
-        }
-        self.write_budget_full_at = self.write_budget_full_at.max(now_ms) + COMMIT_REFILL_MS;
-        true
+        self.writes.take(now_ms)
     }
 
     async fn load(&mut self) -> S {

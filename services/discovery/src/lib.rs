@@ -22,6 +22,7 @@ use embedded_storage_async::nor_flash::NorFlash;
 
 use remodaq_protocol::auth::{fingerprint, seal, x25519, BASE_POINT};
 use remodaq_shared::access::AllowList;
+use remodaq_shared::budget::Budget;
 use remodaq_shared::module::{commit_change, CommonSettings, SettingsAccess, Store};
 use remodaq_shared::net::NETWORK_STORED;
 use remodaq_shared::nonces::Nonces;
@@ -241,9 +242,20 @@ pub trait Datagrams {
     async fn send(&mut self, buf: &[u8], ip: [u8; 4], port: u16) -> Result<(), Self::Error>;
 }
 
+/// Requests from outside the module's subnet (answered by broadcast) served at once...
+pub const BROADCAST_BURST: u32 = 8;
+/// ...and one more every this many ms. A forged off-subnet request makes every module on the
+/// LAN broadcast its answer, to a port the sender chose (security review finding 12): bounded,
+/// so that a flood of them cannot turn the modules into an amplifier. An administrator on
+/// another subnet (a search, then a challenge and a command per change: about three requests)
+/// never meets it.
+pub const BROADCAST_REFILL_MS: u64 = 500;
+
 /// Serves the protocol forever. Replies go to the requester, or to the broadcast address (same
 /// port) when the requester is outside the module's subnet, so a PC can configure a module
-/// whose settings do not fit its network. `effect` runs after each reply is sent.
+/// whose settings do not fit its network; such requests draw on a budget
+/// ([`BROADCAST_BURST`], [`BROADCAST_REFILL_MS`]), and one beyond it is dropped unread (no
+/// effect without its answer). `effect` runs after each reply is sent.
 pub async fn serve<R, A, F, D>(
     socket: &mut D,
     map: &Mutex<R, A>,
@@ -258,6 +270,7 @@ where
     D: Datagrams,
 {
     let mut service = Service::new(identity);
+    let mut broadcasts = Budget::new(BROADCAST_BURST, BROADCAST_REFILL_MS);
     let mut rx = [0u8; MAX_DATAGRAM + 1];
     let mut tx = [0u8; MAX_DATAGRAM];
     loop {
@@ -269,9 +282,14 @@ where
             }
         };
         let now_ms = embassy_time::Instant::now().as_millis();
+        let near = identity.running.same_subnet(ip);
+        if !near && !broadcasts.take(now_ms) {
+            remodaq_shared::debug!("discovery: broadcast budget spent: a request from another subnet dropped");
+            continue;
+        }
         let reply = service.handle(&rx[..n], ip, now_ms, map, store, &mut tx).await;
         let Some((len, what)) = reply else { continue };
-        let to = if identity.running.same_subnet(ip) { ip } else { [255; 4] };
+        let to = if near { ip } else { [255; 4] };
         if let Err(e) = socket.send(&tx[..len], to, port).await {
             remodaq_shared::warn!("discovery: send failed: {:?}", e);
         }

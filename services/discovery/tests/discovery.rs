@@ -426,3 +426,55 @@ fn random_and_mutated_datagrams_never_panic_nor_change_settings() {
     assert_eq!(statuses.get("command Ok"), None, "{statuses:?}");
     assert!(statuses.get("command StaleNonce").copied().unwrap_or(0) > 5_000, "{statuses:?}");
 }
+
+/// A socket in memory: the datagrams to receive, in order (then nothing more, for ever), and
+/// what was sent, with its destination.
+struct Memory {
+    incoming: std::collections::VecDeque<(Vec<u8>, [u8; 4], u16)>,
+    sent: std::rc::Rc<std::cell::RefCell<Vec<[u8; 4]>>>,
+}
+
+impl remodaq_discovery::Datagrams for Memory {
+    type Error = ();
+    async fn recv(&mut self, buf: &mut [u8]) -> Result<(usize, [u8; 4], u16), ()> {
+        match self.incoming.pop_front() {
+            Some((d, ip, port)) => {
+                buf[..d.len()].copy_from_slice(&d);
+                Ok((d.len(), ip, port))
+            }
+            None => core::future::pending().await,
+        }
+    }
+    async fn send(&mut self, _: &[u8], ip: [u8; 4], _: u16) -> Result<(), ()> {
+        self.sent.borrow_mut().push(ip);
+        Ok(())
+    }
+}
+
+/// Security review finding 12: a burst of searches from outside the module's subnet (answered
+/// by broadcast, to a port the sender chose) gets at most `BROADCAST_BURST` broadcasts; a
+/// search from inside the subnet is still answered to its sender.
+#[test]
+fn broadcast_answers_to_another_subnet_are_bounded() {
+    use remodaq_discovery::{serve, BROADCAST_BURST};
+    let (_, module) = setup();
+    let identity = Identity { model: 0x8318, name: "RemoDAQ-8318", version: 0xA100, mac: MAC, running: SPEC_FACTORY };
+    let search = request(op::SEARCH, 7, |_| {});
+    let mut incoming: std::collections::VecDeque<_> = (0..50).map(|_| (search.clone(), [10, 6, 6, 6], 9999)).collect();
+    incoming.push_back((search.clone(), ADMIN, 50000));
+    let total = incoming.len();
+    let sent = std::rc::Rc::new(std::cell::RefCell::new(Vec::new()));
+    let mut socket = Memory { incoming, sent: sent.clone() };
+    let served = serve(&mut socket, &module.map, &module.store, identity, async |_| {});
+    let watched = async {
+        // Every datagram taken (the in-subnet one last), then done.
+        while !sent.borrow().contains(&ADMIN) {
+            embassy_futures::yield_now().await;
+        }
+    };
+    block_on(embassy_futures::select::select(served, watched));
+    let sent = sent.borrow();
+    let broadcasts = sent.iter().filter(|ip| **ip == [255; 4]).count();
+    assert_eq!(broadcasts, BROADCAST_BURST as usize, "{total} requests: {sent:?}");
+    assert_eq!(sent.iter().filter(|ip| **ip == ADMIN).count(), 1, "the administrator on the subnet is answered");
+}
