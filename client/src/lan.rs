@@ -17,12 +17,12 @@ use tokio::net::UdpSocket;
 use crate::ifaces::{self, Iface};
 use crate::Error;
 
-/// The length of a received datagram; `None` for a receive error, which ends nothing: on
+/// The length and source of a received datagram; `None` for a receive error, which ends nothing: on
 /// Windows an ICMP "port unreachable" for an earlier datagram (WSAECONNRESET) or an oversized
 /// datagram (WSAEMSGSIZE) surface as errors of the next receive, and other modules may still
 /// answer before the deadline.
-fn datagram(received: std::io::Result<(usize, SocketAddr)>) -> Option<usize> {
-    received.ok().map(|(n, _)| n)
+fn datagram(received: std::io::Result<(usize, SocketAddr)>) -> Option<(usize, SocketAddr)> {
+    received.ok()
 }
 
 /// A MAC address, written `02:ab:cd:ef:01:23`.
@@ -179,7 +179,7 @@ async fn collect(
     let mut seen = std::collections::HashSet::new();
     let mut rx = [0u8; 512];
     while let Ok(received) = tokio::time::timeout_at(deadline.into(), socket.recv_from(&mut rx)).await {
-        let Ok((n, from)) = received else { continue };
+        let Some((n, from)) = datagram(received) else { continue };
         let Some(info) = decode_info(&rx[..n]) else { continue };
         // Each module once (a set, not a scan of the list), and at most MAX_FOUND of them: a
         // flood of forged answers cannot grow the list without bound (nor hide `want`).
@@ -450,7 +450,7 @@ async fn receive<T>(
     loop {
         let received = tokio::time::timeout_at(deadline.into(), socket.recv_from(&mut rx)).await;
         let Ok(received) = received else { return Err(Error::Timeout(what())) };
-        let Some(n) = datagram(received) else { continue };
+        let Some((n, _)) = datagram(received) else { continue };
         if let Some(out) = accept(&rx[..n]) {
             return Ok(out);
         }
