@@ -554,6 +554,11 @@ fn status(reply: Reply, mac: Mac) -> Result<Reply, Error> {
         }
         Status::Invalid => "the module refused the settings (mask, address, port or password)",
         Status::StoreFailed => "the module could not store the settings",
+        Status::CommitBudget => {
+            return Err(Error::Refused(format!(
+                "{mac}: too many settings changes, nothing changed: the module takes one more every 15 minutes (flash wear)"
+            )));
+        }
         Status::BadSignature | Status::Downgrade => "the module answered a status of the update service",
     };
     Err(Error::Other(format!("{mac}: {message}")))

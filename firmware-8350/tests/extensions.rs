@@ -368,6 +368,57 @@ async fn alternating_writes_meet_the_commit_budget() {
     write_reg(&mut ctx, REG_DI_MODE, 2).await.expect("the value in force: still answered");
 }
 
+/// Security review finding 1: on an unclaimed module anyone may prove the factory password,
+/// change the network settings and restart the module. Under it, the web console's and
+/// discovery's commits share the administration's budget (docs/security.md, "Flash wear": a
+/// burst of 20): beyond it a change answers 429 (web) or its own status (discovery), changes
+/// nothing and is counted in 40256, and a restart renews nothing.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn factory_password_commits_meet_a_budget_that_a_restart_does_not_renew() {
+    use remodaq_board_host::testing::web::{log_in, request};
+    use remodaq_protocol::net::NetConfig;
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let http = format!("127.0.0.1:{port}");
+    let mut module = SimModule::start_with(BIN, &temp("admin-wear.flash"), &["--listen", "127.0.0.1:0", "--http", &http]);
+    let web = module.web.expect("web address");
+    let body = |modbus: u16| {
+        format!(
+            r#"{{"ip":"192.0.2.10","mask":"255.255.255.0","gateway":"192.0.2.1","modbus_port":{modbus},"http_port":{port}}}"#
+        )
+    };
+    let put = |page: &mut remodaq_board_host::testing::web::Page, modbus: u16| {
+        let b = body(modbus);
+        request(web, "PUT", "/api/v1/network", &page.sign("PUT", "/api/v1/network", &b), &b).status
+    };
+    let mut page = log_in(web, "remodaq").unwrap_or_else(|a| panic!("login: {} {}", a.status, a.body));
+    // The burst alternates 8001 and 8002; beyond it, each asks for the port not in force.
+    let statuses: Vec<u16> = (0..24u16).map(|n| put(&mut page, 8001 + n.min(20) % 2)).collect();
+    assert_eq!(statuses[..20], [204; 20], "{statuses:?}");
+    assert_eq!(statuses[20..], [429; 4], "{statuses:?}");
+    // Discovery draws on the same budget.
+    let mac = mac(&module).await;
+    let net = NetConfig { ip: [192, 0, 2, 10], mask: [255, 255, 255, 0], gateway: [192, 0, 2, 1], port: 8001 };
+    let refused = command(module.discovery, [127, 0, 0, 1], mac, "remodaq", Ask::SetNetwork(net)).await;
+    assert_eq!(refused.status, Status::CommitBudget);
+    let stored = |module: &SimModule| decode_info(&remodaq_board_host::testing::search(module.discovery)).expect("INFO").stored;
+    assert_eq!(stored(&module).port, 8002, "the refused changes changed nothing");
+    let mut ctx = connect(module.addr).await;
+    assert_eq!(regs(&mut ctx, 0x00FF, 1).await, [5], "counted in 40256");
+    drop(ctx);
+    // A restart (anyone may: the password is the factory one) renews nothing.
+    let restart = request(web, "POST", "/api/v1/restart", &page.sign("POST", "/api/v1/restart", ""), "");
+    assert_eq!(restart.status, 202, "{}", restart.body);
+    module.wait_listening();
+    let mut page = log_in(web, "remodaq").unwrap_or_else(|a| panic!("login after the restart: {} {}", a.status, a.body));
+    assert_eq!(put(&mut page, 8001), 429, "a restart renewed the budget");
+    assert_eq!(stored(&module).port, 8002);
+    let mut ctx = connect(module.addr).await;
+    assert_eq!(regs(&mut ctx, 0x00FF, 1).await, [1], "counted in 40256 since the restart");
+    // What the restart carried over, not a budget emptied for want of it: the Modbus writes'
+    // budget, untouched before, still holds its power-on share.
+    write_reg(&mut ctx, REG_DI_MODE, 1).await.expect("a Modbus write commits after the restart");
+}
+
 /// Issue #23: a DO write reaches the output pattern within 1 ms, not at the next refill (6.4 to
 /// 12.8 ms): the module measures each command from its write to the first tick that plays it
 /// (40326, worst 40327). Here 200 writes of DO0, each read back 15 ms later. The median and 95 %

@@ -29,6 +29,9 @@ pub enum Status {
     /// Firmware update only: the image's security counter is below the module's (an older
     /// release, anti-rollback). Nothing changed.
     Downgrade = 8,
+    /// Too many settings changes: the module's flash commit budget is spent (flash wear,
+    /// one more change every 15 minutes). Nothing changed; try again later.
+    CommitBudget = 9,
 }
 
 impl Status {
@@ -44,6 +47,7 @@ impl Status {
             6 => Status::StaleNonce,
             7 => Status::SetPasswordFirst,
             8 => Status::Downgrade,
+            9 => Status::CommitBudget,
             _ => return None,
         })
     }

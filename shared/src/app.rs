@@ -60,6 +60,7 @@ where
         const { SettingsStore::<B::Flash, M::Settings>::config(0..B::SETTINGS_SIZE) },
     )
     .await;
+    store.resume(reset_cause, board.retained());
     if board.factory_reset_requested() {
         crate::warn!("factory reset: every setting back to its factory default");
         if store.commit(M::Settings::defaults()).await.is_err() {

@@ -49,6 +49,10 @@ pub trait Board: Sized + 'static {
     fn boot_partitions(&mut self) -> Option<(Self::Dfu, Self::BootState)>;
     /// Why this run started (diagnostics register 00F3h).
     fn reset_cause(&self) -> crate::diagnostics::ResetCause;
+    /// What the last restart left for this start ([`crate::settings::Retained`]: the flash
+    /// commit budgets' debts), read once: the board keeps the words a restart writes where a
+    /// reset does not clear them, and clears them here.
+    fn retained(&mut self) -> Option<crate::settings::Retained>;
     /// Every setting must return to its factory default (the USER button held at power-up,
     /// `--factory-reset` on the host).
     fn factory_reset_requested(&self) -> bool;

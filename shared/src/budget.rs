@@ -1,6 +1,6 @@
 //! A rate budget: a burst of events, then one more every so many milliseconds. The flash commit
-//! budget of Modbus writes (`settings::SettingsStore::take_write`) and the discovery service's
-//! broadcast replies draw on one each.
+//! budgets (`settings::SettingsStore::take`: Modbus writes, authenticated changes) and the
+//! discovery service's broadcast replies draw on one each.
 
 /// A burst of `burst` events at once, then one more every `refill_ms`; an event beyond it is
 /// refused and takes nothing. Kept as the time at which the budget is full again, so taking
@@ -25,13 +25,33 @@ impl Budget {
         Self { burst, refill_ms, full_at: now_ms + missing as u64 * refill_ms }
     }
 
+    /// A budget that owes `debt_ms` at `now_ms` (what [`Budget::debt`] said before a restart),
+    /// at most a whole burst's worth: nothing in it until the debt is paid down to below one
+    /// refill.
+    pub const fn owing(burst: u32, refill_ms: u64, debt_ms: u64, now_ms: u64) -> Self {
+        let whole = burst as u64 * refill_ms;
+        let debt = if debt_ms < whole { debt_ms } else { whole };
+        Self { burst, refill_ms, full_at: now_ms + debt }
+    }
+
+    /// How long, from `now_ms`, until the budget is full again (0: full).
+    pub fn debt(&self, now_ms: u64) -> u64 {
+        self.full_at.saturating_sub(now_ms)
+    }
+
+    /// Takes one event at `now_ms` even when the budget is spent (an event that must not be
+    /// refused but must still count: the events after it wait the longer).
+    pub fn draw(&mut self, now_ms: u64) {
+        self.full_at = self.full_at.max(now_ms) + self.refill_ms;
+    }
+
     /// Takes one event at `now_ms`; false (nothing taken) when the budget is spent.
     pub fn take(&mut self, now_ms: u64) -> bool {
         let debt = self.full_at.saturating_sub(now_ms);
         if debt + self.refill_ms > u64::from(self.burst) * self.refill_ms {
             return false;
         }
-        self.full_at = self.full_at.max(now_ms) + self.refill_ms;
+        self.draw(now_ms);
         true
     }
 }
@@ -52,5 +72,26 @@ mod tests {
         assert!(h.take(1000));
         assert!(!h.take(1000), "held only one");
         assert!(h.take(1100) && h.take(1200) && h.take(1300) && !h.take(1300), "then refilled one at a time");
+    }
+
+    #[test]
+    fn a_debt_carried_over_a_restart() {
+        // Spent at 5000 ms: the next event is due one refill later.
+        let mut b = Budget::new(3, 100);
+        assert!((0..3).all(|_| b.take(5000)) && !b.take(5000));
+        assert_eq!(b.debt(5000), 300, "three refills until full");
+        // A restart: the clock starts at 0 again, the debt stays.
+        let mut r = Budget::owing(3, 100, b.debt(5000), 0);
+        assert!(!r.take(0) && !r.take(99), "nothing renewed by the restart");
+        assert!(r.take(100) && !r.take(100));
+        // A debt beyond a burst's worth counts as a burst's worth.
+        let mut o = Budget::owing(3, 100, 10_000, 0);
+        assert!(!o.take(99) && o.take(100) && !o.take(100));
+        // A drawn event always goes through, and delays the next one.
+        let mut d = Budget::new(1, 100);
+        assert!(d.take(0));
+        d.draw(0);
+        assert_eq!(d.debt(0), 200);
+        assert!(!d.take(100) && d.take(200));
     }
 }

@@ -50,7 +50,7 @@ pub trait SettingsAccess {
     fn committed(&mut self, settings: &Self::Settings);
 }
 
-pub use crate::settings::{COMMIT_AT_START, COMMIT_BURST, COMMIT_REFILL_MS};
+pub use crate::settings::{Draw, ADMIN_BURST, ADMIN_REFILL_MS, COMMIT_AT_START, COMMIT_BURST, COMMIT_REFILL_MS};
 
 /// Why [`update`] changed nothing.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -63,7 +63,9 @@ pub enum UpdateError<E> {
 
 /// Applies `change` to the latest settings and commits them (when they changed) holding the
 /// store's lock only, then puts them in force in `map`. Returns what `change` returned. For
-/// authenticated changes (discovery, updates); Modbus writes go through [`write_update`].
+/// authenticated changes (discovery, the web console): a commit beyond the administration's
+/// commit budget is refused, whatever the credential (flash wear, docs/security.md). Modbus
+/// writes go through [`write_update`].
 pub async fn update<R, A, F, T, E>(
     map: &Mutex<R, A>,
     store: &Store<F, A::Settings>,
@@ -74,12 +76,13 @@ where
     A: SettingsAccess,
     F: NorFlash,
 {
-    commit_within(map, store, change, false).await
+    commit_within(map, store, change, Draw::Admin).await
 }
 
-/// [`update`] for a Modbus write: a commit beyond the commit budget is refused (flash wear,
-/// docs/security.md). Authenticated changes do not draw on it, so a Modbus writer cannot keep
-/// the administrator from changing the password, the allow-list or the firmware.
+/// [`update`] for a Modbus write: a commit beyond the writes' commit budget is refused (flash
+/// wear, docs/security.md). Authenticated changes draw on a budget of their own, so a Modbus
+/// writer cannot keep the administrator from changing the password, the allow-list or the
+/// firmware.
 pub async fn write_update<R, A, F, T, E>(
     map: &Mutex<R, A>,
     store: &Store<F, A::Settings>,
@@ -90,14 +93,14 @@ where
     A: SettingsAccess,
     F: NorFlash,
 {
-    commit_within(map, store, change, true).await
+    commit_within(map, store, change, Draw::Write).await
 }
 
 async fn commit_within<R, A, F, T, E>(
     map: &Mutex<R, A>,
     store: &Store<F, A::Settings>,
     change: impl FnOnce(&mut A::Settings) -> Result<T, E>,
-    budgeted: bool,
+    draw: Draw,
 ) -> Result<T, UpdateError<E>>
 where
     R: RawMutex,
@@ -110,8 +113,8 @@ where
     if settings != *store.get() {
         // A change that changes nothing never reaches the flash; a write beyond the budget
         // neither.
-        if budgeted && !store.take_write(embassy_time::Instant::now().as_millis()) {
-            crate::warn!("settings: commit budget spent, write refused");
+        if !store.take(draw, embassy_time::Instant::now().as_millis()) {
+            crate::warn!("settings: commit budget spent, change refused");
             crate::diagnostics::DIAGNOSTICS.security(crate::diagnostics::Security::WriteBudgetRefusal, [0; 4]);
             return Err(UpdateError::Store(StoreError::Budget));
         }
@@ -161,7 +164,8 @@ macro_rules! impl_common_settings {
     };
 }
 
-/// [`update`] for a change that cannot refuse: the store's error, if the commit failed.
+/// [`update`] for a change that cannot refuse: the store's error, if the commit failed
+/// ([`StoreError::Budget`] when the administration's commit budget is spent).
 pub async fn commit_change<R, A, F>(
     map: &Mutex<R, A>,
     store: &Store<F, A::Settings>,
@@ -172,11 +176,40 @@ where
     A: SettingsAccess,
     F: NorFlash,
 {
+    commit_drawing(map, store, change, Draw::Admin).await
+}
+
+/// [`commit_change`] for an update's security counters: drawn from the administration's
+/// budget, never refused by it ([`Draw::Counter`]).
+pub async fn commit_counters<R, A, F>(
+    map: &Mutex<R, A>,
+    store: &Store<F, A::Settings>,
+    change: impl FnOnce(&mut A::Settings),
+) -> Result<(), StoreError>
+where
+    R: RawMutex,
+    A: SettingsAccess,
+    F: NorFlash,
+{
+    commit_drawing(map, store, change, Draw::Counter).await
+}
+
+async fn commit_drawing<R, A, F>(
+    map: &Mutex<R, A>,
+    store: &Store<F, A::Settings>,
+    change: impl FnOnce(&mut A::Settings),
+    draw: Draw,
+) -> Result<(), StoreError>
+where
+    R: RawMutex,
+    A: SettingsAccess,
+    F: NorFlash,
+{
     let change = |s: &mut A::Settings| {
         change(s);
         Ok::<(), core::convert::Infallible>(())
     };
-    update(map, store, change).await.map_err(|e| match e {
+    commit_within(map, store, change, draw).await.map_err(|e| match e {
         UpdateError::Store(e) => e,
         UpdateError::Refused(never) => match never {},
     })

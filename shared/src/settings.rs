@@ -148,23 +148,94 @@ struct Buffer([u8; BUF_LEN]);
 
 /// Modbus writes' settings commits allowed in a burst (docs/security.md, "Flash wear").
 pub const COMMIT_BURST: u32 = 100;
-/// One commit more is allowed every this many ms: the worst rate the budget allows wears the
-/// settings sectors by at most 10 000 erase cycles in 10 years (`modules/8350/tests/wear.rs`
-/// measures it).
+/// One Modbus write's commit more is allowed every this many ms. With [`ADMIN_REFILL_MS`], the
+/// worst rate the budgets allow wears the settings sectors by at most 10 000 erase cycles in
+/// 10 years (`modules/8350/tests/wear.rs` measures it).
 pub const COMMIT_REFILL_MS: u64 = 180_000;
-/// Commits the budget holds when the store opens (start-up): not the whole burst, so that
-/// restarting the module again and again does not renew it.
+/// Modbus writes' commits the budget holds at a power-on: not the whole burst.
 pub const COMMIT_AT_START: u32 = 20;
+/// Authenticated changes' commits (network, password, allow-list, web port: discovery and the
+/// web console, under any credential, the public factory password included) allowed in a
+/// burst: more than a commissioning needs.
+pub const ADMIN_BURST: u32 = 20;
+/// One authenticated commit more is allowed every this many ms (15 minutes).
+pub const ADMIN_REFILL_MS: u64 = 900_000;
+
+/// Which budget a commit draws on (docs/security.md, "Flash wear").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Draw {
+    /// A Modbus write: refused when the writes' budget is spent.
+    Write,
+    /// An authenticated change (discovery, web console): refused when the administration's
+    /// budget is spent.
+    Admin,
+    /// An update's security counters: drawn from the administration's budget but never
+    /// refused (each needs an image signed with the update key and a restart; refusing it would
+    /// leave the anti-rollback counter behind).
+    Counter,
+}
+
+/// What a restart carries to the next start: each commit budget's debt (ms until full), so
+/// that restarting the module again and again (anyone may, on a module with the factory
+/// password) renews nothing. The board keeps its four words where a reset does not clear
+/// them ([`crate::board::Board::retained`]); a power-on finds garbage, which the check word
+/// refuses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Retained {
+    /// The Modbus writes' budget's debt, ms.
+    pub writes_ms: u32,
+    /// The administration's budget's debt, ms.
+    pub admin_ms: u32,
+}
+
+const RETAINED_MAGIC: u32 = 0x4255_4447;
+
+/// The stores' budgets as last taken from (full-again times, ms since start), for a restart.
+static DEBTS: embassy_sync::blocking_mutex::Mutex<
+    embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex,
+    core::cell::Cell<(crate::budget::Budget, crate::budget::Budget)>,
+> = embassy_sync::blocking_mutex::Mutex::new(core::cell::Cell::new((
+    crate::budget::Budget::new(COMMIT_BURST, COMMIT_REFILL_MS),
+    crate::budget::Budget::new(ADMIN_BURST, ADMIN_REFILL_MS),
+)));
+
+impl Retained {
+    /// The budgets' debts now: what a board keeps when it restarts the module.
+    pub fn now() -> Self {
+        let (writes, admin) = DEBTS.lock(|d| d.get());
+        Self::of(writes, admin, embassy_time::Instant::now().as_millis())
+    }
+
+    fn of(writes: crate::budget::Budget, admin: crate::budget::Budget, now_ms: u64) -> Self {
+        let ms = |b: crate::budget::Budget| u32::try_from(b.debt(now_ms)).unwrap_or(u32::MAX);
+        Self { writes_ms: ms(writes), admin_ms: ms(admin) }
+    }
+
+    fn check(writes_ms: u32, admin_ms: u32) -> u32 {
+        !(RETAINED_MAGIC ^ writes_ms.rotate_left(7) ^ admin_ms.rotate_left(19))
+    }
+
+    /// The words a board keeps.
+    pub fn to_words(self) -> [u32; 4] {
+        [RETAINED_MAGIC, self.writes_ms, self.admin_ms, Self::check(self.writes_ms, self.admin_ms)]
+    }
+
+    /// The debts in `words`, if they are what [`Retained::to_words`] made.
+    pub fn from_words(words: [u32; 4]) -> Option<Self> {
+        let [magic, writes_ms, admin_ms, check] = words;
+        (magic == RETAINED_MAGIC && check == Self::check(writes_ms, admin_ms)).then_some(Self { writes_ms, admin_ms })
+    }
+}
 
 /// Where the settings are, how they load, how they commit.
 pub struct SettingsStore<F: NorFlash, S: Schema> {
     map: MapStorage<u8, F, Cache<Uncached, Uncached, Uncached, u8>>,
     buf: Buffer,
     current: S,
-    /// The commit budget of Modbus writes: a token bucket kept as the time (ms since start) at
-    /// which it is full again.
     /// The commit budget of Modbus writes.
     writes: crate::budget::Budget,
+    /// The commit budget of authenticated changes.
+    admin: crate::budget::Budget,
 }
 
 impl<F: NorFlash, S: Schema> SettingsStore<F, S> {
@@ -180,17 +251,63 @@ impl<F: NorFlash, S: Schema> SettingsStore<F, S> {
             buf: Buffer([0; BUF_LEN]),
             current: S::defaults(),
             writes: crate::budget::Budget::new(COMMIT_BURST, COMMIT_REFILL_MS),
+            admin: crate::budget::Budget::new(ADMIN_BURST, ADMIN_REFILL_MS),
         };
         store.current = store.load().await;
-        let now = embassy_time::Instant::now().as_millis();
-        store.writes = crate::budget::Budget::holding(COMMIT_BURST, COMMIT_REFILL_MS, COMMIT_AT_START, now);
+        store.resume(crate::diagnostics::ResetCause::PowerOn, None);
         store
     }
 
-    /// Takes one commit from the Modbus writes' budget at `now_ms`; false (nothing taken) when
-    /// it is spent.
-    pub fn take_write(&mut self, now_ms: u64) -> bool {
-        self.writes.take(now_ms)
+    /// Sets the commit budgets for a start with this reset cause (docs/security.md, "Flash
+    /// wear"): after a power-on, a brown-out or the reset pin (someone at the module), the
+    /// writes' budget holds [`COMMIT_AT_START`] and the administration's is full; after any
+    /// other reset (a restart, an update, the watchdog) each owes what it owed before, as
+    /// `retained` says, or nothing is in either until its first refill when the board kept
+    /// nothing.
+    pub fn resume(&mut self, cause: crate::diagnostics::ResetCause, retained: Option<Retained>) {
+        use crate::budget::Budget;
+        use crate::diagnostics::ResetCause;
+        let now = embassy_time::Instant::now().as_millis();
+        (self.writes, self.admin) = match (cause, retained) {
+            (ResetCause::PowerOn | ResetCause::BrownOut | ResetCause::Pin, _) => (
+                Budget::holding(COMMIT_BURST, COMMIT_REFILL_MS, COMMIT_AT_START, now),
+                Budget::new(ADMIN_BURST, ADMIN_REFILL_MS),
+            ),
+            (_, Some(r)) => (
+                Budget::owing(COMMIT_BURST, COMMIT_REFILL_MS, r.writes_ms.into(), now),
+                Budget::owing(ADMIN_BURST, ADMIN_REFILL_MS, r.admin_ms.into(), now),
+            ),
+            (_, None) => (
+                Budget::holding(COMMIT_BURST, COMMIT_REFILL_MS, 0, now),
+                Budget::holding(ADMIN_BURST, ADMIN_REFILL_MS, 0, now),
+            ),
+        };
+        self.keep_debts();
+    }
+
+    /// Takes one commit from `draw`'s budget at `now_ms`; false (nothing taken) when it is
+    /// spent.
+    pub fn take(&mut self, draw: Draw, now_ms: u64) -> bool {
+        let taken = match draw {
+            Draw::Write => self.writes.take(now_ms),
+            Draw::Admin => self.admin.take(now_ms),
+            Draw::Counter => {
+                self.admin.draw(now_ms);
+                true
+            }
+        };
+        self.keep_debts();
+        taken
+    }
+
+    /// This store's budgets' debts at `now_ms` (what [`Retained::now`] gives a board for the
+    /// store in force).
+    pub fn retained(&self, now_ms: u64) -> Retained {
+        Retained::of(self.writes, self.admin, now_ms)
+    }
+
+    fn keep_debts(&self) {
+        DEBTS.lock(|d| d.set((self.writes, self.admin)));
     }
 
     async fn load(&mut self) -> S {

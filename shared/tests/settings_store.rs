@@ -212,3 +212,45 @@ fn power_cut_while_opening_after_a_cut() {
         }
     }
 }
+
+/// Security review finding 1: restarting a module is open to anyone who holds its password,
+/// the public factory one included, so a restart must not renew the flash commit budgets
+/// (docs/security.md, "Flash wear": 20 authenticated commits in a burst, the writes' budget
+/// holding 20 at a power-on). Only a power-on, a brown-out or the reset pin (someone at the
+/// module) starts them afresh.
+#[test]
+fn a_restart_renews_no_commit_budget() {
+    use remodaq_shared::diagnostics::ResetCause;
+    use remodaq_shared::settings::{Draw, Retained};
+    let now = || embassy_time::Instant::now().as_millis();
+    block_on(async {
+        let mut store = open(Flash::new()).await;
+        let t = now();
+        assert_eq!((0..30).filter(|_| store.take(Draw::Admin, t)).count(), 20, "the administration's burst");
+        assert_eq!((0..200).filter(|_| store.take(Draw::Write, t)).count(), 20, "the writes' share at a power-on");
+        assert!(store.take(Draw::Counter, t), "an update's counters are never refused");
+        let kept = store.retained(t);
+        assert!(kept.admin_ms > 0 && kept.writes_ms > 0, "{kept:?}");
+        let words = kept.to_words();
+        assert_eq!(Retained::from_words(words), Some(kept));
+        for cause in [ResetCause::Software, ResetCause::Watchdog, ResetCause::Unknown] {
+            store.resume(cause, Retained::from_words(words));
+            let t = now();
+            assert!(!store.take(Draw::Admin, t) && !store.take(Draw::Write, t), "{cause:?} renewed a budget");
+        }
+        // What the board kept was lost or damaged: nothing in either budget until a refill.
+        let mut damaged = words;
+        damaged[2] ^= 1;
+        assert_eq!(Retained::from_words(damaged), None);
+        assert_eq!(Retained::from_words([0; 4]), None);
+        store.resume(ResetCause::Software, None);
+        let t = now();
+        assert!(!store.take(Draw::Admin, t) && !store.take(Draw::Write, t), "a restart with nothing kept");
+        // Someone at the module: a power-on starts both afresh, whatever was kept.
+        for cause in [ResetCause::PowerOn, ResetCause::Pin, ResetCause::BrownOut] {
+            store.resume(cause, Some(kept));
+            let t = now();
+            assert_eq!((0..30).filter(|_| store.take(Draw::Admin, t)).count(), 20, "{cause:?}");
+        }
+    });
+}

@@ -134,10 +134,15 @@ pub async fn run<A: SettingsAccess, F: NorFlash>(
 /// Set in the environment of a simulated module started by a restart (its reset cause).
 pub const RESTARTED: &str = "REMODAQ_RESTARTED";
 
+/// Set in the environment of a simulated module started by a restart: the flash commit
+/// budgets' debts (`remodaq_shared::settings::Retained`), four words separated by commas.
+pub const RETAINED: &str = "REMODAQ_RETAINED";
+
 /// Restarts the simulated module: the same program with the same arguments.
 fn restart() {
     log::info!("restart requested: restarting");
     let args: Vec<String> = std::env::args().collect();
+    let retained = remodaq_shared::settings::Retained::now().to_words().map(|w| w.to_string()).join(",");
     let Ok(exe) = std::env::current_exe() else {
         log::error!("restart: cannot find the program");
         return;
@@ -145,12 +150,12 @@ fn restart() {
     #[cfg(unix)]
     {
         use std::os::unix::process::CommandExt;
-        let e = std::process::Command::new(exe).args(&args[1..]).env(RESTARTED, "1").exec();
+        let e = std::process::Command::new(exe).args(&args[1..]).env(RESTARTED, "1").env(RETAINED, &retained).exec();
         log::error!("restart failed: {e}");
     }
     #[cfg(not(unix))]
     {
-        match std::process::Command::new(exe).args(&args[1..]).env(RESTARTED, "1").spawn() {
+        match std::process::Command::new(exe).args(&args[1..]).env(RESTARTED, "1").env(RETAINED, &retained).spawn() {
             Ok(_) => std::process::exit(0),
             Err(e) => log::error!("restart failed: {e}"),
         }

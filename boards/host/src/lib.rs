@@ -161,6 +161,17 @@ impl Board for HostBoard {
             remodaq_shared::diagnostics::ResetCause::PowerOn
         }
     }
+
+    /// The words the restart put in this process's environment ([`discovery::RETAINED`]).
+    fn retained(&mut self) -> Option<remodaq_shared::settings::Retained> {
+        let text = std::env::var(discovery::RETAINED).ok()?;
+        let mut words = [0u32; 4];
+        let mut parts = text.split(',');
+        for word in &mut words {
+            *word = parts.next()?.parse().ok()?;
+        }
+        remodaq_shared::settings::Retained::from_words(words)
+    }
 }
 
 impl Network for HostNet {

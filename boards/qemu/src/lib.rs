@@ -165,6 +165,18 @@ impl Board for QemuBoard {
         }
     }
 
+    /// The words a restart left in RAM ([`RETAINED`]).
+    fn retained(&mut self) -> Option<remodaq_shared::settings::Retained> {
+        // SAFETY: read and cleared once, at start, before anything else uses it: volatile
+        // accesses to a static the linker places in .uninit.
+        let words = unsafe {
+            let words = core::ptr::read_volatile(core::ptr::addr_of!(RETAINED));
+            core::ptr::write_volatile(core::ptr::addr_of_mut!(RETAINED), [0; 4]);
+            words
+        };
+        remodaq_shared::settings::Retained::from_words(words)
+    }
+
     /// No button on this board.
     fn factory_reset_requested(&self) -> bool {
         false
@@ -244,6 +256,12 @@ impl Board for QemuBoard {
 static mut RESTART_MARK: u32 = 0;
 const RESTART_MAGIC: u32 = 0x5245_5354;
 
+/// Left in RAM by a restart: the flash commit budgets' debts
+/// (`remodaq_shared::settings::Retained`), which a system reset keeps as it keeps
+/// [`RESTART_MARK`].
+#[unsafe(link_section = ".uninit.RETAINED")]
+static mut RETAINED: [u32; 4] = [0; 4];
+
 /// Discovery's effects here: identify is a log line, restart a system reset.
 pub struct QemuEffects;
 
@@ -254,8 +272,13 @@ impl Effects for QemuEffects {
             Effect::Identify => info!("identify"),
             Effect::Restart => {
                 embassy_time::Timer::after_millis(300).await;
-                // SAFETY: a volatile write to a static only this and `reset_cause` touch.
-                unsafe { core::ptr::write_volatile(core::ptr::addr_of_mut!(RESTART_MARK), RESTART_MAGIC) };
+                let words = remodaq_shared::settings::Retained::now().to_words();
+                // SAFETY: volatile writes to statics only this and `reset_cause` / `retained`
+                // touch.
+                unsafe {
+                    core::ptr::write_volatile(core::ptr::addr_of_mut!(RESTART_MARK), RESTART_MAGIC);
+                    core::ptr::write_volatile(core::ptr::addr_of_mut!(RETAINED), words);
+                }
                 cortex_m::peripheral::SCB::sys_reset();
             }
         }

@@ -297,6 +297,11 @@ impl Board for Stm32Board {
         self.reset_cause
     }
 
+    /// The words a restart left in the CCM ([`RETAINED`]).
+    fn retained(&mut self) -> Option<remodaq_shared::settings::Retained> {
+        take_retained()
+    }
+
     fn factory_reset_requested(&self) -> bool {
         self.factory_reset
     }
@@ -359,6 +364,33 @@ unsafe fn UART4() {
     unsafe { REALTIME.on_interrupt() }
 }
 
+/// What a restart leaves for the next start (the flash commit budgets' debts,
+/// `remodaq_shared::settings::Retained`), in the CCM: a system reset does not clear SRAM
+/// (RM0090 §2.3: the CCM is data RAM on the D-bus at 0x1000_0000), cortex-m-rt neither
+/// zeroes nor loads `.ccmram` (memory.x: NOLOAD), and the bootloader does not use the CCM
+/// (boards/stm32/bootloader/memory.x has no CCM region). A power-on leaves garbage, which the
+/// words' check refuses.
+#[unsafe(link_section = ".ccmram.RETAINED")]
+static mut RETAINED: [u32; 4] = [0; 4];
+
+fn keep_retained() {
+    let words = remodaq_shared::settings::Retained::now().to_words();
+    // SAFETY: a volatile write to a static that only this (just before the reset) and
+    // `take_retained` (once, at start) touch.
+    unsafe { core::ptr::write_volatile(core::ptr::addr_of_mut!(RETAINED), words) };
+}
+
+fn take_retained() -> Option<remodaq_shared::settings::Retained> {
+    // SAFETY: read and cleared once, at start, before anything else uses it: volatile
+    // accesses to a static in a NOLOAD section.
+    let words = unsafe {
+        let words = core::ptr::read_volatile(core::ptr::addr_of!(RETAINED));
+        core::ptr::write_volatile(core::ptr::addr_of_mut!(RETAINED), [0; 4]);
+        words
+    };
+    remodaq_shared::settings::Retained::from_words(words)
+}
+
 /// The discovery service's effects on this board: identify blinks LD1 for 10 s; restart resets
 /// the MCU once the reply has had time to leave.
 pub struct Stm32Effects;
@@ -371,6 +403,7 @@ impl Effects for Stm32Effects {
             Effect::Restart => {
                 info!("restart requested");
                 Timer::after(Duration::from_millis(300)).await;
+                keep_retained();
                 cortex_m::peripheral::SCB::sys_reset();
             }
         }

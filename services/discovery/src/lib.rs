@@ -24,6 +24,7 @@ use remodaq_protocol::auth::{fingerprint, seal, x25519, BASE_POINT};
 use remodaq_shared::access::AllowList;
 use remodaq_shared::budget::Budget;
 use remodaq_shared::module::{commit_change, CommonSettings, SettingsAccess, Store};
+use remodaq_shared::settings::StoreError;
 use remodaq_shared::net::NETWORK_STORED;
 use remodaq_shared::nonces::Nonces;
 use remodaq_shared::password::{Check, Credential, AUTH, CREDENTIAL_LEN, KEY_LEN};
@@ -209,6 +210,7 @@ async fn commit<R: RawMutex, A: SettingsAccess, F: NorFlash>(
 ) -> Status {
     match commit_change(map, store, change).await {
         Ok(()) => Status::Ok,
+        Err(StoreError::Budget) => Status::CommitBudget,
         Err(_) => Status::StoreFailed,
     }
 }

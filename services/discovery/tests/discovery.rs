@@ -478,3 +478,29 @@ fn broadcast_answers_to_another_subnet_are_bounded() {
     assert_eq!(broadcasts, BROADCAST_BURST as usize, "{total} requests: {sent:?}");
     assert_eq!(sent.iter().filter(|ip| **ip == ADMIN).count(), 1, "the administrator on the subnet is answered");
 }
+
+/// Security review finding 1: the factory password is public, so on an unclaimed module anyone
+/// may prove it. Alternating network settings under it commit a burst of 20 (docs/security.md,
+/// "Flash wear"), then each is refused with its own status, changes nothing and is counted in
+/// register 40256 (the diagnostics' commit-budget refusals).
+#[test]
+fn commits_under_the_public_factory_password_draw_on_a_budget() {
+    use remodaq_shared::diagnostics::DIAGNOSTICS;
+    use remodaq_shared::protocol::diag::Diag;
+    let (mut service, mut module) = setup();
+    let refusals_before = DIAGNOSTICS.read(Diag::WriteBudgetRefusals, 0);
+    let nets = [NetConfig { port: 8001, ..NEW_NET }, NetConfig { port: 8002, ..NEW_NET }];
+    let mut statuses = Vec::new();
+    for n in 0..30u64 {
+        // The burst alternates; beyond it, each asks for the setting not in force.
+        let net = nets[(n.min(20) % 2) as usize];
+        statuses.push(status_of(run(&mut service, &mut module, ADMIN, 1000 + n, "remodaq", Ask::SetNetwork(net))));
+    }
+    let ok = statuses.iter().take_while(|s| **s == Status::Ok).count();
+    assert_eq!(ok, 20, "the burst: {statuses:?}");
+    assert!(statuses[20..].iter().all(|s| *s == Status::CommitBudget), "then refused: {statuses:?}");
+    // The 20th change (n = 19, port 8002) is the last one in force.
+    assert_eq!(module.settings().net, nets[1], "a refusal changes nothing");
+    let refusals = DIAGNOSTICS.read(Diag::WriteBudgetRefusals, 0).wrapping_sub(refusals_before);
+    assert_eq!(refusals, 10, "each refusal counted");
+}

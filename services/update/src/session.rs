@@ -302,7 +302,7 @@ where
 {
     target.verify(header).await?;
     // The counter of the image to come, kept until it confirms itself.
-    remodaq_shared::module::commit_change(map, store, |s| {
+    remodaq_shared::module::commit_counters(map, store, |s| {
         let mut c = s.update_counter();
         c.pending = header.counter;
         s.set_update_counter(c);

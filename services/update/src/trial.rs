@@ -171,7 +171,7 @@ where
             if target.mark_booted().await.is_err() {
                 remodaq_shared::error!("update: the previous image could not be confirmed");
             }
-            if remodaq_shared::module::commit_change(map, store, settle(true)).await.is_err() {
+            if remodaq_shared::module::commit_counters(map, store, settle(true)).await.is_err() {
                 remodaq_shared::error!("update: the counters could not be stored");
             }
             return Confirmation::Reverted;
@@ -188,7 +188,7 @@ where
             if target.mark_booted().await.is_ok() {
                 remodaq_shared::info!("update: self-test passed, image confirmed");
                 // Anti-rollback: from now on, images below this one's counter are refused.
-                if remodaq_shared::module::commit_change(map, store, settle(false)).await.is_err() {
+                if remodaq_shared::module::commit_counters(map, store, settle(false)).await.is_err() {
                     remodaq_shared::error!("update: the security counter could not be stored");
                 }
                 return Confirmation::Passed;

@@ -242,6 +242,11 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
     async fn commit(&self, change: impl FnOnce(&mut M::Settings)) -> Answer {
         match commit_change(self.map, self.store, change).await {
             Ok(()) => Answer::no_content(),
+            Err(remodaq_shared::settings::StoreError::Budget) => Answer::error(
+                StatusCode::TOO_MANY_REQUESTS,
+                "too many settings changes: the flash commit budget is spent, one more every 15 minutes",
+                None,
+            ),
             Err(_) => Answer::error(StatusCode::SERVICE_UNAVAILABLE, "the settings could not be stored", None),
         }
     }
