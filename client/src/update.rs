@@ -40,7 +40,9 @@ fn refused(status: Option<Status>, module: SocketAddr) -> Error {
         Some(Status::SetPasswordFirst) => Error::Refused(format!(
             "{module}: the factory password is in force: set a password first (remodaq password); nothing changed"
         )),
-        Some(Status::Ok | Status::CommitBudget) | None => Error::Reply(format!("{module}: not an update service answer")),
+        Some(Status::Ok | Status::CommitBudget) | None => {
+            Error::Reply(format!("{module}: not an update service answer"))
+        }
     }
 }
 

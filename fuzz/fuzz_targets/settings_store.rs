@@ -28,6 +28,9 @@ impl Schema for Settings {
     fn defaults() -> Self {
         Self { serial: 0, mode: 7, blob: [0x5A; 20] }
     }
+    fn unreadable() -> Self {
+        Self::defaults()
+    }
     fn encode(&self, w: &mut RecordWriter<'_>) {
         w.put_u32(1, self.serial);
         w.put_u16(2, self.mode);

@@ -50,7 +50,7 @@ pub trait SettingsAccess {
     fn committed(&mut self, settings: &Self::Settings);
 }
 
-pub use crate::settings::{Draw, ADMIN_BURST, ADMIN_REFILL_MS, COMMIT_AT_START, COMMIT_BURST, COMMIT_REFILL_MS};
+pub use crate::settings::{Draw, ADMIN_BURST, ADMIN_REFILL_MS, COMMIT_BURST, COMMIT_REFILL_MS};
 
 /// Why [`update`] changed nothing.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -102,6 +102,12 @@ pub trait Schema: Clone + PartialEq {
     const VERSION: u8;
     /// Factory defaults.
     fn defaults() -> Self;
+    /// What a store that holds something it cannot read loads (corrupted, unreadable, not a
+    /// settings record): the factory defaults with the credential locked
+    /// (`password::LOCKED`), so that the module fails closed instead of handing itself to
+    /// whoever knows the factory password (security review finding 9): Modbus serves, and
+    /// administration refuses until a physical factory reset.
+    fn unreadable() -> Self;
     /// Writes every field.
     fn encode(&self, w: &mut RecordWriter<'_>);
     /// Starts from `defaults()` and takes every field of `r` it knows and finds valid.
@@ -152,8 +158,6 @@ pub const COMMIT_BURST: u32 = 100;
 /// worst rate the budgets allow wears the settings sectors by at most 10 000 erase cycles in
 /// 10 years (`modules/8350/tests/wear.rs` measures it).
 pub const COMMIT_REFILL_MS: u64 = 180_000;
-/// Modbus writes' commits the budget holds at a power-on: not the whole burst.
-pub const COMMIT_AT_START: u32 = 20;
 /// Authenticated changes' commits (network, password, allow-list, web port: discovery and the
 /// web console, under any credential, the public factory password included) allowed in a
 /// burst: more than a commissioning needs.
@@ -259,20 +263,18 @@ impl<F: NorFlash, S: Schema> SettingsStore<F, S> {
     }
 
     /// Sets the commit budgets for a start with this reset cause (docs/security.md, "Flash
-    /// wear"): after a power-on, a brown-out or the reset pin (someone at the module), the
-    /// writes' budget holds [`COMMIT_AT_START`] and the administration's is full; after any
-    /// other reset (a restart, an update, the watchdog) each owes what it owed before, as
-    /// `retained` says, or nothing is in either until its first refill when the board kept
-    /// nothing.
+    /// wear"): after a power-on, a brown-out or the reset pin (someone at the module), both
+    /// are full; after any other reset (a restart, an update, the watchdog) each owes what it
+    /// owed before, as `retained` says, or nothing is in either until its first refill when
+    /// the board kept nothing.
     pub fn resume(&mut self, cause: crate::diagnostics::ResetCause, retained: Option<Retained>) {
         use crate::budget::Budget;
         use crate::diagnostics::ResetCause;
         let now = embassy_time::Instant::now().as_millis();
         (self.writes, self.admin) = match (cause, retained) {
-            (ResetCause::PowerOn | ResetCause::BrownOut | ResetCause::Pin, _) => (
-                Budget::holding(COMMIT_BURST, COMMIT_REFILL_MS, COMMIT_AT_START, now),
-                Budget::new(ADMIN_BURST, ADMIN_REFILL_MS),
-            ),
+            (ResetCause::PowerOn | ResetCause::BrownOut | ResetCause::Pin, _) => {
+                (Budget::new(COMMIT_BURST, COMMIT_REFILL_MS), Budget::new(ADMIN_BURST, ADMIN_REFILL_MS))
+            }
             (_, Some(r)) => (
                 Budget::owing(COMMIT_BURST, COMMIT_REFILL_MS, r.writes_ms.into(), now),
                 Budget::owing(ADMIN_BURST, ADMIN_REFILL_MS, r.admin_ms.into(), now),
@@ -311,30 +313,68 @@ impl<F: NorFlash, S: Schema> SettingsStore<F, S> {
     }
 
     async fn load(&mut self) -> S {
-        match self.map.fetch_item::<&[u8]>(&mut self.buf.0, &RECORD_KEY).await {
-            Ok(Some(record)) => match decode_record::<S>(record) {
-                Some(value) => value,
-                None => {
-                    crate::warn!("settings: record not recognised, using factory defaults");
-                    S::defaults()
-                }
-            },
-            Ok(None) => {
+        /// What the store held: a record (decoded, or `None` when it is not a settings record),
+        /// nothing, a corrupted store, or a flash that could not be read.
+        enum Held<S> {
+            Record(Option<S>),
+            Nothing,
+            Corrupted,
+            Unreadable,
+        }
+        let held = match self.map.fetch_item::<&[u8]>(&mut self.buf.0, &RECORD_KEY).await {
+            Ok(Some(record)) => Held::Record(decode_record::<S>(record)),
+            Ok(None) => Held::Nothing,
+            Err(sequential_storage::Error::Corrupted { .. }) => Held::Corrupted,
+            Err(_) => Held::Unreadable,
+        };
+        match held {
+            Held::Record(Some(value)) => value,
+            Held::Record(None) => {
+                crate::error!("settings: record not recognised: factory defaults, locked until a factory reset");
+                S::unreadable()
+            }
+            Held::Nothing if self.is_blank().await => {
                 crate::info!("settings: store is blank, using factory defaults");
                 S::defaults()
             }
-            Err(sequential_storage::Error::Corrupted { .. }) => {
-                crate::error!("settings: store corrupted, erasing it and using factory defaults");
-                if self.map.erase_all().await.is_err() {
-                    crate::error!("settings: erasing the store failed");
-                }
-                S::defaults()
+            Held::Nothing => {
+                // Written, yet no record checks: damaged, or a power cut during the very first
+                // commit. Factory defaults would unclaim a module that was claimed.
+                crate::error!(
+                    "settings: no readable record in a written store: factory defaults, locked until a factory reset"
+                );
+                S::unreadable()
             }
-            Err(_) => {
-                crate::error!("settings: store unreadable, using factory defaults");
-                S::defaults()
+            Held::Corrupted => {
+                // Erased and written again locked: a blank store would load the factory
+                // password at the next start.
+                crate::error!("settings: store corrupted: erased, factory defaults, locked until a factory reset");
+                let locked = S::unreadable();
+                if self.map.erase_all().await.is_err() || self.store(locked.clone()).await.is_err() {
+                    crate::error!("settings: the corrupted store could not be written again");
+                }
+                locked
+            }
+            Held::Unreadable => {
+                crate::error!("settings: store unreadable: factory defaults, locked until a factory reset");
+                S::unreadable()
             }
         }
+    }
+
+    /// Whether every byte of the store reads erased (a new module, or a factory reset's erase).
+    async fn is_blank(&mut self) -> bool {
+        let range = self.map.flash_range();
+        let mut offset = range.start;
+        while offset < range.end {
+            let n = (range.end - offset).min(BUF_LEN as u32) as usize;
+            let chunk = &mut self.buf.0[..n];
+            if self.map.flash().read(offset, chunk).await.is_err() || chunk.iter().any(|b| *b != 0xFF) {
+                return false;
+            }
+            offset += n as u32;
+        }
+        true
     }
 
     /// The settings in force.

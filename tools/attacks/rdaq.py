@@ -150,6 +150,16 @@ class Modbus:
         pdu = self.request(struct.pack(">BHH", 6, addr, value))
         return True if pdu[0] == 6 else pdu[1]
 
+    def coils(self, addr, n=1):
+        """Coils (function 01) as a list of 0/1; None on an exception."""
+        pdu = self.request(struct.pack(">BHH", 1, addr, n))
+        return [(pdu[2 + i // 8] >> (i % 8)) & 1 for i in range(n)] if pdu[0] == 1 else None
+
+    def write_coil(self, addr, on):
+        """True if written, else the exception code."""
+        pdu = self.request(struct.pack(">BHH", 5, addr, 0xFF00 if on else 0))
+        return True if pdu[0] == 5 else pdu[1]
+
     def close(self):
         self.s.close()
 

@@ -58,6 +58,11 @@ impl Schema for Settings {
         }
     }
 
+    /// The factory defaults with the credential locked (docs/security.md: fails closed).
+    fn unreadable() -> Self {
+        Self { password: remodaq_shared::password::LOCKED, ..Self::defaults() }
+    }
+
     fn encode(&self, w: &mut RecordWriter<'_>) {
         self.net.encode(w);
         password::encode(&self.password, w);

@@ -24,10 +24,10 @@ use remodaq_protocol::auth::{fingerprint, seal, x25519, BASE_POINT};
 use remodaq_shared::access::AllowList;
 use remodaq_shared::budget::Budget;
 use remodaq_shared::module::{commit_change, CommonSettings, SettingsAccess, Store};
-use remodaq_shared::settings::StoreError;
 use remodaq_shared::net::NETWORK_STORED;
 use remodaq_shared::nonces::Nonces;
 use remodaq_shared::password::{Check, Credential, AUTH, CREDENTIAL_LEN, KEY_LEN};
+use remodaq_shared::settings::StoreError;
 
 /// Nonces handed out and not used yet.
 pub const NONCES: usize = 16;

@@ -141,6 +141,9 @@ impl Schema for S {
             update: Default::default(),
         }
     }
+    fn unreadable() -> Self {
+        Self { password: remodaq_shared::password::LOCKED, ..Self::defaults() }
+    }
     fn encode(&self, w: &mut RecordWriter<'_>) {
         self.net.encode(w);
         remodaq_shared::password::encode(&self.password, w);
