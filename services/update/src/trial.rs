@@ -185,17 +185,20 @@ where
     let deadline = embassy_time::Instant::now() + trial;
     loop {
         if self_test() {
-            if target.mark_booted().await.is_ok() {
+            // Anti-rollback first (security review finding 11a): from now on, images below
+            // this one's counter are refused. Committed before the image is confirmed, so that
+            // a cut between the two leaves the counter raised (and the image unconfirmed: the
+            // next start reverts, the older image runs), never an image confirmed under the
+            // old counter. A counter that cannot be stored confirms nothing.
+            if remodaq_shared::module::commit_counters(map, store, settle(false)).await.is_err() {
+                remodaq_shared::error!("update: the security counter could not be stored; image not confirmed");
+            } else if target.mark_booted().await.is_ok() {
                 remodaq_shared::info!("update: self-test passed, image confirmed");
-                // Anti-rollback: from now on, images below this one's counter are refused.
-                if remodaq_shared::module::commit_counters(map, store, settle(false)).await.is_err() {
-                    remodaq_shared::error!("update: the security counter could not be stored");
-                }
                 return Confirmation::Passed;
+            } else {
+                // Tried again until the trial ends; then the restart reverts.
+                remodaq_shared::error!("update: the image could not be confirmed");
             }
-            // Tried again until the trial ends; then the restart reverts, and the counter never
-            // moved.
-            remodaq_shared::error!("update: the image could not be confirmed");
         }
         if embassy_time::Instant::now() > deadline {
             return Confirmation::NotPassed;

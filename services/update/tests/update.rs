@@ -886,6 +886,32 @@ fn confirm_in_boot_swap_and_revert() {
     }
 }
 
+/// Security review finding 11a: the anti-rollback counter is committed before the new image
+/// is confirmed. A settings store that cannot take the commit (as a power cut between the two
+/// would leave it) confirms nothing: the trial ends unpassed, the image stays unconfirmed and
+/// the next start reverts, instead of an image confirmed under the old counter for good.
+#[test]
+fn a_counter_that_cannot_be_stored_confirms_no_image() {
+    use remodaq_update::{confirm, Confirmation};
+    let (old, new) = (image(1, 3000), image(2, 3001));
+    let settings = S { password: credential(), update: Counter { confirmed: 1, pending: 0 }, ..S::defaults() };
+    let mut m = module_with(&old);
+    let (answers, outcome) = session(&mut m.dfu, &mut m.state, session_bytes(PASSWORD, &signed(&new, 0xA101, &key()), None));
+    assert_eq!((answers, outcome), (vec![0, 0], Outcome::Updated { version: 0xA101 }));
+    assert_eq!(m.boot(None), Ok(State::Swap));
+    // The pending counter as the session left it, then a store whose commits all fail.
+    let pending = S { update: Counter { confirmed: 1, pending: 2 }, ..settings };
+    let store = store_with(Some(pending));
+    store.try_lock().expect("free").flash_mut().set_budget(Some(0));
+    let map = Mutex::<CriticalSectionRawMutex, _>::new(Live(pending));
+    let mut aligned = [0u8; 4];
+    let mut target = updater(&mut m.dfu, &mut m.state, &mut aligned);
+    let result = block_on(confirm(&mut target, &map, &store, || true, embassy_time::Duration::from_millis(200)));
+    assert_eq!(result, Confirmation::NotPassed, "the self-test passed, the counter could not be stored");
+    assert_eq!(block_on(map.lock()).0.update, pending.update, "the counters as they were");
+    assert_eq!((m.boot(None), m.running(&old, &new)), (Ok(State::Swap), "old"), "reverted at the next start");
+}
+
 /// Uploads `file` through the web console's steps (`remodaq_web::firmware`) to a module
 /// with `settings`, chunk by chunk in order; each step's result, and the settings after.
 #[cfg(feature = "web")]
