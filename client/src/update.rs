@@ -7,7 +7,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use remodaq_protocol::auth;
-use remodaq_protocol::update::{answer_message, auth_message, Greeting, Header, Status, GREETING_LEN, HEADER_LEN};
+use remodaq_protocol::update::{answer_message, auth_message, Greeting, Header, Status, GREETING_LEN, HEADER_LEN, OPENING};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 use tokio::time::timeout as within;
@@ -148,7 +148,10 @@ pub async fn update(
                 .map_err(|_| Error::Timeout(format!("no connection to the update service at {target}")))?
                 .map_err(|e| Error::Other(format!("cannot connect to the update service at {target}: {e}")))?;
             let cnonce = crate::lan::random::<16>()?;
-            stream.write_all(&cnonce).await.map_err(io_error)?;
+            let mut opening = [0u8; OPENING.len() + 16];
+            opening[..OPENING.len()].copy_from_slice(&OPENING);
+            opening[OPENING.len()..].copy_from_slice(&cnonce);
+            stream.write_all(&opening).await.map_err(io_error)?;
             let mut greeting = [0u8; GREETING_LEN];
             read(&mut stream, &mut greeting, timeout, target).await?;
             let greeting = Greeting::decode(&greeting);

@@ -8,7 +8,9 @@
 //! the model and the counter before it takes the firmware, the digest and the signature after;
 //! the bootloaders check digest and signature again before a swap ([`check_before_swap`]). A session authenticates as the discovery protocol's commands do (`crate::auth`,
 //! docs/security.md), with no password on the wire:
-//! 1. the PC sends its nonce ([`NONCE_LEN`] bytes);
+//! 1. the PC sends the session's [`OPENING`] (magic and version), then its nonce
+//!    ([`NONCE_LEN`] bytes); a stream that opens otherwise is closed at once, before anything
+//!    is read as a proof;
 //! 2. the module answers a [`Greeting`]: its MAC, the salt and iterations of its password, its
 //!    nonce (new for this session) and its flags;
 //! 3. the PC sends its proof over [`auth_message`] (which covers the header), then the header;
@@ -21,6 +23,12 @@
 //! sends nothing for [`HANDSHAKE_S`] seconds ends.
 
 use crate::auth::{KEY_LEN, NONCE_LEN, SALT_LEN};
+
+/// The first bytes of every session, from the PC: a magic and the session format's version.
+/// The NUL bytes keep it out of reach of a browser page (security review finding 7): an HTTP
+/// request opens with its method and a space, never a NUL, so the module closes a browser's
+/// connection after its first 8 bytes, without reading a proof or spending the guessing budget.
+pub const OPENING: [u8; 8] = *b"RDAQ\x00UP\x03";
 
 /// Seconds the handshake may take, and the longest silence of a peer in a session.
 pub const HANDSHAKE_S: u64 = 10;

@@ -9,7 +9,7 @@ use embedded_io_async::{Read, Write};
 use embedded_storage_async::nor_flash::NorFlash;
 
 use remodaq_protocol::auth::server_signature;
-use remodaq_protocol::update::{answer_message, auth_message, Greeting, Header, Status, HANDSHAKE_S, HEADER_LEN};
+use remodaq_protocol::update::{answer_message, auth_message, Greeting, Header, Status, HANDSHAKE_S, HEADER_LEN, OPENING};
 use remodaq_shared::module::{CommonSettings, SettingsAccess, Store};
 use remodaq_shared::password::{Check, AUTH, KEY_LEN, NONCE_LEN};
 #[cfg(feature = "web")]
@@ -180,6 +180,14 @@ impl UpdateService {
         header: &mut [u8; HEADER_LEN],
     ) -> Result<Header, Refused> {
         let credential = settings.password();
+        // Nothing is read as a proof from a stream that does not open as a session does (an
+        // HTTP request from a browser page, security review finding 7): closed at once.
+        let mut opening = [0u8; OPENING.len()];
+        read_exact(io, &mut opening).await.ok_or(Refused::Gone)?;
+        if opening != OPENING {
+            remodaq_shared::warn!("update: a connection that is not an update session, closed");
+            return Err(Refused::Gone);
+        }
         read_exact(io, cnonce).await.ok_or(Refused::Gone)?;
         let mut flags = 0;
         if credential.is_factory() {

@@ -17,7 +17,7 @@ use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
 use futures_executor::block_on;
 use remodaq_protocol::auth::{client_proof, derive, server_signature, Credential};
 use remodaq_protocol::update::{
-    answer_message, auth_message, check_before_swap, BeforeSwap, Greeting, GREETING_LEN, HEADER_LEN, SIGNED_LEN,
+    answer_message, auth_message, check_before_swap, BeforeSwap, Greeting, GREETING_LEN, HEADER_LEN, OPENING, SIGNED_LEN,
 };
 use remodaq_shared::ram_flash::{RamFlash, RamFlashError};
 use remodaq_shared::settings::Counter;
@@ -91,8 +91,9 @@ const CNONCE: [u8; 16] = [0xC0; 16];
 impl Pc {
     fn new(plan: Plan) -> Self {
         let mut io = Script::new(&[]);
-        io.incoming.push_back(CNONCE.to_vec());
-        Self { io, plan, proved: None, sent: CNONCE.to_vec(), alter: None }
+        let opening = [&OPENING[..], &CNONCE[..]].concat();
+        io.incoming.push_back(opening.clone());
+        Self { io, plan, proved: None, sent: opening, alter: None }
     }
 
     /// The module's answers: one status each, its signature checked where it must have one.
@@ -883,6 +884,46 @@ fn confirm_in_boot_swap_and_revert() {
         assert_eq!((m.boot(None), m.running(&old, &new)), (Ok(State::Boot), "old"), "start {start}");
         let (result, _, asked, _) = run(&mut m, false);
         assert_eq!((result, asked), (Confirmation::Confirmed, 0), "start {start}: nothing to confirm");
+    }
+}
+
+/// Security review finding 7: a page in the administrator's browser can make it connect to
+/// the update port and send an HTTP request, whose bytes the module once read as a nonce and a
+/// proof (spending the guessing budget). A stream that does not open with the session's
+/// magic and version (`OPENING`, with NUL bytes no HTTP request line has) is closed after its
+/// first 8 bytes: no greeting, nothing read as a proof, no failure counted.
+#[test]
+fn a_browser_request_is_closed_before_any_proof() {
+    use remodaq_shared::diagnostics::DIAGNOSTICS;
+    use remodaq_shared::protocol::diag::Diag;
+    let settings = S { password: credential(), ..S::defaults() };
+    let store = store_with(Some(settings));
+    let map = Mutex::<CriticalSectionRawMutex, _>::new(Live(settings));
+    let mut m = module_with(&image(1, 3000));
+    let mut service = UpdateService::new(MODEL, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
+    let body = vec![0x5A; 200];
+    let requests: [Vec<u8>; 4] = [
+        [&b"POST /update HTTP/1.1\r\nHost: 192.168.0.1:8301\r\nContent-Length: 200\r\n\r\n"[..], &body].concat(),
+        b"GET / HTTP/1.1\r\nHost: 192.168.0.1:8301\r\n\r\n".to_vec(),
+        b"OPTIONS * HTTP/1.1\r\n\r\n".to_vec(),
+        // The opening of another version.
+        [&b"RDAQ\x00UP\x02"[..], &[0xC0; 16], &[0; 32]].concat(),
+    ];
+    for request in requests {
+        let (turn, now) = session_time();
+        let failures = DIAGNOSTICS.read(Diag::AuthFailures, 0);
+        let mut aligned = [0u8; 4];
+        let mut target = updater(&mut m.dfu, &mut m.state, &mut aligned);
+        let mut io = Script::new(&[]);
+        io.incoming = request.chunks(7).map(<[u8]>::to_vec).collect();
+        let outcome = block_on(service.session(&mut io, [127, 0, 0, 1], now, &map, &store, &mut target));
+        let text = String::from_utf8_lossy(&request[..8]).into_owned();
+        assert_eq!(outcome, Outcome::NotUpdated, "{text}");
+        assert!(io.outgoing.is_empty(), "{text}: answered {:?}", io.outgoing);
+        let unread: usize = io.incoming.iter().map(Vec::len).sum();
+        assert_eq!(unread, request.len() - 8, "{text}: read beyond its first 8 bytes");
+        assert_eq!(DIAGNOSTICS.read(Diag::AuthFailures, 0), failures, "{text}: a proof checked");
+        drop(turn);
     }
 }
 

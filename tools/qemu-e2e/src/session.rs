@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 use remodaq_protocol::auth;
 use remodaq_protocol::discovery::Status;
 use remodaq_protocol::identity::REG_VERSION;
-use remodaq_protocol::update::{answer_message, auth_message, Greeting, GREETING_LEN, HEADER_LEN};
+use remodaq_protocol::update::{answer_message, auth_message, Greeting, GREETING_LEN, HEADER_LEN, OPENING};
 use tokio::time::{sleep, timeout};
 
 use crate::client::{connect, regs, STEP};
@@ -72,7 +72,7 @@ pub(crate) async fn paced_session(
                 .await
                 .map_err(|_| "update service: connect timed out".to_string())?
                 .map_err(|e| e.to_string())?;
-            stream.write_all(&cnonce).await.map_err(|e| e.to_string())?;
+            stream.write_all(&[&OPENING[..], &cnonce[..]].concat()).await.map_err(|e| e.to_string())?;
             let mut greeting = [0u8; GREETING_LEN];
             timeout(STEP, stream.read_exact(&mut greeting))
                 .await
