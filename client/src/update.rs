@@ -7,7 +7,9 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use remodaq_protocol::auth;
-use remodaq_protocol::update::{answer_message, auth_message, Greeting, Header, Status, GREETING_LEN, HEADER_LEN, OPENING};
+use remodaq_protocol::update::{
+    answer_message, auth_message, Greeting, Header, Status, GREETING_LEN, HEADER_LEN, OPENING,
+};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 use tokio::time::timeout as within;

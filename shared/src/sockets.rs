@@ -11,6 +11,12 @@ pub const MODBUS_PER_SOURCE: usize = 4;
 /// another still listens: a TCP stack without a listen backlog (smoltcp) refuses a SYN no
 /// socket listens for.
 pub const MODBUS_SOCKETS: usize = MODBUS_CONNECTIONS + 2;
+/// Sockets the discovery service replies through on an embassy-net board, beside the one it
+/// receives on: a reply waiting for an ARP answer that never comes holds one of them, never
+/// the requests behind it (security review finding 5, `remodaq-discovery`'s `embassy`).
+pub const DISCOVERY_SENDERS: usize = 3;
+/// The discovery service's sockets on an embassy-net board.
+pub const DISCOVERY_SOCKETS: usize = 1 + DISCOVERY_SENDERS;
 /// HTTP connections of the web console served at once (issue #25: at most 2, each in a task of
 /// its own, never a Modbus slot).
 pub const WEB_CONNECTIONS: usize = 2;

@@ -187,6 +187,8 @@ impl DigitalPeripherals {
     /// Starts capture and output; the pattern starts with every output off (spec §3.4).
     pub fn start(self) -> (Capture, Pattern) {
         let pins = self.di.map(|pin| Input::new(pin, Pull::Down));
+        // DMA2 writes it: in SRAM, checked at link time (memory.x).
+        #[unsafe(export_name = "REMODAQ_DMA_CAPTURE")]
         static CAPTURE: StaticCell<[u16; CAPTURE_LEN]> = StaticCell::new();
         let buffer = CAPTURE.init([0; CAPTURE_LEN]);
         // SAFETY: GPIOE's input register is a valid, always-readable peripheral address; the
@@ -208,6 +210,8 @@ impl DigitalPeripherals {
         let capture = Capture { ring, _pins: pins, _timer: timer };
 
         let outputs = self.outputs.map(|pin| Output::new(pin, Level::Low, Speed::High));
+        // DMA2 reads it: in SRAM, checked at link time (memory.x).
+        #[unsafe(export_name = "REMODAQ_DMA_PATTERN")]
         static PATTERN: StaticCell<[u32; PATTERN_LEN]> = StaticCell::new();
         let buffer = PATTERN.init([bsrr(0); PATTERN_LEN]);
         let words = buffer.as_mut_ptr();

@@ -5,6 +5,7 @@
 #![cfg(target_os = "none")]
 
 pub mod analog;
+mod ccm;
 pub mod digital;
 pub mod phy;
 pub mod resources;
@@ -112,6 +113,8 @@ pub fn pa12_held() -> bool {
 /// Clocks at 180 MHz from the ST-LINK's 8 MHz MCO (HSE bypass), the flash caches, the
 /// watchdog, then the peripherals.
 fn init(spawner: Spawner) -> (Stm32Board, SettingsFlash, Io) {
+    // First: the CCM's statics (memory.x `.ccmdata`) get their initial values.
+    ccm::load();
     let mut config = Config::default();
     {
         use embassy_stm32::rcc::*;
@@ -133,7 +136,7 @@ fn init(spawner: Spawner) -> (Stm32Board, SettingsFlash, Io) {
         config.rcc.sys = Sysclk::PLL1_P;
     }
     let p = embassy_stm32::init(config);
-    // Why the MCU started (RM0090 §7.3.21 RCC_CSR), before anything clears the flags.
+    // Why the MCU started (RM0090 §6.3.21 RCC_CSR of the F42x/F43x), before anything clears the flags.
     let reset_cause = reset_cause();
     // Freeze the IWDG while the debugger halts the core (RM0090 §38.16.4, DBG_IWDG_STOP), so
     // stepping through code with probe-rs does not reset the board.
@@ -182,6 +185,8 @@ fn init(spawner: Spawner) -> (Stm32Board, SettingsFlash, Io) {
 
     // Built in place (a ConstStaticCell: no 12-18 KB copy through the stack). 8 receive
     // descriptors: 8 Modbus clients and broadcasts may arrive at once.
+    // The Ethernet DMA's descriptors and buffers: in SRAM, checked at link time (memory.x).
+    #[unsafe(export_name = "REMODAQ_DMA_ETH")]
     static PACKETS: ConstStaticCell<PacketQueue<4, 8>> = ConstStaticCell::new(PacketQueue::new());
     // Nucleo-F429ZI RMII: REF_CLK PA1, MDIO PA2, MDC PC1, CRS_DV PA7, RXD0 PC4, RXD1 PC5,
     // TX_EN PG11, TXD0 PG13, TXD1 PB13.
@@ -252,7 +257,7 @@ fn init(spawner: Spawner) -> (Stm32Board, SettingsFlash, Io) {
     (board, settings_flash, io)
 }
 
-/// The reset cause from RCC_CSR's flags (RM0090 §7.3.21), which are then cleared (RMVF) so
+/// The reset cause from RCC_CSR's flags (RM0090 §6.3.21, the F42x/F43x's RCC chapter), which are then cleared (RMVF) so
 /// the next start tells its own. A power-on also sets the pin flag: it is checked first. (The
 /// PAC names IWDGRSTF `wdgrstf` and PINRSTF `padrstf`.)
 fn reset_cause() -> remodaq_shared::diagnostics::ResetCause {
@@ -327,6 +332,8 @@ impl Board for Stm32Board {
             gateway,
             dns_servers: heapless::Vec::new(),
         });
+        // The sockets' state: the CPU's alone, in the CCM (docs/design.md, "Memory plan").
+        #[unsafe(link_section = ".ccmdata.RESOURCES")]
         static RESOURCES: StaticCell<StackResources<STACK_SOCKETS>> = StaticCell::new();
         let (stack, runner) =
             embassy_net::new(Backlogged::new(eth, GATES), config, RESOURCES.init(StackResources::new()), seed);

@@ -9,7 +9,9 @@ use embedded_io_async::{Read, Write};
 use embedded_storage_async::nor_flash::NorFlash;
 
 use remodaq_protocol::auth::server_signature;
-use remodaq_protocol::update::{answer_message, auth_message, Greeting, Header, Status, HANDSHAKE_S, HEADER_LEN, OPENING};
+use remodaq_protocol::update::{
+    answer_message, auth_message, Greeting, Header, Status, HANDSHAKE_S, HEADER_LEN, OPENING,
+};
 use remodaq_shared::module::{CommonSettings, SettingsAccess, Store};
 use remodaq_shared::password::{Check, AUTH, KEY_LEN, NONCE_LEN};
 #[cfg(feature = "web")]

@@ -17,7 +17,8 @@ use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
 use futures_executor::block_on;
 use remodaq_protocol::auth::{client_proof, derive, server_signature, Credential};
 use remodaq_protocol::update::{
-    answer_message, auth_message, check_before_swap, BeforeSwap, Greeting, GREETING_LEN, HEADER_LEN, OPENING, SIGNED_LEN,
+    answer_message, auth_message, check_before_swap, BeforeSwap, Greeting, GREETING_LEN, HEADER_LEN, OPENING,
+    SIGNED_LEN,
 };
 use remodaq_shared::ram_flash::{RamFlash, RamFlashError};
 use remodaq_shared::settings::Counter;
@@ -937,7 +938,8 @@ fn a_counter_that_cannot_be_stored_confirms_no_image() {
     let (old, new) = (image(1, 3000), image(2, 3001));
     let settings = S { password: credential(), update: Counter { confirmed: 1, pending: 0 }, ..S::defaults() };
     let mut m = module_with(&old);
-    let (answers, outcome) = session(&mut m.dfu, &mut m.state, session_bytes(PASSWORD, &signed(&new, 0xA101, &key()), None));
+    let (answers, outcome) =
+        session(&mut m.dfu, &mut m.state, session_bytes(PASSWORD, &signed(&new, 0xA101, &key()), None));
     assert_eq!((answers, outcome), (vec![0, 0], Outcome::Updated { version: 0xA101 }));
     assert_eq!(m.boot(None), Ok(State::Swap));
     // The pending counter as the session left it, then a store whose commits all fail.

@@ -27,9 +27,9 @@ use crate::backlog::{Gate, Peer, HANDSHAKE_TIMEOUT_MS};
 /// How long a connection the peer closed may take to finish closing before it is reset.
 const CLOSE_WAIT: Duration = Duration::from_millis(100);
 
-/// The stack's sockets: the Modbus connection tasks, discovery, update, one of slack, and the
+/// The stack's sockets: the Modbus connection tasks, discovery's, update, one of slack, and the
 /// web console's connections in an image that has it.
-pub const STACK_SOCKETS: usize = MODBUS_SOCKETS + 3 + WEB_SOCKETS;
+pub const STACK_SOCKETS: usize = MODBUS_SOCKETS + remodaq_shared::sockets::DISCOVERY_SOCKETS + 2 + WEB_SOCKETS;
 #[cfg(feature = "web")]
 const WEB_SOCKETS: usize = remodaq_shared::sockets::WEB_CONNECTIONS;
 #[cfg(not(feature = "web"))]
