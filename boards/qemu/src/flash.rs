@@ -53,8 +53,17 @@ impl Regions {
     /// The regions (called once, from the board's `init`).
     pub(crate) fn take() -> Self {
         use core::ptr::{addr_of, addr_of_mut};
+        let (start, end) = (addr_of_mut!(__settings_start), addr_of!(__settings_end));
+        // SAFETY: as in `region`: the settings region of layout.x, handed out once, here.
+        let mut settings = unsafe { RamNor::<PAGE>::new(start, end as usize - start as usize) };
+        // QEMU's memory reads zero at its power-on, where a new module's flash reads erased
+        // (0xFF): erased here, so that the settings store finds a new module, not a damaged
+        // store (which it would load locked: docs/security.md, "Migration").
+        if settings.untouched() {
+            settings.erase_all();
+        }
         Self {
-            settings: region(addr_of_mut!(__settings_start), addr_of!(__settings_end)),
+            settings: Serialized::new(settings, &CONTROLLER),
             dfu: region(addr_of_mut!(__bootloader_dfu_start), addr_of!(__bootloader_dfu_end)),
             state: region(addr_of_mut!(__bootloader_state_start), addr_of!(__bootloader_state_end)),
         }

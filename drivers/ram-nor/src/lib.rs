@@ -73,6 +73,14 @@ impl<const ERASE: usize> RamNor<ERASE> {
         Ok(())
     }
 
+    /// Erases the whole region (every byte 0xFF).
+    pub fn erase_all(&mut self) {
+        for i in 0..self.size {
+            // SAFETY: every byte is inside the region, which this value owns.
+            unsafe { core::ptr::write_volatile(self.base.add(i), 0xFF) };
+        }
+    }
+
     /// Whether the region reads all zeros: memory never written since QEMU started (its
     /// power-on), as opposed to erased NOR flash (0xFF).
     pub fn untouched(&self) -> bool {
