@@ -262,42 +262,93 @@ pub fn merge(by_interface: Vec<Vec<Answer>>) -> Vec<Found> {
     by_interface.into_iter().flatten().filter(|a| seen.insert(a.mac)).take(MAX_FOUND).map(|a| a.found).collect()
 }
 
-/// The socket a command for `mac` goes out by: for the broadcast address, one on the interface
-/// where `mac` answers a search (configuration commands go where the module was found; asked
-/// twice, for a lost datagram); for one module's address, as [`vias`] gives it. A MAC that
-/// answers on more than one interface is refused: a host on another segment (a Wi-Fi, a VPN)
-/// could answer a search with any module's MAC and draw the command, its proof of the password
-/// among it, to itself. `--interface` then says which.
-async fn via(to: SocketAddr, mac: Mac, only: Option<&str>, timeout: Duration) -> Result<UdpSocket, Error> {
-    let mut sockets = vias(to, only).await?;
-    if sockets.len() == 1 {
-        return Ok(sockets.remove(0).1);
+/// Where a command for a module goes, and by which socket.
+struct Route {
+    socket: UdpSocket,
+    /// The module's own address (its answers must come from there), or the broadcast address
+    /// for a module on another subnet than the interface it answered on.
+    target: SocketAddr,
+}
+
+impl Route {
+    fn is_broadcast(&self) -> bool {
+        is_broadcast(self.target)
     }
-    drop(sockets);
+}
+
+/// The route of a command for `mac` (security review finding 4): for one module's address,
+/// that address, by [`vias`]'s socket. For the broadcast address, the module is searched for
+/// on every interface (or `only`): the command goes by the interface it answered on, unicast to
+/// the address its answer came from, so that no proof is broadcast and only that address's
+/// answers are taken; by broadcast only when that address is not in the interface's subnet (a
+/// module on a foreign subnet, which the PC cannot reach otherwise), which [`Outcome`] then
+/// says. Asked twice, for a lost datagram. A MAC that answers on more than one interface, or
+/// from more than one address, is refused: a host could answer a search with any module's MAC
+/// and draw the command, its proof of the password among it, to itself. `--interface` then
+/// says which.
+async fn via(to: SocketAddr, mac: Mac, only: Option<&str>, timeout: Duration) -> Result<Route, Error> {
+    if !is_broadcast(to) {
+        let mut sockets = vias(to, only).await?;
+        return Ok(Route { socket: sockets.remove(0).1, target: to });
+    }
     for _ in 0..2 {
         let (by_interface, interfaces) = search_each(to, only, timeout, Some(mac.0)).await?;
-        let on: Vec<Iface> = by_interface
+        let on: Vec<(Option<Iface>, Vec<SocketAddr>)> = by_interface
             .iter()
             .zip(interfaces)
-            .filter(|(answers, _)| answers.iter().any(|a| a.mac == mac.0))
-            .filter_map(|(_, iface)| iface)
+            .map(|(answers, iface)| (iface, answers.iter().filter(|a| a.mac == mac.0).map(|a| a.from).collect()))
+            .filter(|(_, from): &(_, Vec<SocketAddr>)| !from.is_empty())
             .collect();
-        match on.as_slice() {
+        let (iface, from) = match on.as_slice() {
             [] => continue,
-            [iface] => return ifaces::socket(iface),
+            [(iface, from)] => (iface.clone(), from.clone()),
             several => {
-                let names: Vec<String> = several.iter().map(Iface::label).collect();
+                let names: Vec<String> = several.iter().filter_map(|(i, _)| i.as_ref().map(Iface::label)).collect();
                 return Err(Error::Other(format!(
                     "module {mac} answered on {}: choose one with --interface (another host may be answering for it)",
                     names.join(" and ")
                 )));
             }
-        }
+        };
+        let [from] = from.as_slice() else {
+            let addresses: Vec<String> = from.iter().map(|f| f.ip().to_string()).collect();
+            return Err(Error::Other(format!(
+                "module {mac} answered from {}: another host may be answering for it; name the module's address",
+                addresses.join(" and ")
+            )));
+        };
+        let socket = match &iface {
+            Some(iface) => ifaces::socket(iface)?,
+            None => socket().await?,
+        };
+        return Ok(Route { socket, target: target_of(to, iface.as_ref(), *from) });
     }
     Err(Error::Timeout(format!(
         "module {mac} did not answer a search on any interface of this PC within {:.1} s (asked twice)",
         timeout.as_secs_f64()
     )))
+}
+
+/// Where a command goes for a module whose search answer (sent to the broadcast address `to`)
+/// came `from`, on `iface`: unicast to that address (the port `to` names) when it is in the
+/// interface's subnet (or the PC has no interface to tell by), else the broadcast address.
+fn target_of(to: SocketAddr, iface: Option<&Iface>, from: SocketAddr) -> SocketAddr {
+    let near = match (iface, from.ip()) {
+        (Some(iface), std::net::IpAddr::V4(ip)) => same_subnet(iface, ip),
+        (Some(_), std::net::IpAddr::V6(_)) => false,
+        (None, _) => true,
+    };
+    if near {
+        SocketAddr::new(from.ip(), to.port())
+    } else {
+        to
+    }
+}
+
+/// Whether `ip` is in `iface`'s subnet.
+fn same_subnet(iface: &Iface, ip: Ipv4Addr) -> bool {
+    let mask = u32::MAX.checked_shl(32 - u32::from(iface.prefix.min(32))).unwrap_or(0);
+    u32::from(iface.ip) & mask == u32::from(ip) & mask
 }
 
 /// The settings `remodaq net set` stores: all of them, from the command line (never taken from
@@ -357,6 +408,9 @@ pub struct Outcome {
     pub list: Option<AllowList>,
     /// The factory password is in force on the module.
     pub factory_password: bool,
+    /// The module is on another subnet than the PC's interface, so the command went by
+    /// broadcast (its proof visible to every host on the segment): say so.
+    pub broadcast: bool,
 }
 
 impl Command<'_> {
@@ -384,9 +438,9 @@ pub async fn command(
     cmd: Command<'_>,
     timeout: Duration,
 ) -> Result<Outcome, Error> {
-    let socket = via(to, mac, only, timeout).await?;
-    let (reply, factory_password) = exchange(&socket, to, mac, password, &cmd, timeout).await?;
-    Ok(Outcome { list: reply.list, factory_password })
+    let route = via(to, mac, only, timeout).await?;
+    let (reply, factory_password) = exchange(&route, mac, password, &cmd, timeout).await?;
+    Ok(Outcome { list: reply.list, factory_password, broadcast: route.is_broadcast() })
 }
 
 /// What `remodaq` says of a module whose factory password is in force.
@@ -394,6 +448,16 @@ pub fn factory_warning(mac: Mac) -> String {
     format!(
         "warning: {mac} still has the factory password: anyone on the LAN can change its network \
          settings. Set one: remodaq password --mac {mac}"
+    )
+}
+
+/// What the tools say when a command went by broadcast (a module on another subnet than the
+/// PC's interface: [`Outcome::broadcast`]).
+pub fn broadcast_note(mac: Mac) -> String {
+    format!(
+        "note: {mac} is on another subnet than this PC: the command went by broadcast, so every host on \
+         the segment saw it (its proof of the password among it); give this PC an address in the \
+         module's subnet to talk to it directly"
     )
 }
 
@@ -439,18 +503,22 @@ pub async fn login_blocking(
         .map_err(|e| Error::Other(format!("the key derivation failed: {e}")))?
 }
 
-/// Waits for the first datagram that `accept` takes.
+/// Waits for the first datagram that `accept` takes; on a unicast route, from the module's
+/// address only (any other source's is dropped unread).
 async fn receive<T>(
-    socket: &UdpSocket,
+    route: &Route,
     deadline: Instant,
     what: impl Fn() -> String,
     mut accept: impl FnMut(&[u8]) -> Option<T>,
 ) -> Result<T, Error> {
     let mut rx = [0u8; 512];
     loop {
-        let received = tokio::time::timeout_at(deadline.into(), socket.recv_from(&mut rx)).await;
+        let received = tokio::time::timeout_at(deadline.into(), route.socket.recv_from(&mut rx)).await;
         let Ok(received) = received else { return Err(Error::Timeout(what())) };
-        let Some((n, _)) = datagram(received) else { continue };
+        let Some((n, from)) = datagram(received) else { continue };
+        if !route.is_broadcast() && from.ip() != route.target.ip() {
+            continue;
+        }
         if let Some(out) = accept(&rx[..n]) {
             return Ok(out);
         }
@@ -461,24 +529,24 @@ async fn receive<T>(
 /// the module's signed reply (an error unless it is Ok). Also says whether the factory
 /// password is in force.
 async fn exchange(
-    socket: &UdpSocket,
-    to: SocketAddr,
+    route: &Route,
     mac: Mac,
     password: Option<&str>,
     cmd: &Command<'_>,
     timeout: Duration,
 ) -> Result<(Reply, bool), Error> {
     let deadline = Instant::now() + timeout;
+    let to = route.target;
     let silent = || format!("module {mac} did not answer at {to} within {:.1} s", timeout.as_secs_f64());
     let send = |bytes: Vec<u8>| async move {
-        socket.send_to(&bytes, to).await.map_err(|e| Error::Other(format!("cannot send to {to}: {e}")))
+        route.socket.send_to(&bytes, to).await.map_err(|e| Error::Other(format!("cannot send to {to}: {e}")))
     };
     let mut buf = [0u8; MAX_DATAGRAM];
     if let Command::Identify = cmd {
         let id = request_id();
         let n = encode_request(id, &Request::Identify { mac: mac.0 }, &mut buf).unwrap_or(0);
         send(buf[..n].to_vec()).await?;
-        let reply = receive(socket, deadline, silent, |d| {
+        let reply = receive(route, deadline, silent, |d| {
             decode_reply(d).filter(|r| r.opcode == op::IDENTIFY && r.id == id && r.mac == mac.0)
         })
         .await?;
@@ -490,7 +558,7 @@ async fn exchange(
         let (id, cnonce) = (request_id(), random::<16>()?);
         let n = encode_request(id, &Request::Challenge { mac: mac.0, cnonce }, &mut buf).unwrap_or(0);
         send(buf[..n].to_vec()).await?;
-        let challenge = receive(socket, deadline, silent, |d| {
+        let challenge = receive(route, deadline, silent, |d| {
             decode_challenge(d).filter(|c| c.id == id && c.mac == mac.0 && c.cnonce == cnonce)
         })
         .await?;
@@ -516,7 +584,7 @@ async fn exchange(
         client::prove(&mut buf[..n], &client_key);
         let request = buf[..n].to_vec();
         send(request.clone()).await?;
-        let (reply, bytes) = receive(socket, deadline, silent, |d| {
+        let (reply, bytes) = receive(route, deadline, silent, |d| {
             decode_reply(d)
                 .filter(|r| r.opcode == command.opcode() && r.id == id && r.mac == mac.0)
                 .map(|r| (r, d.to_vec()))
@@ -562,4 +630,56 @@ fn status(reply: Reply, mac: Mac) -> Result<Reply, Error> {
         Status::BadSignature | Status::Downgrade => "the module answered a status of the update service",
     };
     Err(Error::Other(format!("{mac}: {message}")))
+}
+
+#[cfg(test)]
+mod route_tests {
+    use super::*;
+
+    fn iface(ip: [u8; 4], prefix: u8) -> Iface {
+        Iface { name: "pc0".into(), ip: Ipv4Addr::from(ip), prefix, index: None }
+    }
+
+    /// Security review finding 4: once the module's address is known, a command goes to it
+    /// alone; by broadcast only for a module on another subnet than the interface.
+    #[test]
+    fn a_command_goes_unicast_unless_the_module_is_on_a_foreign_subnet() {
+        let to = SocketAddr::from(([255, 255, 255, 255], 8300));
+        let pc0 = iface([190, 5, 200, 102], 24);
+        let module = SocketAddr::from(([190, 5, 200, 110], 8300));
+        assert_eq!(target_of(to, Some(&pc0), module), module, "in the subnet: unicast");
+        // A factory-fresh module at 192.168.0.1 seen from 190.5.200.102/24 (the manuals' first
+        // contact): only broadcast reaches it.
+        let fresh = SocketAddr::from(([192, 168, 0, 1], 8300));
+        assert_eq!(target_of(to, Some(&pc0), fresh), to, "foreign subnet: broadcast");
+        assert_eq!(
+            target_of(to, Some(&iface([10, 0, 0, 2], 8)), SocketAddr::from(([10, 200, 1, 1], 8300))).ip(),
+            std::net::IpAddr::V4(Ipv4Addr::new(10, 200, 1, 1))
+        );
+        assert_eq!(target_of(to, Some(&iface([10, 0, 0, 2], 32)), SocketAddr::from(([10, 0, 0, 3], 8300))), to, "/32");
+        assert_eq!(target_of(to, None, module), module, "no interface to tell by: where it answered from");
+    }
+
+    /// On a unicast route, an answer from any other address is dropped unread, even one the
+    /// exchange would take (a host that saw the request and answers first).
+    #[tokio::test]
+    async fn a_unicast_route_takes_answers_from_the_module_only() {
+        let module = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+        let forger = std::net::UdpSocket::bind("127.0.0.2:0").unwrap();
+        let pc = UdpSocket::bind("127.0.0.1:0").await.unwrap();
+        let at = pc.local_addr().unwrap();
+        let route = Route { socket: pc, target: module.local_addr().unwrap() };
+        forger.send_to(b"forged", at).unwrap();
+        module.send_to(b"genuine", at).unwrap();
+        let deadline = Instant::now() + Duration::from_secs(2);
+        let got = receive(&route, deadline, String::new, |d| Some(d.to_vec())).await.unwrap();
+        assert_eq!(got, b"genuine");
+        // A broadcast route (a module on a foreign subnet) cannot tell: it takes the first.
+        let pc = UdpSocket::bind("127.0.0.1:0").await.unwrap();
+        let at = pc.local_addr().unwrap();
+        let route = Route { socket: pc, target: SocketAddr::from(([255, 255, 255, 255], 8300)) };
+        forger.send_to(b"forged", at).unwrap();
+        let got = receive(&route, deadline, String::new, |d| Some(d.to_vec())).await.unwrap();
+        assert_eq!(got, b"forged");
+    }
 }

@@ -122,9 +122,14 @@ pub fn read_image(image: &Path) -> Result<(Vec<u8>, Header), Error> {
 }
 
 /// Updates the module at `module` with the image file `image` (its update service on `port`),
-/// telling `progress` how far it got.
+/// telling `progress` how far it got. With `mac` (the module the user chose, as a search
+/// found it), the session goes on only if the update service there greets as that module: the
+/// proof covers the greeting's MAC, so it is bound to the module the user named, and a
+/// redirector cannot relay it to another module that shares the password (security review
+/// finding 15a).
 pub async fn update(
     module: &str,
+    mac: Option<crate::lan::Mac>,
     image: &Path,
     password: &str,
     port: u16,
@@ -157,6 +162,12 @@ pub async fn update(
             let mut greeting = [0u8; GREETING_LEN];
             read(&mut stream, &mut greeting, timeout, target).await?;
             let greeting = Greeting::decode(&greeting);
+            if let Some(mac) = mac.filter(|m| m.0 != greeting.mac) {
+                return Err(Error::Refused(format!(
+                    "{target}: the update service there is module {}, not {mac}: nothing sent",
+                    crate::lan::Mac(greeting.mac)
+                )));
+            }
             let (client_key, credential) =
                 crate::lan::login_blocking(password, &greeting.salt, greeting.iterations).await?;
             let session = Session {

@@ -119,4 +119,7 @@ fn print(mac: Mac, what: &str, set_password: bool, outcome: &lan::Outcome, json:
     if outcome.factory_password && !set_password && !json {
         println!("{}", factory_warning(mac));
     }
+    if outcome.broadcast {
+        eprintln!("{}", lan::broadcast_note(mac));
+    }
 }

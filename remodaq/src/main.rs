@@ -107,6 +107,10 @@ enum Command {
         /// The update service's TCP port.
         #[arg(long, default_value_t = remodaq_protocol::update::PORT)]
         port: u16,
+        /// The module's MAC (as `remodaq search` shows it): the update goes on only if the
+        /// module at MODULE is that one, and the proof of the password is bound to it.
+        #[arg(long)]
+        mac: Option<remodaq_client::lan::Mac>,
     },
     /// Make a key pair for signing firmware images: the secret key in KEY, the public key
     /// (what the firmware is built with) in KEY.pub.
@@ -356,8 +360,8 @@ async fn run(cli: Cli) -> Result<(), Error> {
         }
         Command::Config { module, setting } => io::config(&module, setting, timeout, json).await,
         Command::Keygen { key } => sign::keygen(&key),
-        Command::Update { module, image, password, port } => {
-            update::update(&module, &image, &password.get()?, port, timeout, json).await
+        Command::Update { module, image, password, port, mac } => {
+            update::update(&module, mac, &image, &password.get()?, port, timeout, json).await
         }
         Command::Sign { key, model, version, counter, firmware, out } => {
             sign::sign(&key, &firmware, model, version, counter, &out)

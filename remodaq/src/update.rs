@@ -10,6 +10,7 @@ use remodaq_client::Error;
 /// `remodaq update MODULE IMAGE`.
 pub async fn update(
     module: &str,
+    mac: Option<remodaq_client::lan::Mac>,
     image: &Path,
     password: &str,
     port: u16,
@@ -21,7 +22,7 @@ pub async fn update(
         indicatif::ProgressStyle::with_template("{bar:40} {bytes}/{total_bytes} {bytes_per_sec} {msg}")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
-    let done = update::update(module, image, password, port, timeout, |p| match p {
+    let done = update::update(module, mac, image, password, port, timeout, |p| match p {
         Progress::Sent(sent, total) => {
             bar.set_length(total);
             bar.set_position(sent);

@@ -104,7 +104,7 @@ pub enum Job {
         only: Option<String>,
     },
     /// A firmware update.
-    Update { id: u64, modbus: SocketAddr, image: PathBuf, password: Zeroizing<String> },
+    Update { id: u64, modbus: SocketAddr, mac: Mac, image: PathBuf, password: Zeroizing<String> },
 }
 
 /// What a finished job gives.
@@ -241,12 +241,13 @@ async fn serve(mut jobs: UnboundedReceiver<Job>, out: Out, timeout: Duration) {
                     out.send(Event::Done { id, result });
                 });
             }
-            Job::Update { id, modbus, image, password } => {
+            Job::Update { id, modbus, mac, image, password } => {
                 let out = out.clone();
                 tokio::spawn(async move {
                     let progress = out.clone();
                     let result = update::update(
                         &modbus.to_string(),
+                        Some(mac),
                         &image,
                         &password,
                         remodaq_protocol::update::PORT,
@@ -352,8 +353,8 @@ async fn configure(
 ) -> Result<Done, Error> {
     let cmd = match &command {
         Config::SetNetwork(change) => {
-            lan::set_network(module.to, only, module.mac, password, *change, timeout).await?;
-            return Ok(Done::Said(lan::SET_NETWORK_DONE.into()));
+            let outcome = lan::set_network(module.to, only, module.mac, password, *change, timeout).await?;
+            return Ok(Done::Said(said_with_route(lan::SET_NETWORK_DONE, module.mac, &outcome)));
         }
         Config::Restart => lan::Command::Restart,
         Config::SetPassword(new) => lan::Command::SetPassword(new),
@@ -383,7 +384,16 @@ async fn configure(
         Config::GetAccess => Ok(Done::Access(outcome.list.unwrap_or(AllowList::EMPTY))),
         // The module answers a store with its status only: what is in force is the list sent.
         Config::SetAccess(sent) => Ok(Done::Access(outcome.list.unwrap_or(sent))),
-        _ => Ok(Done::Said(said.into())),
+        _ => Ok(Done::Said(said_with_route(said, module.mac, &outcome))),
+    }
+}
+
+/// What a command did, and, when it went by broadcast (a module on another subnet), that it did.
+fn said_with_route(said: &str, mac: lan::Mac, outcome: &lan::Outcome) -> String {
+    if outcome.broadcast {
+        format!("{said}. {}", lan::broadcast_note(mac))
+    } else {
+        said.to_string()
     }
 }
 

@@ -97,10 +97,41 @@ pub(crate) async fn updates(
         during_update(addr, update, &tampered, &log).await,
     );
 
-    // v1 -> v2 with the tool.
+    // The tool with the MAC of another module (security review finding 15a): refused before
+    // any proof is sent, nothing changed.
+    let remodaq = || Command::new(std::env::var("REMODAQ").unwrap_or_else(|_| "target/debug/remodaq".into()));
+    let mut buf = [0u8; MAX_DATAGRAM];
+    let n = encode_request(12, &Request::Search, &mut buf).unwrap_or(0);
+    let mac = discover(discovery, &buf[..n]).await.ok().and_then(|reply| decode_info(&reply).map(|i| i.mac));
+    let mac_text = |m: [u8; 6]| m.iter().map(|b| format!("{b:02x}")).collect::<Vec<_>>().join(":");
+    let other_mac = async {
+        let Some(mac) = mac else { return Err("no search answer: the module's MAC is unknown".to_string()) };
+        let other = [mac[0], mac[1], mac[2], mac[3], mac[4], mac[5] ^ 0x01];
+        let out = remodaq()
+            .args(["update", &addr.to_string(), &format!("{image}-v2.rdq"), "--mac", &mac_text(other)])
+            .env("REMODAQ_PASSWORD", PASSWORD)
+            .args(["--port", &update.port().to_string()])
+            .output()
+            .map_err(|e| format!("cannot run remodaq: {e}"))?;
+        let said = String::from_utf8_lossy(&out.stderr).into_owned();
+        if out.status.success() || !said.contains("nothing sent") {
+            return Err(format!("remodaq update --mac {}: exit {:?}, {said:?}", mac_text(other), out.status.code()));
+        }
+        match version(addr).await? {
+            0xA100 => setting_intact("after the other MAC").await,
+            v => Err(format!("after the other MAC: version {v:04X}")),
+        }
+    };
+    report.check(
+        "update: the tool named another module's MAC: refused before any proof, nothing changed",
+        other_mac.await,
+    );
+
+    // v1 -> v2 with the tool, naming the module's MAC.
     let started = Instant::now();
-    let tool = Command::new(std::env::var("REMODAQ").unwrap_or_else(|_| "target/debug/remodaq".into()))
+    let tool = remodaq()
         .args(["update", &addr.to_string(), &format!("{image}-v2.rdq")])
+        .args(mac.map(|m| vec!["--mac".to_string(), mac_text(m)]).unwrap_or_default())
         .env("REMODAQ_PASSWORD", PASSWORD)
         .args(["--port", &update.port().to_string()])
         .output();

@@ -57,7 +57,7 @@ impl Utility {
             Purpose::Update(image) => {
                 let id = self.id("update");
                 self.progress = Some((0, 1, false));
-                self.worker.send(Job::Update { id, modbus: module.modbus, image, password });
+                self.worker.send(Job::Update { id, modbus: module.modbus, mac: module.mac, image, password });
                 return;
             }
             Purpose::SetNetwork(change) => Config::SetNetwork(change),
