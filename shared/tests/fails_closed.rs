@@ -3,7 +3,6 @@
 //! factory defaults with its credential locked (docs/security.md, "Migration" and "Flash
 //! wear"), serves Modbus, and refuses administration until a physical factory reset.
 #[path = "common/mod.rs"]
-#[allow(dead_code)]
 mod common;
 
 use common::S;
@@ -44,7 +43,8 @@ fn credential_at(image: &[u8]) -> usize {
 fn a_store_that_cannot_be_read_loads_locked_not_factory() {
     let image = claimed();
     let at = credential_at(&image);
-    let damages: [(&str, Box<dyn Fn(&mut [u8; SIZE])>); 3] = [
+    type Damage = Box<dyn Fn(&mut [u8; SIZE])>;
+    let damages: [(&str, Damage); 3] = [
         ("a byte of the record flipped (its checksum fails)", Box::new(move |i| i[at] ^= 0x01)),
         ("the first page's first 64 bytes overwritten", Box::new(|i| i[..64].fill(0x00))),
         ("the whole store overwritten (sequential-storage: Corrupted)", Box::new(|i| i.fill(0x55))),
@@ -53,7 +53,7 @@ fn a_store_that_cannot_be_read_loads_locked_not_factory() {
         let mut damaged = image;
         damage(&mut damaged);
         let store = block_on(open(Flash::from_image(&damaged)));
-        let loaded = store.get().clone();
+        let loaded = *store.get();
         assert_eq!(loaded.password, LOCKED, "{what}: the factory password would hand the module to anyone");
         assert_eq!(loaded, S { password: LOCKED, ..S::defaults() }, "{what}: otherwise the factory defaults");
         // Still locked at the next start (a corrupted store is erased and written again

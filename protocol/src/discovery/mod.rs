@@ -60,8 +60,7 @@ pub mod client {
     ) -> Command {
         let public = auth::x25519(secret, &auth::BASE_POINT);
         let shared = auth::x25519(secret, &challenge.public);
-        let mut sealed = new.encode();
-        auth::seal(&shared, &[SEAL_LABEL, cnonce, &challenge.snonce], &mut sealed);
+        let sealed = auth::seal_credential(&shared, &[SEAL_LABEL, cnonce, &challenge.snonce], new);
         Command::SetPassword { public, sealed }
     }
 

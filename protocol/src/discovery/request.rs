@@ -3,7 +3,7 @@
 
 use super::wire::{op, Reader, Writer, CLIENT_LABEL, MAX_DATAGRAM, PROOF_AT};
 use crate::access::AllowList;
-use crate::auth::{CREDENTIAL_LEN, KEY_LEN, NONCE_LEN};
+use crate::auth::{KEY_LEN, NONCE_LEN, SEALED_LEN};
 use crate::net::NetConfig;
 
 /// The authentication block of a command: the PC's nonce, the module's nonce (from a
@@ -32,12 +32,12 @@ pub enum Command {
     /// RESTART.
     Restart,
     /// SET_PASSWORD: the PC's ephemeral X25519 key, and the new credential sealed with the key
-    /// agreed with the module's (`crate::auth::seal`).
+    /// agreed with the module's, with its key confirmation (`crate::auth::seal_credential`).
     SetPassword {
         /// The PC's ephemeral X25519 public key.
         public: [u8; KEY_LEN],
         /// The new credential, sealed.
-        sealed: [u8; CREDENTIAL_LEN],
+        sealed: [u8; SEALED_LEN],
     },
     /// GET_ACCESS: read the allow-list.
     GetAccess,

@@ -20,13 +20,13 @@ use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::mutex::Mutex;
 use embedded_storage_async::nor_flash::NorFlash;
 
-use remodaq_protocol::auth::{fingerprint, seal, x25519, BASE_POINT};
+use remodaq_protocol::auth::{fingerprint, open_credential, x25519, BASE_POINT};
 use remodaq_shared::access::AllowList;
 use remodaq_shared::budget::Budget;
 use remodaq_shared::module::{commit_change, CommonSettings, SettingsAccess, Store};
 use remodaq_shared::net::NETWORK_STORED;
 use remodaq_shared::nonces::Nonces;
-use remodaq_shared::password::{Check, Credential, AUTH, CREDENTIAL_LEN, KEY_LEN};
+use remodaq_shared::password::{Check, Credential, AUTH, KEY_LEN};
 use remodaq_shared::settings::StoreError;
 
 /// Nonces handed out and not used yet.
@@ -161,16 +161,20 @@ impl Service {
             Command::SetPassword { public, sealed } => {
                 let (secret, _) = self.agreement(now_ms);
                 let shared = x25519(&secret, &public);
-                let mut bytes: [u8; CREDENTIAL_LEN] = sealed;
-                seal(&shared, &[SEAL_LABEL, &auth.cnonce, &auth.snonce], &mut bytes);
-                let new = Credential::decode(&bytes);
+                // A seal made for any other key (a substituted one, an older one) does not open
+                // (security review finding 8): refused, nothing committed.
+                let Some(new) = open_credential(&shared, &[SEAL_LABEL, &auth.cnonce, &auth.snonce], &sealed) else {
+                    remodaq_shared::warn!("discovery: a password sealed for another key, refused");
+                    return Status::Invalid;
+                };
                 if !new.is_acceptable() || new.is_factory() {
                     return Status::Invalid;
                 }
-                // A new key for the next change (what sealed this one is forgotten).
-                self.agreement = None;
                 let status = commit(map, store, |s| s.set_password(new)).await;
                 if status == Status::Ok {
+                    // A new key for the next change (what sealed this one is forgotten), once
+                    // the change is stored: a change that failed can be sent again.
+                    self.agreement = None;
                     remodaq_shared::diagnostics::DIAGNOSTICS.factory_password(false);
                     remodaq_shared::info!("discovery: password changed");
                 }

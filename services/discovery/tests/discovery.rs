@@ -342,7 +342,7 @@ fn valid_requests() -> Vec<Vec<u8>> {
         Command::GetAccess,
         Command::SetAccess(list),
         Command::SetAccess(AllowList::EMPTY),
-        Command::SetPassword { public: [5; 32], sealed: [6; auth::CREDENTIAL_LEN] },
+        Command::SetPassword { public: [5; 32], sealed: [6; auth::SEALED_LEN] },
     ];
     let mut requests =
         vec![Request::Search, Request::Identify { mac: MAC }, Request::Challenge { mac: MAC, cnonce: [7; 16] }];
@@ -503,4 +503,43 @@ fn commits_under_the_public_factory_password_draw_on_a_budget() {
     assert_eq!(module.settings().net, nets[1], "a refusal changes nothing");
     let refusals = DIAGNOSTICS.read(Diag::WriteBudgetRefusals, 0).wrapping_sub(refusals_before);
     assert_eq!(refusals, 10, "each refusal counted");
+}
+
+/// Security review finding 8: a credential sealed for another key than the one the module
+/// agreed (a key a man in the middle swapped into the CHALLENGE answer, or an older one) opened
+/// to random bytes, which passed as a credential about once in 430 tries and locked the module.
+/// Here the worst case, made on purpose: a body that decrypts to a usable credential under the
+/// module's key, but whose key confirmation was made with another; refused (status 3), nothing
+/// stored. The same body with its own confirmation is then stored: the key agreed was kept.
+#[test]
+fn a_password_sealed_for_another_key_is_refused() {
+    use remodaq_protocol::auth::{derive, seal_credential, x25519, Credential, BASE_POINT, CREDENTIAL_LEN};
+    use remodaq_protocol::discovery::{client, Auth as WireAuth, SEAL_LABEL};
+    let (mut service, mut module) = setup();
+    let (_, new) = derive(b"a password of mine", &[0x21; 16], 4096);
+    let secret = [0x42; 32];
+    let attempt = |service: &mut Service, module: &mut Module, n: u8, tag_from_another_key: bool| -> Status {
+        let cnonce = [n; 16];
+        let mut buf = [0u8; 256];
+        let len = encode_request(1, &Request::Challenge { mac: MAC, cnonce }, &mut buf).unwrap();
+        let (reply, _) = ask(service, module, &buf[..len], 1000).unwrap();
+        let challenge = decode_challenge(&reply).unwrap();
+        let context: [&[u8]; 3] = [SEAL_LABEL, &cnonce, &challenge.snonce];
+        let mut sealed = seal_credential(&x25519(&secret, &challenge.public), &context, &new);
+        if tag_from_another_key {
+            let other = seal_credential(&x25519(&secret, &x25519(&[0x77; 32], &BASE_POINT)), &context, &new);
+            sealed[CREDENTIAL_LEN..].copy_from_slice(&other[CREDENTIAL_LEN..]);
+        }
+        let command = Command::SetPassword { public: x25519(&secret, &BASE_POINT), sealed };
+        let auth = WireAuth { cnonce, snonce: challenge.snonce, proof: [0; 32] };
+        let len = encode_request(2, &Request::Command { mac: MAC, auth, command }, &mut buf).unwrap();
+        let (client_key, _) = derive(b"remodaq", &challenge.salt, challenge.iterations);
+        assert!(client::prove(&mut buf[..len], &client_key));
+        let (answer, _) = ask(service, module, &buf[..len], 1001).unwrap();
+        status(&answer)
+    };
+    assert_eq!(attempt(&mut service, &mut module, 1, true), Status::Invalid, "confirmed with another key");
+    assert_eq!(module.settings().password, Credential::FACTORY, "nothing stored");
+    assert_eq!(attempt(&mut service, &mut module, 2, false), Status::Ok, "the same, confirmed with the key agreed");
+    assert_eq!(module.settings().password, new);
 }
