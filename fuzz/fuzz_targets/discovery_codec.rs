@@ -55,7 +55,7 @@ fuzz_target!(|data: &[u8]| {
         port: u16::from_be_bytes(array(&mut rest)),
     };
     let public = array::<32>(&mut rest);
-    let sealed = array::<84>(&mut rest);
+    let sealed = array::<100>(&mut rest);
     let nets: Vec<Network> = (0..usize::from(count) % (MAX_NETWORKS + 1))
         .filter_map(|_| {
             let [a, b, c, d, prefix] = array::<5>(&mut rest);
