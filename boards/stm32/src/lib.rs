@@ -62,12 +62,11 @@ pub type DfuFlash = Serialized<Bank2Region3<'static, Async>>;
 pub type BootStateFlash = Serialized<Bank2Region2<'static, Async>>;
 
 use remodaq_net::STACK_SOCKETS;
-/// Independent watchdog period, nominal. The IWDG runs from the LSI, 17 to 47 kHz on the
-/// F429 (datasheet DS9405, LSI oscillator characteristics) against the 32 kHz embassy computes
-/// the reload with: 8 s nominal is 5.4 s to 15 s real. Fed every [`FEED_EVERY`] while every
-/// watched task beat within [`ALIVE_WINDOW`]; the worst case before a feed is then the window
-/// plus one feed interval, 3.5 s, under the 5.4 s minimum.
-const WATCHDOG_TIMEOUT_US: u32 = 8_000_000;
+// The watchdog's period (`WATCHDOG_TIMEOUT_US`, 5.4 s at the least), shared with the
+// bootloader. Fed every [`FEED_EVERY`] while every watched task beat within [`ALIVE_WINDOW`]; the
+// worst case before a feed is then the window plus one feed interval, 3.5 s, under the 5.4 s
+// minimum.
+include!("../watchdog.rs");
 const FEED_EVERY: Duration = Duration::from_millis(500);
 /// How late a watched task may be. Neither watched task (network runner, application) waits
 /// for the flash: settings commits run in the Modbus, discovery and update tasks, and hold the

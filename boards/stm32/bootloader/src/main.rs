@@ -33,10 +33,14 @@ mod boot {
     use embassy_embedded_hal::flash::partition::BlockingPartition;
     use embassy_stm32::flash::{Flash, FlashBank, BANK2_REGION2, FLASH_BASE};
     use embassy_stm32::gpio::{Flex, Pull, Speed};
+    use embassy_stm32::wdg::IndependentWatchdog;
     use embassy_sync::blocking_mutex::raw::NoopRawMutex;
     use embassy_sync::blocking_mutex::Mutex;
     use embedded_storage::nor_flash::NorFlash;
     use remodaq_protocol::update::{check_before_swap, BeforeSwap};
+
+    // The watchdog's period, the application's (`WATCHDOG_TIMEOUT_US`).
+    include!("../../watchdog.rs");
 
     // The key of this build (build.rs, boards/update-key.rs): `UPDATE_KEY`, `UPDATE_KEY_IS_TEST_KEY`.
     include!(concat!(env!("OUT_DIR"), "/update_key.rs"));
@@ -91,9 +95,22 @@ mod boot {
             state: BlockingPartition::new(&state, STATE_OFFSET, STATE_SIZE),
         };
         match BootLoader::try_prepare::<_, _, _, 2048>(config) {
-            // SAFETY: ACTIVE holds an application linked at REGION3 (memory.x): its vector
-            // table first; `load` points VTOR at it and jumps to its reset vector.
-            Ok(loader) => unsafe { loader.load(REGION3) },
+            Ok(loader) => {
+                // The watchdog, just before the jump (stm32 review R2): the application's
+                // `embassy_stm32::init` waits without a bound for HSE, over-drive and the PLL
+                // before the application starts the IWDG itself; started here, an image that
+                // hangs there is reset, and a new one on trial then reverted. After the swap,
+                // which may erase for longer than the period (RM0090 §3.5.1: up to 4 s per
+                // 128 KiB sector). IWDG_PR and IWDG_RLR are written after 0x5555 to IWDG_KR,
+                // then 0xCCCC starts it (RM0090 §21.3.2-21.3.4); the application writes the same
+                // values. Frozen while a debugger halts the core, as the application does
+                // (RM0090 §38.16.4, DBG_IWDG_STOP).
+                embassy_stm32::pac::DBGMCU.apb1fzr().modify(|w| w.set_iwdg(true));
+                IndependentWatchdog::new(p.IWDG, WATCHDOG_TIMEOUT_US).unleash();
+                // SAFETY: ACTIVE holds an application linked at REGION3 (memory.x): its vector
+                // table first; `load` points VTOR at it and jumps to its reset vector.
+                unsafe { loader.load(REGION3) }
+            }
             // A flash error: start again (a swap resumes where it stopped, docs/update.md).
             Err(_) => cortex_m::peripheral::SCB::sys_reset(),
         }
