@@ -6,19 +6,23 @@
 //! sections of memory.x use it:
 //! - `.ccmdata`: statics only the CPU uses (`#[link_section = ".ccmdata.NAME"]`), whose initial
 //!   values the linker keeps in flash as it does .data's; [`load`] copies them at start;
+//! - `.ccmbss`: the services' task pools (all zeros at first, as .bss), which [`load`] zeroes;
 //! - `.ccmram`: words kept across a reset, neither loaded nor zeroed.
 //!
 //! What a DMA touches stays in SRAM, checked at link time (memory.x's ASSERTs on the statics
 //! named `REMODAQ_DMA_*`).
 
 unsafe extern "C" {
+    static mut __sccmbss: u32;
+    static mut __eccmbss: u32;
     static mut __sccmdata: u32;
     static mut __eccmdata: u32;
     static __siccmdata: u32;
 }
 
-/// Copies `.ccmdata`'s initial values from flash. The first thing the board does at start,
-/// before any static there is used.
+/// Copies `.ccmdata`'s initial values from flash and zeroes `.ccmbss`. The first thing the
+/// board does at start, before any static there is used (the task pools there are used when
+/// their tasks are spawned, after the board's `init`).
 pub(crate) fn load() {
     // The CCM's clock (RM0090 §6.3.10, RCC_AHB1ENR bit 20 CCMDATARAMEN), then a DSB before
     // the first access: errata ES0206, "Delay after an RCC peripheral clock enabling" (a
@@ -35,6 +39,15 @@ pub(crate) fn load() {
         let words = (end as usize - to as usize) / 4;
         for i in 0..words {
             core::ptr::write_volatile(to.add(i), core::ptr::read_volatile(from.add(i)));
+        }
+    }
+    // SAFETY: as above, for `.ccmbss` (word-aligned at both ends; nothing there used yet).
+    unsafe {
+        let to = core::ptr::addr_of_mut!(__sccmbss);
+        let end = core::ptr::addr_of_mut!(__eccmbss);
+        let words = (end as usize - to as usize) / 4;
+        for i in 0..words {
+            core::ptr::write_volatile(to.add(i), 0);
         }
     }
 }
