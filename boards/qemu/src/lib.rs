@@ -133,6 +133,7 @@ impl Board for QemuBoard {
 
     /// Starts the time driver.
     fn init(_spawner: Spawner) -> (Self, flash::SettingsFlash, ()) {
+        stack::paint_stack();
         let Some(mut core) = cortex_m::Peripherals::take() else { panic!("init twice") };
         time::start(&mut core.SYST);
         let regions = flash::Regions::take();
@@ -239,6 +240,7 @@ impl Board for QemuBoard {
             0x5EED_8300,
         );
         spawn(spawner, net_task(runner), "net");
+        spawn(spawner, stack_task(), "stack");
         info!("network: {}.{}.{}.{}", running.ip[0], running.ip[1], running.ip[2], running.ip[3]);
         (EmbassyNet { stack, port: stored.port, effects: QemuEffects }, running)
     }
@@ -291,6 +293,28 @@ const GATEWAY: [u8; 4] = [10, 0, 2, 2];
 #[embassy_executor::task]
 async fn net_task(mut runner: embassy_net::Runner<'static, Backlogged<Device>>) -> ! {
     runner.run().await
+}
+
+/// The stack's high-water mark ([`stack`]), in QEMU's log each time it rose by 256 bytes or
+/// more (looked at every second), where `tools/qemu-e2e` reads it back (issue #39). On the main
+/// executor, so the scan never delays the I/O loop; a line in the log is a semihosting call,
+/// which stops the machine for a few ms: only when the mark rises.
+#[embassy_executor::task]
+async fn stack_task() -> ! {
+    let mut said = 0;
+    loop {
+        embassy_time::Timer::after_secs(1).await;
+        let (used, size) = stack::stack_high_water();
+        if used >= said + 256 {
+            said = used;
+            cortex_m_semihosting::hprintln!("qemu board: stack high-water mark {} of {} bytes", used, size);
+        }
+    }
+}
+
+/// The painted stack (boards/stack.rs).
+pub mod stack {
+    include!("../../stack.rs");
 }
 
 /// Logs go nowhere on this board (defmt needs a logger to link).

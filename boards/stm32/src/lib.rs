@@ -6,6 +6,10 @@
 
 pub mod analog;
 mod ccm;
+/// The painted stack (boards/stack.rs): its high-water mark for the on-target check.
+pub mod stack {
+    include!("../../stack.rs");
+}
 pub mod digital;
 pub mod phy;
 pub mod resources;
@@ -112,7 +116,9 @@ pub fn pa12_held() -> bool {
 /// Clocks at 180 MHz from the ST-LINK's 8 MHz MCO (HSE bypass), the flash caches, the
 /// watchdog, then the peripherals.
 fn init(spawner: Spawner) -> (Stm32Board, SettingsFlash, Io) {
-    // First: the CCM's statics (memory.x `.ccmdata`) get their initial values.
+    // First: the free stack painted (its high-water mark, issue #39), the CCM's statics
+    // (memory.x `.ccmdata`, `.ccmbss`) given their initial values.
+    stack::paint_stack();
     ccm::load();
     let mut config = Config::default();
     {

@@ -1,0 +1,39 @@
+// The stack's high-water mark (issue #39), for the boards on cortex-m-rt (the STM32 and QEMU
+// boards include this file): the free stack is painted at start, and the mark is the lowest
+// word no longer holding the paint. cortex-m-rt's link.x bounds the stack: `_stack_start` (its
+// top, the initial MSP) down to `_stack_end` (the end of the statics, `.uninit`). Every task
+// of the thread-mode executor and every interrupt handler (the realtime executor among them)
+// runs on this one stack.
+
+/// What the free stack is painted with.
+const STACK_PAINT: u32 = 0x5AC3_A53C;
+
+unsafe extern "C" {
+    static mut _stack_end: u32;
+    static _stack_start: u32;
+}
+
+/// Paints the stack from its bottom up to 256 bytes below the stack pointer (the frames in use
+/// above it are left alone). The first thing the board does at start.
+pub fn paint_stack() {
+    let bottom = core::ptr::addr_of_mut!(_stack_end);
+    let sp = cortex_m::register::msp::read() as usize;
+    let words = (sp.saturating_sub(256) & !3).saturating_sub(bottom as usize) / 4;
+    for i in 0..words {
+        // SAFETY: every word from `_stack_end` up to below the stack pointer is stack no frame
+        // uses (an interrupt's frame there is gone once it returns, before this goes on).
+        unsafe { core::ptr::write_volatile(bottom.add(i), STACK_PAINT) };
+    }
+}
+
+/// The most stack used since [`paint_stack`] (bytes from its top), and the stack's size.
+pub fn stack_high_water() -> (usize, usize) {
+    let bottom = core::ptr::addr_of!(_stack_end) as usize;
+    let top = core::ptr::addr_of!(_stack_start) as usize;
+    let mut at = bottom;
+    // SAFETY: reads of words inside the stack region the linker defines.
+    while at < top && unsafe { core::ptr::read_volatile(at as *const u32) } == STACK_PAINT {
+        at += 4;
+    }
+    (top - at, top - bottom)
+}
