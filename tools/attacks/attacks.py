@@ -280,10 +280,11 @@ class Relay:
 ATTACKS = []
 
 
-def attack(name):
-    """Registers an attack: a function that returns (SUCCEEDED or REFUSED, what was seen)."""
+def attack(name, into=None):
+    """Registers an attack: a function that returns (SUCCEEDED or REFUSED, what was seen), in
+    `into` (another file's list of attacks) or this file's."""
     def wrap(f):
-        ATTACKS.append((name, f))
+        (ATTACKS if into is None else into).append((name, f))
         return f
     return wrap
 

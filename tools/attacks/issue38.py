@@ -29,10 +29,7 @@ ATTACKS = []
 
 def attack(name):
     """Registers an attack of this file."""
-    def wrap(f):
-        ATTACKS.append((name, f))
-        return f
-    return wrap
+    return base.attack(name, ATTACKS)
 
 
 # docs/security.md, "Flash wear": authenticated changes draw on a burst of 20 commits, then one
