@@ -234,11 +234,12 @@ impl<F: NorFlash, R: RawMutex> RegisterMap for Map8350<'_, F, R> {
     fn admit(&mut self, from: [u8; 4], function: u8) -> Result<(), Exception> {
         // Reads with a side effect (clear-on-read) are for those who may write: anyone while no
         // allow-list is set, else its clients only; the others read the flags as they stand.
-        self.reads_clear = self.settings.allow.allows(from);
+        let allowed = self.settings.allow.allows(from);
+        self.reads_clear = allowed;
         access::admit(&self.settings.allow, from, function)?;
         // With an allow-list, only its clients feed (and auto-clear) the host watchdog: a
         // reader elsewhere on the LAN cannot keep a dead master's outputs alive (docs/security.md).
-        if self.settings.allow.allows(from) {
+        if allowed {
             io::with(self.io, |s| s.request(access::is_write(function)));
         }
         Ok(())
