@@ -254,11 +254,11 @@ impl<F: NorFlash, S: Schema> SettingsStore<F, S> {
             map: MapStorage::new(flash, config, Cache::new_uncached()),
             buf: Buffer([0; BUF_LEN]),
             current: S::defaults(),
+            // Full, as after a power-on; the start-up sets them for its reset cause (`resume`).
             writes: crate::budget::Budget::new(COMMIT_BURST, COMMIT_REFILL_MS),
             admin: crate::budget::Budget::new(ADMIN_BURST, ADMIN_REFILL_MS),
         };
         store.current = store.load().await;
-        store.resume(crate::diagnostics::ResetCause::PowerOn, None);
         store
     }
 
