@@ -108,7 +108,9 @@ async fn update(app: &'static Running) -> ! {
 #[cfg(any(not(target_os = "none"), feature = "web"))]
 #[embassy_executor::task(pool_size = remodaq_shared::sockets::WEB_CONNECTIONS)]
 async fn web(app: &'static Running) -> ! {
-    transport::web(app.net(), app.map(), app.store(), app.identity()).await
+    // Made in place: awaited by value, its 3.6 KB (the connection's buffers) would be copied
+    // through the stack first (issue #39, the stack).
+    core::pin::pin!(transport::web(app.net(), app.map(), app.store(), app.identity())).await
 }
 
 /// Brings the module up, then starts its tasks: a Modbus connection task per slot, discovery,

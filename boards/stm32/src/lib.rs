@@ -338,7 +338,7 @@ impl Board for Stm32Board {
             dns_servers: heapless::Vec::new(),
         });
         // The sockets' state: the CPU's alone, in the CCM (docs/design.md, "Memory plan").
-        #[unsafe(link_section = ".ccmdata.RESOURCES")]
+        #[unsafe(link_section = ".bss.ccm.RESOURCES")]
         static RESOURCES: StaticCell<StackResources<STACK_SOCKETS>> = StaticCell::new();
         let (stack, runner) =
             embassy_net::new(Backlogged::new(eth, GATES), config, RESOURCES.init(StackResources::new()), seed);

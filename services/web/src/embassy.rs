@@ -1,6 +1,6 @@
-//! The web console on embassy-net sockets (the QEMU board; the STM32 board once its RAM
-//! allows): each connection task with its own socket and buffers, one request per connection,
-//! within the service's timeouts (issue #25: at most 2 connections, never a Modbus slot).
+//! The web console on embassy-net sockets (the STM32 and QEMU boards): each connection task
+//! with its own socket and buffers, one request per connection, within the service's timeouts
+//! (issue #25: at most 2 connections, never a Modbus slot).
 
 use embassy_net::tcp::TcpSocket;
 use embassy_time::Duration;
@@ -16,9 +16,11 @@ use remodaq_shared::module::{CommonSettings as _, SettingsAccess, Store};
 use crate::service::{serve_connection, HTTP_BUFFER};
 
 /// The web console's socket buffers: a request larger than the receive buffer (up to the
-/// service's 1.5 KiB) arrives in two windows, an answer of up to 2 KiB leaves in two.
+/// service's 1.5 KiB) arrives in two windows, an answer of up to 1.75 KiB leaves in three (the
+/// send buffer is smaller for the web part's RAM, issue #39; on a LAN each window is a fraction
+/// of a millisecond).
 const WEB_RX: usize = 1024;
-const WEB_TX: usize = 1024;
+const WEB_TX: usize = 768;
 /// A web connection whose peer stops acknowledging is dropped after this.
 const WEB_IDLE: Duration = Duration::from_secs(10);
 

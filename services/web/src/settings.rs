@@ -20,7 +20,7 @@ use remodaq_protocol::net::{parse_ipv4, NetConfig};
 use remodaq_protocol::web::{agreement_proof, hex, unhex, PASSWORD_SEAL_LABEL, SESSION_ID_LEN};
 
 use crate::json::Object;
-use crate::service::api::{Answer, Api};
+use crate::service::api::{Answer, Api, Json};
 use remodaq_shared::modbus::RegisterMap;
 use remodaq_shared::module::{commit_change, CommonSettings as _, SettingsAccess};
 use remodaq_shared::net::NETWORK_STORED;
@@ -96,9 +96,9 @@ pub fn allow_list_of(body: &[u8]) -> Option<AllowList> {
     AllowList::of(&nets)
 }
 
-fn write_net(a: &mut Answer, net: &NetConfig, http_port: u16) {
+fn write_net(out: &mut Json, net: &NetConfig, http_port: u16) {
     let _ = write!(
-        a.json,
+        out,
         "{{\"ip\":\"{}\",\"mask\":\"{}\",\"gateway\":\"{}\",\"modbus_port\":{},\"http_port\":{}}}",
         Ipv4Addr::from(net.ip),
         Ipv4Addr::from(net.mask),
@@ -112,26 +112,26 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
     /// `GET /api/v1/network`: the stored settings (in force after the next start), those in
     /// force now, and whether settings were stored since the start (a restart puts them in
     /// force). Anyone may read them, as discovery's search shows them to anyone.
-    pub(super) async fn network(&self) -> Answer {
+    pub(super) async fn network(&self, out: &mut Json) -> Answer {
         let (stored, http_port) = {
             let map = self.map.lock().await;
             (map.settings().net(), map.settings().http_port())
         };
-        let mut a = Answer::new(StatusCode::OK);
-        a.json.push_str("{\"stored\":");
-        write_net(&mut a, &stored, http_port);
-        a.json.push_str(",\"running\":");
-        write_net(&mut a, &self.identity.running, RUNNING_PORT.load(Ordering::Relaxed));
-        let _ = write!(a.json, ",\"restart_needed\":{}}}", NETWORK_STORED.load(Ordering::Relaxed));
+        let a = Answer::new(out, StatusCode::OK);
+        out.push_str("{\"stored\":");
+        write_net(out, &stored, http_port);
+        out.push_str(",\"running\":");
+        write_net(out, &self.identity.running, RUNNING_PORT.load(Ordering::Relaxed));
+        let _ = write!(out, ",\"restart_needed\":{}}}", NETWORK_STORED.load(Ordering::Relaxed));
         a
     }
 
     /// `PUT /api/v1/network` (signed): stores new network settings, in force after a restart.
-    pub(super) async fn set_network(&self, body: &[u8]) -> Answer {
+    pub(super) async fn set_network(&self, out: &mut Json, body: &[u8]) -> Answer {
         match network_of(body) {
             Ok((net, http_port)) => {
                 let answer = self
-                    .commit(|s| {
+                    .commit(out, |s| {
                         s.set_net(net);
                         s.set_http_port(http_port);
                     })
@@ -141,51 +141,57 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
                 }
                 answer
             }
-            Err(NetworkError::NotJson) => {
-                Answer::error(StatusCode::BAD_REQUEST, "expected {ip, mask, gateway, modbus_port, http_port}", None)
-            }
+            Err(NetworkError::NotJson) => Answer::error(
+                out,
+                StatusCode::BAD_REQUEST,
+                "expected {ip, mask, gateway, modbus_port, http_port}",
+                None,
+            ),
             Err(NetworkError::Field(field)) => {
-                Answer::error(StatusCode::UNPROCESSABLE_ENTITY, "not a usable value", Some(field))
+                Answer::error(out, StatusCode::UNPROCESSABLE_ENTITY, "not a usable value", Some(field))
             }
         }
     }
 
     /// `GET /api/v1/access` (signed: discovery shows the list only with the password).
-    pub(super) async fn access(&self) -> Answer {
+    pub(super) async fn access(&self, out: &mut Json) -> Answer {
         let list = self.map.lock().await.settings().allow_list();
-        let mut a = Answer::new(StatusCode::OK);
-        a.json.push_str("{\"networks\":[");
+        let a = Answer::new(out, StatusCode::OK);
+        out.push_str("{\"networks\":[");
         for (i, net) in list.iter().enumerate() {
-            let _ = write!(a.json, "{}\"{net}\"", if i > 0 { "," } else { "" });
+            let _ = write!(out, "{}\"{net}\"", if i > 0 { "," } else { "" });
         }
-        a.json.push_str("]}");
+        out.push_str("]}");
         a
     }
 
     /// `PUT /api/v1/access` (signed): replaces the Modbus write allow-list.
-    pub(super) async fn set_access(&self, body: &[u8]) -> Answer {
+    pub(super) async fn set_access(&self, out: &mut Json, body: &[u8]) -> Answer {
         match allow_list_of(body) {
-            Some(list) => self.commit(|s| s.set_allow_list(list)).await,
-            None => {
-                Answer::error(StatusCode::UNPROCESSABLE_ENTITY, "at most 4 networks, a.b.c.d/n each", Some("networks"))
-            }
+            Some(list) => self.commit(out, |s| s.set_allow_list(list)).await,
+            None => Answer::error(
+                out,
+                StatusCode::UNPROCESSABLE_ENTITY,
+                "at most 4 networks, a.b.c.d/n each",
+                Some("networks"),
+            ),
         }
     }
 
     /// `POST /api/v1/password/key` (signed): a new ephemeral key for this session's password
     /// change, proved with the session key.
-    pub(super) fn password_key(&self, session: [u8; SESSION_ID_LEN]) -> Answer {
+    pub(super) fn password_key(&self, out: &mut Json, session: [u8; SESSION_ID_LEN]) -> Answer {
         let Some(session_key) = self.sessions.lock(|s| s.borrow().key(&session)) else {
-            return Answer::error(StatusCode::UNAUTHORIZED, "no session", None);
+            return Answer::error(out, StatusCode::UNAUTHORIZED, "no session", None);
         };
         let mut secret = [0u8; KEY_LEN];
         remodaq_shared::password::AUTH.random(&(self.now_ms)().to_le_bytes(), &mut secret);
         let public = x25519(&secret, &BASE_POINT);
         AGREEMENT.lock(|a| a.set(Some((secret, public, session))));
         let (mut key, mut proof) = ([0u8; 2 * KEY_LEN], [0u8; 2 * KEY_LEN]);
-        let mut a = Answer::new(StatusCode::OK);
+        let a = Answer::new(out, StatusCode::OK);
         let _ = write!(
-            a.json,
+            out,
             "{{\"public\":\"{}\",\"proof\":\"{}\"}}",
             hex(&public, &mut key).unwrap_or(""),
             hex(&agreement_proof(&session_key, &public), &mut proof).unwrap_or("")
@@ -195,15 +201,15 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
 
     /// `PUT /api/v1/password` (signed): the new credential, sealed under the key agreed with
     /// this session's ephemeral key (used once). Every session ends with the old password.
-    pub(super) async fn set_password(&self, session: [u8; SESSION_ID_LEN], body: &[u8]) -> Answer {
+    pub(super) async fn set_password(&self, out: &mut Json, session: [u8; SESSION_ID_LEN], body: &[u8]) -> Answer {
         let fields = Object::parse(body).and_then(|o| Some((o.str("module")?, o.str("public")?, o.str("sealed")?)));
         let Some((module, public, sealed)) = fields else {
-            return Answer::error(StatusCode::BAD_REQUEST, "expected {module, public, sealed}", None);
+            return Answer::error(out, StatusCode::BAD_REQUEST, "expected {module, public, sealed}", None);
         };
         let (Some(sealed_for), Some(public), Some(mut bytes)) =
             (unhex::<KEY_LEN>(module), unhex::<KEY_LEN>(public), unhex::<CREDENTIAL_LEN>(sealed))
         else {
-            return Answer::error(StatusCode::BAD_REQUEST, "the keys are 64 hex digits, the credential 168", None);
+            return Answer::error(out, StatusCode::BAD_REQUEST, "the keys are 64 hex digits, the credential 168", None);
         };
         // Only the key offered to this session, and only for a credential sealed for that very
         // key: one sealed for an earlier key would open to random bytes, a password nobody
@@ -216,15 +222,15 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
             _ => None,
         });
         let Some((secret, module_public)) = offered else {
-            return Answer::error(StatusCode::CONFLICT, "ask for the module's key first", Some("module"));
+            return Answer::error(out, StatusCode::CONFLICT, "ask for the module's key first", Some("module"));
         };
         let shared = x25519(&secret, &public);
         seal(&shared, &[PASSWORD_SEAL_LABEL, &module_public], &mut bytes);
         let new = Credential::decode(&bytes);
         if !new.is_acceptable() || new.is_factory() {
-            return Answer::error(StatusCode::UNPROCESSABLE_ENTITY, "not a usable password", Some("sealed"));
+            return Answer::error(out, StatusCode::UNPROCESSABLE_ENTITY, "not a usable password", Some("sealed"));
         }
-        let answer = self.commit(|s| s.set_password(new)).await;
+        let answer = self.commit(out, |s| s.set_password(new)).await;
         if answer.status == StatusCode::NO_CONTENT {
             remodaq_shared::diagnostics::DIAGNOSTICS.factory_password(false);
             remodaq_shared::info!("web: password changed");
@@ -234,20 +240,21 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
 
     /// `POST /api/v1/restart` (signed): the module restarts once this answer is sent and the
     /// connection closed (by this connection's task: see [`super::service::Served`]).
-    pub(super) fn restart(&self) -> Answer {
+    pub(super) fn restart(&self, out: &mut Json) -> Answer {
         self.restart.set(true);
-        Answer::accepted()
+        Answer::accepted(out)
     }
 
-    async fn commit(&self, change: impl FnOnce(&mut M::Settings)) -> Answer {
+    async fn commit(&self, out: &mut Json, change: impl FnOnce(&mut M::Settings)) -> Answer {
         match commit_change(self.map, self.store, change).await {
-            Ok(()) => Answer::no_content(),
+            Ok(()) => Answer::no_content(out),
             Err(remodaq_shared::settings::StoreError::Budget) => Answer::error(
+                out,
                 StatusCode::TOO_MANY_REQUESTS,
                 "too many settings changes: the flash commit budget is spent, one more every 15 minutes",
                 None,
             ),
-            Err(_) => Answer::error(StatusCode::SERVICE_UNAVAILABLE, "the settings could not be stored", None),
+            Err(_) => Answer::error(out, StatusCode::SERVICE_UNAVAILABLE, "the settings could not be stored", None),
         }
     }
 }

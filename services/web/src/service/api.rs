@@ -10,7 +10,7 @@ use embassy_sync::blocking_mutex::Mutex as Blocking;
 use embassy_sync::mutex::Mutex;
 use embedded_storage_async::nor_flash::NorFlash;
 use picoserve::io::Read;
-use picoserve::response::{IntoResponse, Response, ResponseWriter, StatusCode};
+use picoserve::response::{Response, ResponseWriter, StatusCode};
 use picoserve::ResponseSent;
 use remodaq_shared::identity::Identity;
 use remodaq_shared::module::{SettingsAccess, Store};
@@ -38,8 +38,10 @@ const JSON_HEADERS: [(&str, &str); 4] = [
 const PAGE_HEADERS: [(&str, &str); 5] =
     [("Content-Encoding", "gzip"), ("Cache-Control", "no-cache"), JSON_HEADERS[1], JSON_HEADERS[2], JSON_HEADERS[3]];
 
-/// Largest JSON answer, bytes (the 8350's 12 DIs with every field fit, about 1.3 KB).
-pub const MAX_ANSWER: usize = 2048;
+/// Largest JSON answer, bytes: the 8350's 12 DIs with every field at its longest ("latch
+/// falling", a 10-digit counter, a 5-digit frequency, about 130 bytes each) take about 1.6 KB;
+/// 150 coils 0.9 KB. Each connection's future holds one (issue #39: the web part's RAM).
+pub const MAX_ANSWER: usize = 1792;
 
 /// The API of one module to one client (`peer`: its IPv4 address, for the guessing budget, the
 /// challenges and the Modbus allow-list). Built for each connection.
@@ -89,58 +91,70 @@ impl Json {
     }
 }
 
-/// An answer: a status and a JSON text.
+/// An answer: a status, and a page's file or the JSON text written into the request's [`Json`]
+/// (a resource writes there; a few bytes are returned through each call instead of the 2 KiB
+/// text, which each return site would otherwise give a stack slot of its own: issue #39, the
+/// stack). Each constructor starts the text anew.
+#[derive(Clone, Copy)]
 pub struct Answer {
     pub(crate) status: StatusCode,
-    pub(crate) json: Json,
     /// A page's file instead of the JSON: its type and its gzip-compressed bytes.
     pub(super) page: Option<(&'static str, &'static [u8])>,
 }
 
 impl Answer {
-    pub(crate) fn new(status: StatusCode) -> Self {
-        Self { status, json: Json::default(), page: None }
+    /// `status`, with the text in `out` started anew (the resource writes its JSON there).
+    pub(crate) fn new(out: &mut Json, status: StatusCode) -> Self {
+        // In place: a new `Json` would be a 2 KiB temporary on the stack.
+        out.text.clear();
+        out.cut = false;
+        Self { status, page: None }
     }
 
     /// `{"error": what}` (and `"field": field` when one field is at fault).
-    pub(crate) fn error(status: StatusCode, what: &str, field: Option<&str>) -> Self {
-        let mut a = Self::new(status);
-        let _ = write!(a.json, "{{\"error\":\"{what}\"");
+    pub(crate) fn error(out: &mut Json, status: StatusCode, what: &str, field: Option<&str>) -> Self {
+        let a = Self::new(out, status);
+        let _ = write!(out, "{{\"error\":\"{what}\"");
         if let Some(field) = field {
-            let _ = write!(a.json, ",\"field\":\"{field}\"");
+            let _ = write!(out, ",\"field\":\"{field}\"");
         }
-        a.json.push('}');
+        out.push('}');
         a
     }
 
-    pub(crate) fn no_content() -> Self {
-        Self::new(StatusCode::NO_CONTENT)
+    pub(crate) fn no_content(out: &mut Json) -> Self {
+        Self::new(out, StatusCode::NO_CONTENT)
     }
 
     /// 202: done once the answer is sent (a restart).
-    pub(crate) fn accepted() -> Self {
-        let mut a = Self::new(StatusCode::ACCEPTED);
-        a.json.push_str("{\"restarting\":true}");
+    pub(crate) fn accepted(out: &mut Json) -> Self {
+        let a = Self::new(out, StatusCode::ACCEPTED);
+        out.push_str("{\"restarting\":true}");
         a
     }
-}
 
-impl IntoResponse for Answer {
-    async fn write_to<R: Read, W: ResponseWriter<Error = R::Error>>(
+    /// A page's file.
+    pub(super) fn page(kind: &'static str, gz: &'static [u8]) -> Self {
+        Self { status: StatusCode::OK, page: Some((kind, gz)) }
+    }
+
+    /// Writes the answer (its JSON text is `json`'s) on `connection`.
+    pub(super) async fn write_to<R: Read, W: ResponseWriter<Error = R::Error>>(
         self,
+        json: &Json,
         connection: picoserve::response::Connection<'_, R>,
         response_writer: W,
     ) -> Result<ResponseSent, W::Error> {
         // One kind of response for every answer: one copy of picoserve's writer in flash.
         let (status, kind, body, headers): (_, _, &[u8], &[(&str, &str)]) = match self.page {
             Some((kind, gz)) => (self.status, kind, gz, &PAGE_HEADERS),
-            None if self.json.cut => (
+            None if json.cut => (
                 StatusCode::INTERNAL_SERVER_ERROR,
                 "application/json",
                 b"{\"error\":\"answer too long\"}",
                 &JSON_HEADERS,
             ),
-            None => (self.status, "application/json", self.json.text.as_bytes(), &JSON_HEADERS),
+            None => (self.status, "application/json", json.text.as_bytes(), &JSON_HEADERS),
         };
         let response = Response::new(status, body).with_content_type(kind).with_headers(headers);
         response_writer.write_response(connection, response).await

@@ -74,7 +74,10 @@ pub async fn serve_connection<R: RawMutex, M: RegisterMap + SettingsAccess, F: N
     let restart = Cell::new(false);
     let api = Api { map, store, identity, sessions: &SESSIONS, peer, now_ms, restart: &restart };
     let app = Router::from_service(api);
-    let serve = picoserve::Server::custom(&app, picoserve::time::EmbassyTimer, &CONFIG, buffer).serve(socket);
+    // Pinned where it is made: the timeout below takes a pointer to it, not the future itself
+    // (moving a future copies its whole size through the stack: issue #39, the stack).
+    let serve =
+        core::pin::pin!(picoserve::Server::custom(&app, picoserve::time::EmbassyTimer, &CONFIG, buffer).serve(socket));
     // picoserve's timeouts bound each read and write, not a client that reads its answer a byte
     // at a time: the whole connection is bounded too (dropping it closes the socket).
     let result = match embassy_time::with_timeout(CONNECTION_MAX, serve).await {

@@ -13,17 +13,17 @@ use remodaq_shared::modbus::RegisterMap;
 use remodaq_shared::module::SettingsAccess;
 use remodaq_shared::password::Credential;
 
-use super::api::{Answer, Api};
+use super::api::{Answer, Api, Json};
 use crate::json::Object;
 use crate::sessions::{Login, LoginError, Refusal, Signed, Verified};
 
 impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F> {
-    pub(super) fn identity(&self) -> Answer {
+    pub(super) fn identity(&self, out: &mut Json) -> Answer {
         let id = &self.identity;
-        let mut a = Answer::new(StatusCode::OK);
+        let a = Answer::new(out, StatusCode::OK);
         let mut mac = [0u8; 12];
         let _ = write!(
-            a.json,
+            out,
             "{{\"model\":\"{:04X}\",\"name\":\"{}\",\"firmware\":\"{:04X}\",\"mac\":\"{}\"}}",
             id.model,
             id.name,
@@ -33,15 +33,15 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
         a
     }
 
-    pub(super) fn challenge(&self, credential: &Credential) -> Answer {
+    pub(super) fn challenge(&self, out: &mut Json, credential: &Credential) -> Answer {
         let now = (self.now_ms)();
         let Some(c) = self.sessions.lock(|s| s.borrow_mut().challenge(credential, self.peer, now)) else {
-            return Answer::error(StatusCode::SERVICE_UNAVAILABLE, "the module is not ready for logins", None);
+            return Answer::error(out, StatusCode::SERVICE_UNAVAILABLE, "the module is not ready for logins", None);
         };
         let (mut salt, mut nonce) = ([0u8; 32], [0u8; 2 * NONCE_LEN]);
-        let mut a = Answer::new(StatusCode::OK);
+        let a = Answer::new(out, StatusCode::OK);
         let _ = write!(
-            a.json,
+            out,
             "{{\"salt\":\"{}\",\"iterations\":{},\"nonce\":\"{}\"}}",
             hex(&c.salt, &mut salt).unwrap_or(""),
             c.iterations,
@@ -50,15 +50,15 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
         a
     }
 
-    pub(super) fn login(&self, body: &[u8], credential: &Credential) -> Answer {
+    pub(super) fn login(&self, out: &mut Json, body: &[u8], credential: &Credential) -> Answer {
         let fields = Object::parse(body).and_then(|o| Some((o.str("nonce")?, o.str("page_nonce")?, o.str("proof")?)));
         let Some((nonce, page_nonce, proof)) = fields else {
-            return Answer::error(StatusCode::BAD_REQUEST, "expected {nonce, page_nonce, proof}", None);
+            return Answer::error(out, StatusCode::BAD_REQUEST, "expected {nonce, page_nonce, proof}", None);
         };
         let (Some(module_nonce), Some(page_nonce), Some(proof)) =
             (unhex(nonce), unhex(page_nonce), unhex::<KEY_LEN>(proof))
         else {
-            return Answer::error(StatusCode::BAD_REQUEST, "nonces are 32 hex digits, the proof 64", None);
+            return Answer::error(out, StatusCode::BAD_REQUEST, "nonces are 32 hex digits, the proof 64", None);
         };
         let now = (self.now_ms)();
         let login = Login { module_nonce, page_nonce, proof };
@@ -66,9 +66,9 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
         match self.sessions.lock(|s| s.borrow_mut().login(credential, &mac, &login, self.peer, now)) {
             Ok(done) => {
                 let (mut id, mut signature) = ([0u8; 2 * SESSION_ID_LEN], [0u8; 2 * KEY_LEN]);
-                let mut a = Answer::new(StatusCode::OK);
+                let a = Answer::new(out, StatusCode::OK);
                 let _ = write!(
-                    a.json,
+                    out,
                     "{{\"session\":\"{}\",\"signature\":\"{}\"}}",
                     hex(&done.session, &mut id).unwrap_or(""),
                     hex(&done.signature, &mut signature).unwrap_or("")
@@ -76,11 +76,11 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
                 a
             }
             Err(LoginError::Challenge) => {
-                Answer::error(StatusCode::UNAUTHORIZED, "challenge unknown, used or expired", Some("nonce"))
+                Answer::error(out, StatusCode::UNAUTHORIZED, "challenge unknown, used or expired", Some("nonce"))
             }
-            Err(LoginError::Wrong) => Answer::error(StatusCode::UNAUTHORIZED, "wrong password", None),
+            Err(LoginError::Wrong) => Answer::error(out, StatusCode::UNAUTHORIZED, "wrong password", None),
             Err(LoginError::Limited) => {
-                Answer::error(StatusCode::TOO_MANY_REQUESTS, "too many wrong passwords: wait", None)
+                Answer::error(out, StatusCode::TOO_MANY_REQUESTS, "too many wrong passwords: wait", None)
             }
         }
     }

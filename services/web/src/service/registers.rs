@@ -12,7 +12,7 @@ use remodaq_shared::modbus::pdu::{handle_pdu, MAX_PDU};
 use remodaq_shared::modbus::RegisterMap;
 use remodaq_shared::module::SettingsAccess;
 
-use super::api::{Answer, Api};
+use super::api::{Answer, Api, Json};
 use crate::json::Object;
 
 /// The most registers or coils one GET reads: Modbus's limit for registers (125 of at most
@@ -22,13 +22,13 @@ pub(super) const MAX_READ_REGISTERS: u16 = 125;
 pub(super) const MAX_READ_COILS: u16 = 150;
 
 /// The status and text of a Modbus exception as an API error.
-fn exception_answer(code: u8, field: &str) -> Answer {
+fn exception_answer(out: &mut Json, code: u8, field: &str) -> Answer {
     match code {
-        2 => Answer::error(StatusCode::NOT_FOUND, "address not mapped for this access", Some("address")),
-        3 => Answer::error(StatusCode::UNPROCESSABLE_ENTITY, "value refused", Some(field)),
-        4 => Answer::error(StatusCode::INTERNAL_SERVER_ERROR, "the module could not apply it", None),
+        2 => Answer::error(out, StatusCode::NOT_FOUND, "address not mapped for this access", Some("address")),
+        3 => Answer::error(out, StatusCode::UNPROCESSABLE_ENTITY, "value refused", Some(field)),
+        4 => Answer::error(out, StatusCode::INTERNAL_SERVER_ERROR, "the module could not apply it", None),
         // 01 (not a known function) and the access rules' refusal of a write.
-        _ => Answer::error(StatusCode::FORBIDDEN, "refused by the module", None),
+        _ => Answer::error(out, StatusCode::FORBIDDEN, "refused by the module", None),
     }
 }
 
@@ -36,55 +36,60 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
     /// A run of registers or coils as they stand (no flag cleared: [`RegisterMap::observe`]),
     /// read under one lock of the map. Reads are never refused by the allow-list and, unlike a
     /// Modbus read, do not feed the host watchdog (docs/web.md).
-    pub(super) async fn read(&self, registers: bool, addr: u16, n: u16) -> Answer {
+    pub(super) async fn read(&self, out: &mut Json, registers: bool, addr: u16, n: u16) -> Answer {
         let table = if registers { Table::Registers } else { Table::Bits };
+        let mut map = self.map.lock().await;
+        // Made once the lock is taken: not kept in the connection's future across that wait.
         let mut values = [0u16; MAX_READ_COILS as usize];
         let values = &mut values[..usize::from(n)];
-        {
-            let mut map = self.map.lock().await;
-            if !readable(&*map, table, addr, n) {
-                return exception_answer(2, "address");
-            }
-            // addr + i stays within 16 bits: checked above.
-            for (i, v) in (0..n).zip(values.iter_mut()) {
-                *v = map.observe(table, addr + i);
-            }
+        if !readable(&*map, table, addr, n) {
+            return exception_answer(out, 2, "address");
         }
-        let mut a = Answer::new(StatusCode::OK);
-        a.json.push_str("{\"values\":[");
+        // addr + i stays within 16 bits: checked above.
+        for (i, v) in (0..n).zip(values.iter_mut()) {
+            *v = map.observe(table, addr + i);
+        }
+        // The text is written with the map free for Modbus.
+        drop(map);
+        let a = Answer::new(out, StatusCode::OK);
+        out.push_str("{\"values\":[");
         for (i, v) in values.iter().enumerate() {
             let sep = if i == 0 { "" } else { "," };
-            let _ = if registers { write!(a.json, "{sep}{v}") } else { write!(a.json, "{sep}{}", *v != 0) };
+            let _ = if registers { write!(out, "{sep}{v}") } else { write!(out, "{sep}{}", *v != 0) };
         }
-        a.json.push_str("]}");
+        out.push_str("]}");
         a
     }
 
     /// A write of registers or coils at `addr` from a body `{"value": ...}`.
-    pub(super) async fn write(&self, registers: bool, addr: u16, body: &[u8]) -> Answer {
+    pub(super) async fn write(&self, out: &mut Json, registers: bool, addr: u16, body: &[u8]) -> Answer {
         let request = if registers {
             match Object::parse(body).and_then(|o| o.u16("value")) {
                 Some(v) => Pdu::word(addr, v),
-                None => return Answer::error(StatusCode::BAD_REQUEST, "expected {value: 0..65535}", Some("value")),
+                None => {
+                    return Answer::error(out, StatusCode::BAD_REQUEST, "expected {value: 0..65535}", Some("value"))
+                }
             }
         } else {
             match Object::parse(body).and_then(|o| o.bool("value")) {
                 Some(v) => Pdu::bit(addr, v),
-                None => return Answer::error(StatusCode::BAD_REQUEST, "expected {value: true|false}", Some("value")),
+                None => {
+                    return Answer::error(out, StatusCode::BAD_REQUEST, "expected {value: true|false}", Some("value"))
+                }
             }
         };
-        self.apply(&request, "value").await
+        self.apply(out, &request, "value").await
     }
 
     /// Carries out a write request through the Modbus PDU engine, with this client's address:
     /// the map's admission (the allow-list), checks and commit, as a Modbus write.
-    pub(super) async fn apply(&self, request: &Pdu, field: &str) -> Answer {
+    pub(super) async fn apply(&self, out: &mut Json, request: &Pdu, field: &str) -> Answer {
         let mut resp = [0u8; MAX_PDU];
         let len = handle_pdu(self.map, self.peer, request.bytes(), &mut resp).await;
         if len >= 5 && resp[0] == request.bytes()[0] {
-            Answer::no_content()
+            Answer::no_content(out)
         } else {
-            exception_answer(resp[1], field)
+            exception_answer(out, resp[1], field)
         }
     }
 }

@@ -6,7 +6,7 @@ use embassy_sync::blocking_mutex::raw::RawMutex;
 use embedded_storage_async::nor_flash::NorFlash;
 use picoserve::io::Read;
 use picoserve::request::{Path, Request};
-use picoserve::response::{IntoResponse, ResponseWriter, StatusCode};
+use picoserve::response::{ResponseWriter, StatusCode};
 use picoserve::routing::PathRouterService;
 use picoserve::ResponseSent;
 use remodaq_protocol::auth::KEY_LEN;
@@ -16,7 +16,7 @@ use remodaq_shared::modbus::RegisterMap;
 use remodaq_shared::module::{CommonSettings as _, SettingsAccess};
 use remodaq_shared::password::Credential;
 
-use super::api::{Answer, Api};
+use super::api::{Answer, Api, Json};
 use super::connection::PAGES;
 use super::registers::{MAX_READ_COILS, MAX_READ_REGISTERS};
 use crate::sessions::Signed;
@@ -33,17 +33,20 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> PathRouterServic
         let parts = request.parts;
         let method = parts.method();
         let target = path.encoded();
+        // The answer's JSON text, written by the resource (in this request's future).
+        let mut json = Json::default();
+        let out = &mut json;
         let answer = if !host_is_an_address(header(&parts, "Host")) {
             // DNS rebinding: a hostile page whose name the attacker's DNS turns into the module's
             // address sends its requests with its own name as the Host (docs/web.md).
-            Answer::error(StatusCode::MISDIRECTED_REQUEST, "reach the module by its address", None)
+            Answer::error(out, StatusCode::MISDIRECTED_REQUEST, "reach the module by its address", None)
         } else if let Some((_, kind, gz)) = PAGES.iter().find(|(p, ..)| *p == target).filter(|_| method == "GET") {
-            Answer { page: Some((kind, gz)), ..Answer::new(StatusCode::OK) }
+            Answer::page(kind, gz)
         } else {
             let query = parts.query().map(|q| q.0);
             let full = full_target(target, query);
             match (request.body_connection.body().read_all().await, full.as_ref()) {
-                (Ok(_), None) => Answer::error(StatusCode::URI_TOO_LONG, "target too long", None),
+                (Ok(_), None) => Answer::error(out, StatusCode::URI_TOO_LONG, "target too long", None),
                 (Ok(body), Some(full)) => {
                     let signed = Signed {
                         method,
@@ -57,12 +60,12 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> PathRouterServic
                         header(&parts, "Origin").is_some_and(|origin| !same_origin(origin, header(&parts, "Host")));
                     // The password in force, read once for the request's checks.
                     let credential = self.map.lock().await.settings().password();
-                    self.route(method, target, query, &signed, foreign, &credential).await
+                    self.route(out, method, target, query, &signed, foreign, &credential).await
                 }
-                (Err(_), _) => Answer::error(StatusCode::PAYLOAD_TOO_LARGE, "body too large", None),
+                (Err(_), _) => Answer::error(out, StatusCode::PAYLOAD_TOO_LARGE, "body too large", None),
             }
         };
-        answer.write_to(request.body_connection.finalize().await?, response_writer).await
+        answer.write_to(&json, request.body_connection.finalize().await?, response_writer).await
     }
 }
 
@@ -122,8 +125,10 @@ fn count(query: Option<&str>, most: u16) -> Option<u16> {
 }
 
 impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F> {
+    #[allow(clippy::too_many_arguments)]
     async fn route(
         &self,
+        out: &mut Json,
         method: &str,
         target: &str,
         query: Option<&str>,
@@ -133,66 +138,66 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
     ) -> Answer {
         let mut segments = target.trim_start_matches('/').split('/');
         let (Some("api"), Some("v1")) = (segments.next(), segments.next()) else {
-            return Answer::error(StatusCode::NOT_FOUND, "no such resource", None);
+            return Answer::error(out, StatusCode::NOT_FOUND, "no such resource", None);
         };
         let resource = (segments.next(), segments.next(), segments.next());
         if segments.next().is_some() {
-            return Answer::error(StatusCode::NOT_FOUND, "no such resource", None);
+            return Answer::error(out, StatusCode::NOT_FOUND, "no such resource", None);
         }
         let state_changing = !(method.eq_ignore_ascii_case("GET") || method.eq_ignore_ascii_case("HEAD"));
         if state_changing && foreign {
-            return Answer::error(StatusCode::FORBIDDEN, "request from another origin", None);
+            return Answer::error(out, StatusCode::FORBIDDEN, "request from another origin", None);
         }
         match (method, resource) {
-            ("GET", (Some("identity"), None, None)) => self.identity(),
-            ("POST", (Some("session"), Some("challenge"), None)) => self.challenge(credential),
-            ("POST", (Some("session"), None, None)) => self.login(signed.body, credential),
+            ("GET", (Some("identity"), None, None)) => self.identity(out),
+            ("POST", (Some("session"), Some("challenge"), None)) => self.challenge(out, credential),
+            ("POST", (Some("session"), None, None)) => self.login(out, signed.body, credential),
             ("DELETE", (Some("session"), None, None)) => match self.verify(signed, credential) {
                 Ok(_) => {
                     if let Some(id) = signed.session {
                         self.sessions.lock(|s| s.borrow_mut().end(&id));
                         crate::firmware::release(&id);
                     }
-                    Answer::no_content()
+                    Answer::no_content(out)
                 }
-                Err(why) => Answer::error(StatusCode::UNAUTHORIZED, why, None),
+                Err(why) => Answer::error(out, StatusCode::UNAUTHORIZED, why, None),
             },
             ("GET", (Some(table @ ("registers" | "coils")), Some(addr), None)) => {
                 let Ok(addr) = addr.parse::<u16>() else {
-                    return Answer::error(StatusCode::BAD_REQUEST, "not an address", Some("address"));
+                    return Answer::error(out, StatusCode::BAD_REQUEST, "not an address", Some("address"));
                 };
                 let registers = table == "registers";
                 match count(query, if registers { MAX_READ_REGISTERS } else { MAX_READ_COILS }) {
-                    Some(n) => self.read(registers, addr, n).await,
-                    None => Answer::error(StatusCode::BAD_REQUEST, "count must be 1 to the limit", Some("count")),
+                    Some(n) => self.read(out, registers, addr, n).await,
+                    None => Answer::error(out, StatusCode::BAD_REQUEST, "count must be 1 to the limit", Some("count")),
                 }
             }
             ("PUT", (Some(table @ ("registers" | "coils")), Some(addr), None)) => {
                 let Ok(addr) = addr.parse::<u16>() else {
-                    return Answer::error(StatusCode::BAD_REQUEST, "not an address", Some("address"));
+                    return Answer::error(out, StatusCode::BAD_REQUEST, "not an address", Some("address"));
                 };
                 if let Err(why) = self.verify(signed, credential) {
-                    return Answer::error(StatusCode::UNAUTHORIZED, why, None);
+                    return Answer::error(out, StatusCode::UNAUTHORIZED, why, None);
                 }
-                self.write(table == "registers", addr, signed.body).await
+                self.write(out, table == "registers", addr, signed.body).await
             }
-            ("GET", (Some("network"), None, None)) => self.network().await,
-            ("GET", (Some("firmware"), None, None)) => self.firmware(),
+            ("GET", (Some("network"), None, None)) => self.network(out).await,
+            ("GET", (Some("firmware"), None, None)) => self.firmware(out),
             ("POST", (Some("firmware"), None | Some("finish"), None)) | ("PUT", (Some("firmware"), Some(_), None)) => {
                 let verified = match self.verify(signed, credential) {
                     Ok(verified) => verified,
-                    Err(why) => return Answer::error(StatusCode::UNAUTHORIZED, why, None),
+                    Err(why) => return Answer::error(out, StatusCode::UNAUTHORIZED, why, None),
                 };
                 // As the update service: not with the factory password (docs/update.md).
                 if verified.factory {
-                    return Answer::error(StatusCode::FORBIDDEN, "set a password first", None);
+                    return Answer::error(out, StatusCode::FORBIDDEN, "set a password first", None);
                 }
                 let session = signed.session.unwrap_or_default();
                 match (method, resource.1) {
-                    ("POST", None) => self.firmware_begin(session, signed.body).await,
-                    ("POST", Some(_)) => self.firmware_finish(session).await,
-                    (_, Some(offset)) => self.firmware_write(session, offset, signed.body).await,
-                    _ => Answer::error(StatusCode::METHOD_NOT_ALLOWED, "method not allowed here", None),
+                    ("POST", None) => self.firmware_begin(out, session, signed.body).await,
+                    ("POST", Some(_)) => self.firmware_finish(out, session).await,
+                    (_, Some(offset)) => self.firmware_write(out, session, offset, signed.body).await,
+                    _ => Answer::error(out, StatusCode::METHOD_NOT_ALLOWED, "method not allowed here", None),
                 }
             }
             (method @ ("PUT" | "GET"), (Some(name @ ("network" | "access" | "password")), None, None))
@@ -201,22 +206,24 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
                 // password); every other read here is open.
                 let verified = match self.verify(signed, credential) {
                     Ok(verified) => verified,
-                    Err(why) => return Answer::error(StatusCode::UNAUTHORIZED, why, None),
+                    Err(why) => return Answer::error(out, StatusCode::UNAUTHORIZED, why, None),
                 };
                 match (method, name, resource.1) {
-                    ("PUT", "network", _) => self.set_network(signed.body).await,
-                    ("GET", "access", _) => self.access().await,
+                    ("PUT", "network", _) => self.set_network(out, signed.body).await,
+                    ("GET", "access", _) => self.access(out).await,
                     // As discovery: the factory password, which anyone knows, does not restrict
                     // who may write (docs/security.md).
                     ("PUT", "access", _) if verified.factory => {
-                        Answer::error(StatusCode::FORBIDDEN, "set a password first", None)
+                        Answer::error(out, StatusCode::FORBIDDEN, "set a password first", None)
                     }
-                    ("PUT", "access", _) => self.set_access(signed.body).await,
+                    ("PUT", "access", _) => self.set_access(out, signed.body).await,
                     // A verified request names its session.
-                    ("POST", "password", Some(_)) => self.password_key(signed.session.unwrap_or_default()),
-                    ("PUT", "password", _) => self.set_password(signed.session.unwrap_or_default(), signed.body).await,
-                    ("POST", "restart", None) => self.restart(),
-                    _ => Answer::error(StatusCode::METHOD_NOT_ALLOWED, "method not allowed here", None),
+                    ("POST", "password", Some(_)) => self.password_key(out, signed.session.unwrap_or_default()),
+                    ("PUT", "password", _) => {
+                        self.set_password(out, signed.session.unwrap_or_default(), signed.body).await
+                    }
+                    ("POST", "restart", None) => self.restart(out),
+                    _ => Answer::error(out, StatusCode::METHOD_NOT_ALLOWED, "method not allowed here", None),
                 }
             }
             (
@@ -229,36 +236,36 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
                     _,
                     _,
                 ),
-            ) => Answer::error(StatusCode::METHOD_NOT_ALLOWED, "method not allowed here", None),
+            ) => Answer::error(out, StatusCode::METHOD_NOT_ALLOWED, "method not allowed here", None),
             (_, (Some(name), a, b)) => {
                 let Some(r) = resources::of(self.identity.model).iter().find(|r| r.name == name) else {
-                    return Answer::error(StatusCode::NOT_FOUND, "no such resource", None);
+                    return Answer::error(out, StatusCode::NOT_FOUND, "no such resource", None);
                 };
                 // A list's item: `/{n}`; a field to write: the last segment.
                 let (item, field) = if r.count > 0 { (a, b) } else { (None, a.or(b).filter(|_| b.is_none())) };
                 let n = match item.map(|n| n.parse::<u16>().ok().filter(|n| *n < r.count)) {
-                    Some(None) => return Answer::error(StatusCode::NOT_FOUND, "no such item", Some("item")),
+                    Some(None) => return Answer::error(out, StatusCode::NOT_FOUND, "no such item", Some("item")),
                     Some(Some(n)) => Some(n),
                     None => None,
                 };
                 match (method, field) {
-                    ("GET", None) => self.show(r, n).await,
+                    ("GET", None) => self.show(out, r, n).await,
                     ("PUT", Some(field)) => {
                         let Some(f) = r.field(field) else {
-                            return Answer::error(StatusCode::NOT_FOUND, "no such field", Some("field"));
+                            return Answer::error(out, StatusCode::NOT_FOUND, "no such field", Some("field"));
                         };
                         if r.count > 0 && n.is_none() {
-                            return Answer::error(StatusCode::NOT_FOUND, "no such item", Some("item"));
+                            return Answer::error(out, StatusCode::NOT_FOUND, "no such item", Some("item"));
                         }
                         if let Err(why) = self.verify(signed, credential) {
-                            return Answer::error(StatusCode::UNAUTHORIZED, why, None);
+                            return Answer::error(out, StatusCode::UNAUTHORIZED, why, None);
                         }
-                        self.change(f, n.unwrap_or(0), signed.body).await
+                        self.change(out, f, n.unwrap_or(0), signed.body).await
                     }
-                    _ => Answer::error(StatusCode::METHOD_NOT_ALLOWED, "method not allowed here", None),
+                    _ => Answer::error(out, StatusCode::METHOD_NOT_ALLOWED, "method not allowed here", None),
                 }
             }
-            _ => Answer::error(StatusCode::NOT_FOUND, "no such resource", None),
+            _ => Answer::error(out, StatusCode::NOT_FOUND, "no such resource", None),
         }
     }
 }

@@ -35,7 +35,7 @@ enum Seen {
 
 impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F> {
     /// `GET /api/v1/{resource}` (every item) or `/api/v1/{resource}/{n}` (one).
-    pub(super) async fn show(&self, r: &Resource, item: Option<u16>) -> Answer {
+    pub(super) async fn show(&self, out: &mut Json, r: &Resource, item: Option<u16>) -> Answer {
         let items = match item {
             Some(n) => n..n + 1,
             None => 0..r.count.max(1),
@@ -52,10 +52,10 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
             let engineering = r.fields.iter().any(|f| f.format == Format::Engineering);
             engineering.then(|| InputType::from_code(map.observe(Table::Registers, REG_INPUT_TYPE) as u8)).flatten()
         };
-        let mut a = Answer::new(StatusCode::OK);
+        let a = Answer::new(out, StatusCode::OK);
         let list = item.is_none() && r.count > 0;
         if list {
-            let _ = write!(a.json, "{{\"{}\":[", r.name);
+            let _ = write!(out, "{{\"{}\":[", r.name);
         }
         let mut values = values.iter();
         for n in items {
@@ -63,39 +63,39 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
             // items, so that a Modbus answer waits for one item at most (docs/web.md).
             embassy_futures::yield_now().await;
             if n > 0 && list {
-                a.json.push(',');
+                out.push(',');
             }
-            a.json.push('{');
+            out.push('{');
             let mut first = true;
             for (f, v) in shown().zip(&mut values) {
                 let Seen::Value(v) = *v else {
                     if matches!(v, Seen::Null) {
-                        let _ = write!(a.json, "{}\"{}\":null", if first { "" } else { "," }, f.name);
+                        let _ = write!(out, "{}\"{}\":null", if first { "" } else { "," }, f.name);
                         first = false;
                     }
                     continue;
                 };
-                let _ = write!(a.json, "{}\"{}\":", if first { "" } else { "," }, f.name);
+                let _ = write!(out, "{}\"{}\":", if first { "" } else { "," }, f.name);
                 first = false;
-                json_value(&mut a.json, f, v, input_type.as_ref());
+                json_value(out, f, v, input_type.as_ref());
             }
-            a.json.push('}');
+            out.push('}');
         }
         if list {
-            a.json.push_str("]}");
+            out.push_str("]}");
         }
         a
     }
 
     /// `PUT /api/v1/{resource}[/{n}]/{field}` with `{"value": ...}`: one Modbus write.
-    pub(super) async fn change(&self, f: &Field, n: u16, body: &[u8]) -> Answer {
+    pub(super) async fn change(&self, out: &mut Json, f: &Field, n: u16, body: &[u8]) -> Answer {
         match write_request(f, n, body) {
-            Ok(request) => self.apply(&request, f.name).await,
+            Ok(request) => self.apply(out, &request, f.name).await,
             Err(WriteError::ReadOnly) => {
-                Answer::error(StatusCode::METHOD_NOT_ALLOWED, "the field is read-only", Some(f.name))
+                Answer::error(out, StatusCode::METHOD_NOT_ALLOWED, "the field is read-only", Some(f.name))
             }
             Err(WriteError::NotAValue) => {
-                Answer::error(StatusCode::UNPROCESSABLE_ENTITY, "not a value of this field", Some(f.name))
+                Answer::error(out, StatusCode::UNPROCESSABLE_ENTITY, "not a value of this field", Some(f.name))
             }
         }
     }

@@ -29,7 +29,7 @@ pub type ModbusGate = SynGate<HELD, SOCKETS>;
 
 /// The Modbus port's backlog on the boards that run embassy-net (the CPU's alone: in the CCM
 /// where the board has one, feature `ccm`).
-#[cfg_attr(feature = "ccm", unsafe(link_section = ".ccmdata.MODBUS_BACKLOG"))]
+#[cfg_attr(feature = "ccm", unsafe(link_section = ".bss.ccm.MODBUS_BACKLOG"))]
 pub static MODBUS_BACKLOG: ModbusGate = SynGate::new();
 
 /// SYNs for the web console's port held at most: a browser opens up to 6 connections to a
@@ -45,7 +45,7 @@ pub type WebGate = SynGate<WEB_HELD, { remodaq_shared::sockets::WEB_CONNECTIONS 
 
 /// The web console port's backlog on the boards that run embassy-net.
 #[cfg(feature = "web")]
-#[cfg_attr(feature = "ccm", unsafe(link_section = ".ccmdata.WEB_BACKLOG"))]
+#[cfg_attr(feature = "ccm", unsafe(link_section = ".bss.ccm.WEB_BACKLOG"))]
 pub static WEB_BACKLOG: WebGate = SynGate::new();
 
 /// Every port's gate, in the order they see a frame.
