@@ -6,6 +6,7 @@
 
 pub mod analog;
 mod ccm;
+pub mod x32;
 /// The painted stack (boards/stack.rs): its high-water mark for the on-target check.
 pub mod stack {
     include!("../../stack.rs");
@@ -40,6 +41,7 @@ use remodaq_shared::health::{self, Heartbeat};
 use remodaq_shared::net::{mac_from_uid, NetConfig};
 use remodaq_shared::{error, info};
 use static_cell::{ConstStaticCell, StaticCell};
+use x32::X32;
 
 pub use resources::Io;
 
@@ -54,16 +56,17 @@ pub type Device = Ethernet<'static, ETH, phy::Lan8742a<Sma<'static, ETH_SMA>>>;
 /// The settings flash: bank 2, sectors 12-15 (16 KiB each, 0x0810_0000), see `memory.x`.
 /// Every flash partition of the board goes through [`Serialized`]: one operation, or one
 /// sector's erase, at a time on the controller (docs/design.md, "Flash").
-pub type SettingsFlash = Serialized<Bank2Region1<'static, Async>>;
+pub type SettingsFlash = Serialized<X32<Bank2Region1<'static, Async>>>;
 /// The update partition (DFU): bank 2 sectors 17-23 (128 KiB each, 0x0812_0000), all of the
 /// region, see `memory.x`.
-pub type DfuFlash = Serialized<Bank2Region3<'static, Async>>;
+pub type DfuFlash = Serialized<X32<Bank2Region3<'static, Async>>>;
 /// The bootloader's state: bank 2 sector 16 (0x0811_0000, 64 KiB), all of bank 2 region 2.
 /// Not in bank 1: marking an update (or a boot) erases the state, and while a sector erases
 /// nothing can be read from its bank (RM0090 §3.6), so an erase in bank 1, where the code and
 /// the vector table are, would stall the CPU and every interrupt for up to 0.8 s (a 16 KiB
-/// sector at x8). Bank 1 is read on meanwhile (read-while-write between the banks, §3.6).
-pub type BootStateFlash = Serialized<Bank2Region2<'static, Async>>;
+/// sector at x8, 0.5 s at the x32 the board erases at: [`x32`]). Bank 1 is read on meanwhile
+/// (read-while-write between the banks, §3.6).
+pub type BootStateFlash = Serialized<X32<Bank2Region2<'static, Async>>>;
 
 use remodaq_net::STACK_SOCKETS;
 // The watchdog's period (`WATCHDOG_TIMEOUT_US`, 5.4 s at the least), shared with the
@@ -215,10 +218,10 @@ fn init(spawner: Spawner) -> (Stm32Board, SettingsFlash, Io) {
     spawn(spawner, watchdog_task(wdg), "watchdog");
 
     let regions = Flash::new(p.FLASH, Irqs).into_regions();
-    let settings_flash = Serialized::new(regions.bank2_region1, &CONTROLLER);
+    let settings_flash = Serialized::new(X32(regions.bank2_region1), &CONTROLLER);
     let boot = Some((
-        Serialized::new(regions.bank2_region3, &CONTROLLER),
-        Serialized::new(regions.bank2_region2, &CONTROLLER),
+        Serialized::new(X32(regions.bank2_region3), &CONTROLLER),
+        Serialized::new(X32(regions.bank2_region2), &CONTROLLER),
     ));
     // LD1 (green, PB0): the "identify" LED.
     let led = Output::new(p.PB0, Level::Low, Speed::Low);

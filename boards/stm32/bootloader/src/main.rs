@@ -31,7 +31,7 @@ mod boot {
 
     use embassy_boot_stm32::{BlockingFirmwareState, BootLoader, BootLoaderConfig};
     use embassy_embedded_hal::flash::partition::BlockingPartition;
-    use embassy_stm32::flash::{Flash, FlashBank, BANK2_REGION2, FLASH_BASE};
+    use embassy_stm32::flash::{Flash, FlashBank, BANK2_REGION2, BANK2_REGION3, FLASH_BASE};
     use embassy_stm32::gpio::{Flex, Pull, Speed};
     use embassy_stm32::wdg::IndependentWatchdog;
     use embassy_sync::blocking_mutex::raw::NoopRawMutex;
@@ -117,6 +117,42 @@ mod boot {
     }
 
     const _: () = assert!(FLASH_BASE as u32 + 0x2_0000 == REGION3);
+
+    // The layout as both linker scripts give it (build.rs: `APP_*` from the application's
+    // memory.x, `BOOT_*` from this bootloader's), tied to the constants above and to embassy's
+    // regions (stm32 review N2): a change in one place that the others do not follow stops the
+    // build.
+    include!(concat!(env!("OUT_DIR"), "/layout.rs"));
+    const _: () = assert!(
+        APP_FLASH_ORIGIN == REGION3 && BOOT_ACTIVE_START == REGION3,
+        "ACTIVE does not start at bank 1 region 3"
+    );
+    const _: () = assert!(
+        APP_FLASH_LENGTH == ACTIVE_SIZE && BOOT_ACTIVE_END - BOOT_ACTIVE_START == ACTIVE_SIZE,
+        "ACTIVE's size differs between memory.x, the bootloader's memory.x and ACTIVE_SIZE"
+    );
+    const _: () = assert!(
+        APP_DFU_START == BOOT_DFU_START && APP_DFU_END == BOOT_DFU_END && APP_DFU_END - APP_DFU_START == DFU_SIZE,
+        "DFU differs between memory.x, the bootloader's memory.x and DFU_SIZE"
+    );
+    const _: () = assert!(
+        APP_STATE_START == BOOT_STATE_START
+            && APP_STATE_END == BOOT_STATE_END
+            && APP_STATE_END - APP_STATE_START == STATE_SIZE,
+        "the state differs between memory.x, the bootloader's memory.x and STATE_SIZE"
+    );
+    // embassy's regions: DFU is all of bank 2 region 3, the state all of bank 2 region 2; bank 2
+    // starts 1 MiB into the flash of a 2 MiB part (RM0090 §3.3, Table 6).
+    const BANK2: u32 = FLASH_BASE as u32 + 0x10_0000;
+    const _: () = assert!(
+        matches!(BANK2_REGION3.bank, FlashBank::Bank2)
+            && BANK2 + BANK2_REGION3.offset == APP_DFU_START
+            && BANK2_REGION3.size == DFU_SIZE,
+        "DFU is not bank 2 region 3"
+    );
+    const _: () = assert!(BANK2 + BANK2_REGION2.offset == APP_STATE_START, "the state is not bank 2 region 2");
+    // embassy-boot's swap: DFU holds ACTIVE and one page more (docs/update.md).
+    const _: () = assert!(DFU_SIZE >= ACTIVE_SIZE + 128 * 1024, "DFU is smaller than ACTIVE and one page");
     // The state: bank 2 sector 16, 0x0811_0000 (64 KiB into bank 2), as memory.x says.
     const _: () = assert!(
         matches!(BANK2_REGION2.bank, FlashBank::Bank2)
