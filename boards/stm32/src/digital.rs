@@ -10,7 +10,10 @@
 //!   word per tick from a 128-tick circular pattern into GPIOF's set/reset register; the output
 //!   task refills each half as it is played. A 5 kHz train is exact however busy the CPU is. An
 //!   output command is written into the queued words from 3 ticks after the DMA's position
-//!   (read from NDTR), so it reaches the pin about 0.3 ms after the output task runs.
+//!   (read from NDTR), so it reaches the pin 0.3-0.4 ms after the output task runs. The margin
+//!   against the DMA is at least 0.2 ms, not 0.3: in direct mode the stream has already fetched
+//!   the word at NDTR before its request (RM0090 §10.3.11, "Direct mode"), so that word is
+//!   spent; the latency counted from NDTR under-reports by up to one tick (stm32 review N1).
 
 use embassy_stm32::dma::{Channel, ReadableRingBuffer, TransferOptions, WritableRingBuffer};
 use embassy_stm32::gpio::{Input, Level, Output, Pull, Speed};
@@ -157,7 +160,7 @@ impl OutputPattern for Pattern {
             let i = (next + k) % PATTERN_LEN;
             // SAFETY: `words` is the ring's 'static buffer of PATTERN_LEN words and i is below
             // PATTERN_LEN. The words from the DMA's next one (plus FORCE_AHEAD ticks of margin,
-            // 0.3 ms) to the ring's write index are queued: the DMA has not read them yet and
+            // at least 0.2 ms given the word the stream has prefetched) to the ring's write index are queued: the DMA has not read them yet and
             // embassy's ring writes only after its write index, so nothing else writes them now.
             // Every access to the buffer, embassy's and these, is volatile.
             unsafe {
