@@ -15,15 +15,20 @@
 //!   the word at NDTR before its request (RM0090 §10.3.11, "Direct mode"), so that word is
 //!   spent; the latency counted from NDTR under-reports by up to one tick (stm32 review N1).
 
-use embassy_stm32::dma::{Channel, ReadableRingBuffer, TransferOptions, WritableRingBuffer};
+use core::cell::UnsafeCell;
+use core::future::Future as _;
+
+use embassy_stm32::dma::{Channel, ReadableRingBuffer, Transfer, TransferOptions};
 use embassy_stm32::gpio::{Input, Level, Output, Pull, Speed};
 use embassy_stm32::peripherals::{DMA2_CH1, DMA2_CH5, TIM1, TIM8};
 use embassy_stm32::time::Hertz;
 use embassy_stm32::timer::low_level::{RoundTo, Timer};
 use embassy_stm32::{bind_interrupts, dma, pac};
+use embassy_time::Instant;
 use remodaq_8350::di::SAMPLE_RATE_HZ;
 use remodaq_8350::io::{InputCapture, OutputPattern, PatternUnderrun, SamplesLost, FORCE_AHEAD, OUTPUT_CHUNK};
 use remodaq_8350::pulse::TICK_HZ;
+use remodaq_8350::ring::DmaPosition;
 use remodaq_8350::M8350;
 use remodaq_shared::board::IoFor;
 use static_cell::StaticCell;
@@ -74,17 +79,39 @@ impl InputCapture for Capture {
 
 /// The running output pattern.
 pub struct Pattern {
-    ring: WritableRingBuffer<'static, u32>,
-    /// The ring's memory, for rewriting queued ticks in place ([`OutputPattern::force`]).
+    /// The circular transfer of the pattern into GPIOF's BSRR, for as long as the module runs
+    /// (dropping it would stop the stream). Polling it registers the task's waker for the
+    /// stream's half-transfer and transfer-complete interrupts.
+    transfer: Transfer<'static>,
+    /// The pattern's words ([`PATTERN`]): read by the DMA, written only through this pointer.
     words: *mut u32,
+    /// Ticks written since the start: the next goes at `written % PATTERN_LEN`.
+    written: u64,
+    /// Whether a tick was written yet (the first write starts after the DMA's place).
+    started: bool,
+    /// Where the DMA stands, in ticks since the start.
+    dma: DmaPosition,
     _pins: [Output<'static>; 6],
     _timer: Timer<'static, TIM8>,
 }
 
-// SAFETY: `words` points into the 'static ring memory this pattern alone owns (the DMA reads
-// it, nothing else writes it); moving the pattern to the realtime executor's interrupt moves
-// that ownership with it.
+// SAFETY: `words` points to the 'static pattern this value alone writes (the DMA reads it; no
+// reference to it exists); moving the pattern to the realtime executor's interrupt moves that
+// ownership with it.
 unsafe impl Send for Pattern {}
+
+/// The output pattern's words: DMA2 reads them (in SRAM, checked at link time, memory.x), this
+/// board writes them through a raw pointer only ([`Pattern::words`]), never through a reference,
+/// so the two never alias a `&mut` (stm32 review R1: embassy's ring buffer held a `&mut` to them
+/// while `force` wrote through a pointer).
+struct PatternWords(UnsafeCell<[u32; PATTERN_LEN]>);
+
+// SAFETY: only `DigitalPeripherals::start`, which runs once (it consumes the peripherals),
+// takes the pointer; every access through it is volatile, by the one `Pattern`.
+unsafe impl Sync for PatternWords {}
+
+#[unsafe(export_name = "REMODAQ_DMA_PATTERN")]
+static PATTERN: PatternWords = PatternWords(UnsafeCell::new([0; PATTERN_LEN]));
 
 /// The set/reset bits of the DOs in `mask` (bit n = DOn): both halves of each pin.
 fn bsrr_pins(mask: u8) -> u32 {
@@ -106,20 +133,43 @@ fn bsrr(levels: u8) -> u32 {
 }
 
 impl Pattern {
-    /// Ticks queued and not played yet (the ring's capacity less its free room), or `None`
-    /// when the ring overran.
-    fn queued(&mut self) -> Option<usize> {
-        self.ring.len().ok().map(|free| PATTERN_LEN.saturating_sub(free))
+    /// The tick the DMA reads next, in ticks since the start.
+    fn playing(&mut self) -> u64 {
+        let remaining = self.transfer.get_remaining_transfers() as usize;
+        self.dma.sync(remaining, Instant::now().as_micros())
+    }
+
+    /// Ticks queued and not played yet, or `None` when the DMA has gone past the last tick
+    /// written (it plays old ticks again).
+    fn queued(&mut self) -> Option<u64> {
+        let playing = self.playing();
+        self.written.checked_sub(playing)
+    }
+
+    /// Writes tick `k` (since the start) as `word`: a volatile write through the pattern's
+    /// pointer.
+    fn put(&mut self, k: u64, word: impl FnOnce(u32) -> u32) {
+        let i = (k % PATTERN_LEN as u64) as usize;
+        // SAFETY: `words` is the 'static pattern of PATTERN_LEN words, i is below PATTERN_LEN,
+        // and no reference to those words exists (`PatternWords`); the DMA only reads them.
+        unsafe {
+            let at = self.words.add(i);
+            at.write_volatile(word(at.read_volatile()));
+        }
     }
 }
 
 impl OutputPattern for Pattern {
     async fn room(&mut self) {
         core::future::poll_fn(|cx| {
-            self.ring.set_waker(cx.waker());
-            match self.ring.len() {
-                Ok(free) if free < OUTPUT_CHUNK => core::task::Poll::Pending,
-                // Room, or an overrun that `write` reports.
+            // Registers this task for the stream's next half or whole pass (the transfer is
+            // circular: it never ends, so this is always pending).
+            let _ = core::pin::Pin::new(&mut self.transfer).poll(cx);
+            match self.queued() {
+                Some(queued) if (PATTERN_LEN as u64).saturating_sub(queued) < OUTPUT_CHUNK as u64 => {
+                    core::task::Poll::Pending
+                }
+                // Room, or a pattern run dry that `write` reports.
                 _ => core::task::Poll::Ready(()),
             }
         })
@@ -127,50 +177,47 @@ impl OutputPattern for Pattern {
     }
 
     fn write(&mut self, levels: &[u8]) -> Result<u32, PatternUnderrun> {
-        let mut words = [0u32; OUTPUT_CHUNK];
-        let n = levels.len().min(words.len());
-        for (w, l) in words.iter_mut().zip(&levels[..n]) {
-            *w = bsrr(*l);
+        let playing = self.playing();
+        let dry = playing > self.written && self.started;
+        if playing > self.written || !self.started {
+            // From a few ticks after the DMA's place: the first write, or after the pattern ran
+            // dry (the DMA played old ticks meanwhile), as the other boards' rings do.
+            self.written = playing + u64::from(FORCE_AHEAD);
+            self.started = true;
         }
-        let ahead = self.queued();
-        match (ahead, self.ring.write(&words[..n])) {
-            (Some(ahead), Ok(_)) => Ok(ahead as u32),
-            _ => {
-                self.ring.clear();
-                Err(PatternUnderrun)
-            }
+        let ahead = self.written - playing;
+        // Never over a tick not played yet.
+        let n = levels.len().min((PATTERN_LEN as u64).saturating_sub(ahead) as usize);
+        for &l in &levels[..n] {
+            let k = self.written;
+            self.put(k, |_| bsrr(l));
+            self.written += 1;
+        }
+        if dry {
+            Err(PatternUnderrun)
+        } else {
+            Ok(ahead as u32)
         }
     }
 
     fn force(&mut self, mask: u8, levels: u8) -> u32 {
-        let Some(queued) = self.queued() else { return 0 };
-        let ahead = FORCE_AHEAD as usize;
+        let playing = self.playing();
+        let Some(queued) = self.written.checked_sub(playing) else { return 0 };
+        let ahead = u64::from(FORCE_AHEAD);
         if queued <= ahead {
             return queued as u32;
         }
-        // The word the DMA transfers next: NDTR counts the transfers left in the pass over the
-        // circular buffer and is reloaded with its length at the end of each (RM0090 §10.3.9
-        // "Circular mode", §10.5.6 DMA_SxNDTR). Stream 1 of DMA2 (TIM8_UP, see `start`).
-        let ndtr = || usize::from(pac::DMA2.st(1).ndtr().read().ndt()).min(PATTERN_LEN);
-        let left = ndtr();
-        let next = (PATTERN_LEN - left) % PATTERN_LEN;
+        // From FORCE_AHEAD ticks after the DMA's place (NDTR, RM0090 §10.3.9 "Circular mode",
+        // §10.5.6 DMA_SxNDTR; at least 0.2 ms given the word the stream has prefetched) to the
+        // last tick written: queued, not read by the DMA yet.
         let pins = bsrr_pins(mask);
         let new = bsrr(levels) & pins;
-        for k in ahead..queued {
-            let i = (next + k) % PATTERN_LEN;
-            // SAFETY: `words` is the ring's 'static buffer of PATTERN_LEN words and i is below
-            // PATTERN_LEN. The words from the DMA's next one (plus FORCE_AHEAD ticks of margin,
-            // at least 0.2 ms given the word the stream has prefetched) to the ring's write index are queued: the DMA has not read them yet and
-            // embassy's ring writes only after its write index, so nothing else writes them now.
-            // Every access to the buffer, embassy's and these, is volatile.
-            unsafe {
-                let word = self.words.add(i);
-                word.write_volatile((word.read_volatile() & !pins) | new);
-            }
+        for k in playing + ahead..self.written {
+            self.put(k, |word| (word & !pins) | new);
         }
         // Interrupts stay on: if the DMA moved past the margin meanwhile, a tick or more
         // played the old level between new ones. Said, not hidden.
-        let moved = (left + PATTERN_LEN - ndtr()) % PATTERN_LEN;
+        let moved = self.playing() - playing;
         if moved >= ahead {
             remodaq_shared::warn!("outputs: a forced rewrite outran its margin ({} ticks)", moved);
         }
@@ -213,27 +260,35 @@ impl DigitalPeripherals {
         let capture = Capture { ring, _pins: pins, _timer: timer };
 
         let outputs = self.outputs.map(|pin| Output::new(pin, Level::Low, Speed::High));
-        // DMA2 reads it: in SRAM, checked at link time (memory.x).
-        #[unsafe(export_name = "REMODAQ_DMA_PATTERN")]
-        static PATTERN: StaticCell<[u32; PATTERN_LEN]> = StaticCell::new();
-        let buffer = PATTERN.init([bsrr(0); PATTERN_LEN]);
-        let words = buffer.as_mut_ptr();
+        // Every output off in every tick until the first write.
+        let words = PATTERN.0.get() as *mut u32;
+        for i in 0..PATTERN_LEN {
+            // SAFETY: the pattern's 'static words, i below PATTERN_LEN; the DMA is not started.
+            unsafe { words.add(i).write_volatile(bsrr(0)) };
+        }
+        static CHANNEL: StaticCell<Channel<'static>> = StaticCell::new();
+        let channel = CHANNEL.init(Channel::new(self.dma_out, Irqs));
+        let mut options = TransferOptions::default();
+        options.circular = true;
+        options.half_transfer_ir = true;
+        options.complete_transfer_ir = true;
         // SAFETY: GPIOF's set/reset register is a valid, write-only peripheral address whose
-        // writes only change the pins of its set bits; the buffer is 'static.
-        let mut ring = unsafe {
-            WritableRingBuffer::new(
-                Channel::new(self.dma_out, Irqs),
+        // writes only change the pins of its set bits; the pattern is 'static, in SRAM, and
+        // reached by the CPU only through `words`, by volatile accesses.
+        let transfer = unsafe {
+            channel.write_raw(
                 TIM8_UP_REQUEST,
+                core::ptr::slice_from_raw_parts(words as *const u32, PATTERN_LEN),
                 pac::GPIOF.bsrr().as_ptr() as *mut u32,
-                buffer,
-                TransferOptions::default(),
+                options,
             )
         };
-        ring.start();
+        let dma = DmaPosition::new(PATTERN_LEN, Instant::now().as_micros());
         let timer = Timer::new(self.tim_out);
         timer.set_frequency(Hertz(TICK_HZ), RoundTo::Slower);
         timer.enable_update_dma(true);
         timer.start();
-        (capture, Pattern { ring, words, _pins: outputs, _timer: timer })
+        let pattern = Pattern { transfer, words, written: 0, started: false, dma, _pins: outputs, _timer: timer };
+        (capture, pattern)
     }
 }

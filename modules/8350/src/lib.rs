@@ -10,6 +10,7 @@ pub mod di;
 pub mod io;
 pub mod map;
 pub mod pulse;
+pub mod ring;
 pub mod settings;
 pub mod watchdog;
 
