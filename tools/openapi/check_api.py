@@ -37,7 +37,7 @@ except ImportError:  # a fresh machine: PyYAML from PyPI
 HERE = os.path.dirname(os.path.abspath(__file__))
 SPEC = os.path.join(HERE, "..", "..", "docs", "openapi.yaml")
 sys.path.insert(0, os.path.join(HERE, "..", "browser"))
-from browser_test import FACTORY_PASSWORD, Module, read_coils, read_registers  # noqa: E402  the simulated module
+from browser_test import FACTORY_PASSWORD, Module, free_port, read_coils, read_registers, wait_for_identity  # noqa: E402
 
 # Where each writable field of a resource is, as the spec gives it (never as the module's own
 # table says): (model, resource, field) -> (Modbus table, address of item 0, addresses from one
@@ -218,6 +218,8 @@ class Client:
         self.api, self.web, self.modbus = api, (host, int(port)), module.modbus
         self.session = None
         self.model = json.loads(exchange(self.web, "GET", "/api/v1/identity")[1])["model"]
+        # Whether the module takes updates (an image of a board with an update partition).
+        self.updates = getattr(module, "updates", False)
 
     def call(self, method, target, value=None, headers=(), raw=None, host=None, expect=200):
         """The request; its answer checked against the file, and its status against `expect`
@@ -366,6 +368,9 @@ def exercise_8350(c):
         time.sleep(0.1)
     if c.get("/api/v1/di/0")["counter"] < 3:  # else the clear's read-back would prove nothing
         c.api.wrong("PUT", "/api/v1/di/0/counting", "DI0 did not count its 5 Hz square wave in 5 s")
+    # Stopped first, so that the clear's read-back sees 0 however fast DI0 counts (the QEMU
+    # board's DI0 is a 1 kHz square wave).
+    c.signed("PUT", "/api/v1/di/0/counting", False)
     c.signed("PUT", "/api/v1/di/0/clear", True)
     c.signed("PUT", "/api/v1/do/0/state", True)
     c.signed("PUT", "/api/v1/do/1/mode", "pulse")
@@ -486,13 +491,13 @@ def exercise_settings(c):
 
 
 def exercise_firmware(c):
-    """The firmware upload's refusals on the host build, which has no update partition (the
-    whole upload: tools/browser under QEMU)."""
+    """The firmware upload's refusals: on the host build, which has no update partition, 503;
+    an image of the QEMU board refuses the header (the whole upload: tools/browser under QEMU)."""
     c.call("GET", "/api/v1/firmware")
     header = bytes(146)
     c.call("POST", "/api/v1/firmware", raw=header, expect=401)  # unsigned
     c.signed("POST", "/api/v1/firmware", raw=header[:10], expect=400)
-    c.signed("POST", "/api/v1/firmware", raw=header, expect=503)
+    c.signed("POST", "/api/v1/firmware", raw=header, expect=422 if c.updates else 503)
     c.signed("PUT", "/api/v1/firmware/0", raw=b"\xff" * 512, expect=409)  # no upload
     c.signed("PUT", "/api/v1/firmware/0", raw=b"\xff" * 513, expect=400)
     c.signed("POST", "/api/v1/firmware/finish", expect=409)
@@ -521,18 +526,55 @@ def exercise_8318(c):
     c.signed("POST", "/api/v1/restart", expect=202)
 
 
+class QemuModule:
+    """A firmware image of the QEMU board (scripts/qemu build: the board's bootloader beside it,
+    the image's raw binary as the firmware partition's seed, as tools/qemu-e2e starts it) under
+    qemu-system-arm, its Modbus and web ports forwarded to free ports of this PC's loopback."""
+
+    updates = True
+
+    def __init__(self, image, work):
+        self.modbus = ("127.0.0.1", free_port())
+        web = free_port()
+        self.web = f"http://127.0.0.1:{web}"
+        nic = f"user,model=lan9118,hostfwd=tcp:127.0.0.1:{self.modbus[1]}-:8000,hostfwd=tcp:127.0.0.1:{web}-:80"
+        bootloader = os.path.join(os.path.dirname(image), "remodaq-qemu-bootloader")
+        args = ["qemu-system-arm", "-M", "mps2-an386", "-nographic", "-monitor", "none", "-serial", "null",
+                "-semihosting-config", "enable=on,target=native", "-nic", nic,
+                "-kernel", bootloader, "-device", f"loader,file={image}.bin,addr=0x300000"]
+        self.log = open(os.path.join(work, os.path.basename(image) + ".qemu.log"), "w")
+        self.process = subprocess.Popen(args, stdout=self.log, stderr=subprocess.STDOUT)
+        wait_for_identity(self.web, self.process, 60, f"{image} under QEMU")
+
+    def stop(self):
+        self.process.kill()
+        self.process.wait()
+        self.log.close()
+
+
 def main():
-    target = sys.argv[1] if len(sys.argv) > 1 else "target/debug"
+    """`check_api.py [TARGET_DIR]`: the host build of both models (default target/debug);
+    `check_api.py --qemu IMAGES_DIR`: both models' images of the QEMU board (the features the
+    STM32 images ship with: the web console, the update service)."""
+    qemu = len(sys.argv) > 2 and sys.argv[1] == "--qemu"
+    target = sys.argv[2] if qemu else (sys.argv[1] if len(sys.argv) > 1 else "target/debug")
     with open(SPEC) as f:
         spec = yaml.safe_load(f)
     api = Api(spec)
     work = tempfile.mkdtemp(prefix="rdaq-openapi-")
     modules, failed_setup = [], 0
     try:
-        m8350 = Module(os.path.join(target, "firmware-8350"), work, "[di0]\nsquare_hz = 5.0\n")
-        m8318 = Module(os.path.join(target, "firmware-8318"), work,
-                       "cjc_celsius = 25.0\n[ch0]\nmillivolts = 41.276\n[ch3]\nopen = true\n")
-        modules += [m8350, m8318]
+        if qemu:
+            # The QEMU board's DI0 is a 1 kHz square wave (boards/qemu/src/digital.rs).
+            m8350 = QemuModule(os.path.join(target, "firmware-8350"), work)
+            modules.append(m8350)
+            m8318 = QemuModule(os.path.join(target, "firmware-8318"), work)
+        else:
+            m8350 = Module(os.path.join(target, "firmware-8350"), work, "[di0]\nsquare_hz = 5.0\n")
+            modules.append(m8350)
+            m8318 = Module(os.path.join(target, "firmware-8318"), work,
+                           "cjc_celsius = 25.0\n[ch0]\nmillivolts = 41.276\n[ch3]\nopen = true\n")
+        modules.append(m8318)
         exercise_8350(Client(api, m8350))
         exercise_8318(Client(api, m8318))
     except Exception as e:
