@@ -118,10 +118,43 @@ where
             crate::diagnostics::DIAGNOSTICS.security(crate::diagnostics::Security::WriteBudgetRefusal, [0; 4]);
             return Err(UpdateError::Store(StoreError::Budget));
         }
+        // From the flash write to the map's update, a connection's deadline waits (finding 15c:
+        // a request dropped in between left the flash with the change and RAM without it).
+        let _under_way = CommitUnderWay::begin();
         store.commit(settings).await.map_err(UpdateError::Store)?;
-        map.lock().await.committed(&settings);
+        // Uncontended (the map's lock is never held across an await), taken without a wait.
+        match map.try_lock() {
+            Ok(mut map) => map.committed(&settings),
+            Err(_) => map.lock().await.committed(&settings),
+        }
     }
     Ok(out)
+}
+
+/// Commits under way: each from its flash write to the map's update ([`CommitUnderWay`]).
+static COMMITS_UNDER_WAY: core::sync::atomic::AtomicU8 = core::sync::atomic::AtomicU8::new(0);
+
+/// Whether a settings commit is under way: between its flash write and the register map's
+/// update. A service that drops a request on a deadline (the web console's connections) waits
+/// for this to end first, so that the flash and the map never disagree (finding 15c).
+pub fn commit_under_way() -> bool {
+    COMMITS_UNDER_WAY.load(core::sync::atomic::Ordering::Acquire) != 0
+}
+
+/// One commit under way, for as long as it lives (a commit dropped anyway ends it too).
+struct CommitUnderWay;
+
+impl CommitUnderWay {
+    fn begin() -> Self {
+        COMMITS_UNDER_WAY.fetch_add(1, core::sync::atomic::Ordering::AcqRel);
+        Self
+    }
+}
+
+impl Drop for CommitUnderWay {
+    fn drop(&mut self) {
+        COMMITS_UNDER_WAY.fetch_sub(1, core::sync::atomic::Ordering::AcqRel);
+    }
 }
 
 /// Implements [`CommonSettings`] for a settings struct with the fields `net: NetConfig`,

@@ -79,13 +79,29 @@ pub async fn serve_connection<R: RawMutex, M: RegisterMap + SettingsAccess, F: N
     let serve =
         core::pin::pin!(picoserve::Server::custom(&app, picoserve::time::EmbassyTimer, &CONFIG, buffer).serve(socket));
     // picoserve's timeouts bound each read and write, not a client that reads its answer a byte
-    // at a time: the whole connection is bounded too (dropping it closes the socket).
-    let result = match embassy_time::with_timeout(CONNECTION_MAX, serve).await {
-        Ok(served) => served.map(|_| ()),
-        Err(_) => Ok(()),
+    // at a time: the whole connection is bounded too (dropping it closes the socket), never in
+    // the middle of a settings commit.
+    let result = match embassy_futures::select::select(serve, deadline(CONNECTION_MAX)).await {
+        embassy_futures::select::Either::First(served) => served.map(|_| ()),
+        embassy_futures::select::Either::Second(()) => Ok(()),
     };
     Served { restart: restart.get(), result }
 }
+
+/// `max` from now, and then the end of any settings commit under way
+/// ([`remodaq_shared::module::commit_under_way`]): a connection dropped at its deadline is
+/// never dropped between a commit's flash write and the register map's update (security review
+/// finding 15c). Polled only while the connection's future waits, so a commit it is in the
+/// middle of is under way when this looks.
+pub async fn deadline(max: embassy_time::Duration) {
+    embassy_time::Timer::after(max).await;
+    while remodaq_shared::module::commit_under_way() {
+        embassy_time::Timer::after(COMMIT_POLL).await;
+    }
+}
+
+/// How often a connection past its deadline looks whether the commit under way has ended.
+const COMMIT_POLL: embassy_time::Duration = embassy_time::Duration::from_millis(20);
 
 /// The longest a connection is served: one request (5 s to start, 3 s to arrive), its answer,
 /// and the close.

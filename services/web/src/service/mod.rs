@@ -20,6 +20,8 @@ mod router;
 mod values;
 
 pub use api::{Answer, Api, Json, SharedSessions, MAX_ANSWER, SESSIONS};
-pub use connection::{serve_connection, write_with_buffer, Served, CONFIG, CONNECTIONS, CONNECTION_MAX, HTTP_BUFFER};
+pub use connection::{
+    deadline, serve_connection, write_with_buffer, Served, CONFIG, CONNECTIONS, CONNECTION_MAX, HTTP_BUFFER,
+};
 pub use registers::Pdu;
 pub use values::{write_request, WriteError};
