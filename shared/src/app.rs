@@ -62,8 +62,8 @@ where
     .await;
     store.resume(reset_cause, board.retained());
     if board.factory_reset_requested() {
-        crate::warn!("factory reset: every setting back to its factory default");
-        if store.commit(M::Settings::defaults()).await.is_err() {
+        crate::warn!("factory reset: every setting back to its factory default, the update counter kept");
+        if store.commit(crate::module::factory_reset(store.get())).await.is_err() {
             crate::error!("factory reset: the settings could not be written");
         }
     }

@@ -131,6 +131,16 @@ where
     Ok(out)
 }
 
+/// The settings a physical factory reset stores: every one back to its factory default but the
+/// update counters, kept (security review finding 11b: a reset to counter 0 let whoever claimed
+/// the module next install any older signed image). A store that could not be read has
+/// counters 0 anyway.
+pub fn factory_reset<S: CommonSettings>(current: &S) -> S {
+    let mut reset = S::defaults();
+    reset.set_update_counter(current.update_counter());
+    reset
+}
+
 /// Commits under way: each from its flash write to the map's update ([`CommitUnderWay`]).
 static COMMITS_UNDER_WAY: core::sync::atomic::AtomicU8 = core::sync::atomic::AtomicU8::new(0);
 

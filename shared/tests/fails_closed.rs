@@ -69,3 +69,27 @@ fn a_store_that_cannot_be_read_loads_locked_not_factory() {
     // The control: a blank store is a new module, with the factory password.
     assert_eq!(block_on(open(Flash::new())).get().password, Credential::FACTORY);
 }
+
+/// Security review finding 11b: the physical factory reset brings every setting back to its
+/// factory default (the factory password, the factory network) but not the update counters,
+/// or anyone who claimed the module next could install any older signed image.
+#[test]
+fn a_factory_reset_keeps_the_update_counter() {
+    let claimed = S {
+        password: OWN,
+        net: remodaq_shared::net::NetConfig { ip: [10, 1, 2, 3], ..remodaq_shared::net::NetConfig::FACTORY },
+        update: remodaq_shared::settings::Counter { confirmed: 5, pending: 6 },
+        ..S::defaults()
+    };
+    // The store's value, written and read back as a module's is.
+    let claimed = block_on(async {
+        let mut store = open(Flash::new()).await;
+        store.commit(claimed).await.expect("commit");
+        *open(store.into_flash()).await.get()
+    });
+    let reset = remodaq_shared::module::factory_reset(&claimed);
+    assert_eq!(reset.password, Credential::FACTORY);
+    assert_eq!(reset.net, remodaq_shared::net::NetConfig::FACTORY);
+    assert_eq!(reset.update, remodaq_shared::settings::Counter { confirmed: 5, pending: 6 }, "the counter went back");
+    assert_eq!(reset, S { update: claimed.update, ..S::defaults() });
+}
