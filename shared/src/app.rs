@@ -10,7 +10,7 @@ use static_cell::StaticCell;
 use crate::board::{Board, IoFor, Module, Runs, Shared};
 use crate::identity::{firmware_version, Identity};
 use crate::module::{CommonSettings, Store};
-use crate::settings::{Schema, SettingsStore};
+use crate::settings::SettingsStore;
 
 /// The running module: register map, network, identity.
 pub struct App<B: Board, M: Module> {
