@@ -26,7 +26,7 @@ use remodaq_shared::module::SettingsAccess;
 use remodaq_shared::password::AUTH;
 use remodaq_shared::ram_flash::RamFlash;
 use remodaq_shared::settings::{Schema, SettingsStore};
-use remodaq_web::json::Value;
+use remodaq_shared::json::Value;
 use remodaq_web::service::{write_request, Api, SharedSessions};
 use remodaq_web::Sessions;
 
@@ -130,7 +130,7 @@ fuzz_target!(|data: &[u8]| {
         let (r, f) = all[usize::from(pick) % all.len()];
         // The module's JSON reader takes nothing that is not JSON (serde_json as the oracle),
         // and reads the same members.
-        if let Some(object) = remodaq_web::json::Object::parse(body) {
+        if let Some(object) = remodaq_shared::json::Object::parse(body) {
             let full: serde_json::Map<String, serde_json::Value> =
                 serde_json::from_slice(body).expect("a body the reader took is a JSON object");
             for (name, value) in &full {

@@ -20,6 +20,7 @@ pub mod diagnostics;
 pub mod flash;
 pub mod health;
 pub mod identity;
+pub mod json;
 pub mod modbus;
 pub mod module;
 pub mod net;

@@ -12,7 +12,7 @@ extern crate std;
 #[cfg(feature = "embassy-net")]
 pub mod embassy;
 pub mod firmware;
-pub mod json;
+
 pub mod service;
 pub mod sessions;
 pub mod settings;

@@ -19,8 +19,8 @@ use remodaq_protocol::auth::{seal, x25519, Credential, BASE_POINT, CREDENTIAL_LE
 use remodaq_protocol::net::{parse_ipv4, NetConfig};
 use remodaq_protocol::web::{agreement_proof, hex, unhex, PASSWORD_SEAL_LABEL, SESSION_ID_LEN};
 
-use crate::json::Object;
 use crate::service::api::{Answer, Api, Json};
+use remodaq_shared::json::Object;
 use remodaq_shared::modbus::RegisterMap;
 use remodaq_shared::module::{commit_change, CommonSettings as _, SettingsAccess};
 use remodaq_shared::net::NETWORK_STORED;

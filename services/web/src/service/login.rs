@@ -14,8 +14,8 @@ use remodaq_shared::module::SettingsAccess;
 use remodaq_shared::password::Credential;
 
 use super::api::{Answer, Api, Json};
-use crate::json::Object;
 use crate::sessions::{Login, LoginError, Refusal, Signed, Verified};
+use remodaq_shared::json::Object;
 
 impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F> {
     pub(super) fn identity(&self, out: &mut Json) -> Answer {

@@ -23,5 +23,5 @@ pub use api::{Answer, Api, Json, SharedSessions, MAX_ANSWER, SESSIONS};
 pub use connection::{
     deadline, serve_connection, write_with_buffer, Served, CONFIG, CONNECTIONS, CONNECTION_MAX, HTTP_BUFFER,
 };
-pub use registers::Pdu;
+pub use remodaq_shared::modbus::Pdu;
 pub use values::{write_request, WriteError};

@@ -7,13 +7,13 @@ use core::fmt::Write as _;
 use embassy_sync::blocking_mutex::raw::RawMutex;
 use embedded_storage_async::nor_flash::NorFlash;
 use picoserve::response::StatusCode;
-use remodaq_protocol::{words_low_first, Table};
+use remodaq_protocol::Table;
 use remodaq_shared::modbus::pdu::{handle_pdu, MAX_PDU};
-use remodaq_shared::modbus::RegisterMap;
+use remodaq_shared::modbus::{Pdu, RegisterMap};
 use remodaq_shared::module::SettingsAccess;
 
 use super::api::{Answer, Api, Json};
-use crate::json::Object;
+use remodaq_shared::json::Object;
 
 /// The most registers or coils one GET reads: Modbus's limit for registers (125 of at most
 /// "65535," fit [`MAX_ANSWER`](super::api::MAX_ANSWER)); 150 coils (150 "false," fit it,
@@ -97,37 +97,4 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
 /// Whether `n` addresses from `addr` lie inside the 16-bit space and the map lets them be read.
 pub(super) fn readable<M: RegisterMap>(map: &M, table: Table, addr: u16, n: u16) -> bool {
     u32::from(addr) + u32::from(n) <= 0x1_0000 && map.allows(table, addr, n, false)
-}
-
-/// A Modbus write request PDU (at most code 16 with two registers).
-pub struct Pdu {
-    bytes: [u8; 10],
-    len: usize,
-}
-
-impl Pdu {
-    /// The request's bytes, from the function code.
-    pub fn bytes(&self) -> &[u8] {
-        &self.bytes[..self.len]
-    }
-
-    /// Code 05: one coil.
-    pub(super) fn bit(addr: u16, on: bool) -> Self {
-        let [a, b] = addr.to_be_bytes();
-        Self { bytes: [0x05, a, b, if on { 0xFF } else { 0 }, 0, 0, 0, 0, 0, 0], len: 5 }
-    }
-
-    /// Code 06: one register.
-    pub(super) fn word(addr: u16, value: u16) -> Self {
-        let ([a, b], [c, d]) = (addr.to_be_bytes(), value.to_be_bytes());
-        Self { bytes: [0x06, a, b, c, d, 0, 0, 0, 0, 0], len: 5 }
-    }
-
-    /// Code 16: a 32-bit value in two registers, low word first (spec §3.2), in one request
-    /// (all or nothing).
-    pub(super) fn long(addr: u16, value: u32) -> Self {
-        let [low, high] = words_low_first(value);
-        let ([a, b], [lh, ll], [hh, hl]) = (addr.to_be_bytes(), low.to_be_bytes(), high.to_be_bytes());
-        Self { bytes: [0x10, a, b, 0, 2, 4, lh, ll, hh, hl], len: 10 }
-    }
 }

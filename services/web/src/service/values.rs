@@ -11,12 +11,12 @@ use remodaq_protocol::m8318::{InputType, REG_INPUT_TYPE};
 use remodaq_protocol::m8350::{DiMode, REG_DI_MODE};
 use remodaq_protocol::resources::{self, Field, Format, Resource};
 use remodaq_protocol::{u32_low_first, Table};
-use remodaq_shared::modbus::RegisterMap;
+use remodaq_shared::modbus::{Pdu, RegisterMap};
 use remodaq_shared::module::SettingsAccess;
 
 use super::api::{Answer, Api, Json};
-use super::registers::{readable, Pdu};
-use crate::json::Object;
+use super::registers::readable;
+use remodaq_shared::json::Object;
 
 /// The most values one resource read copies under the map's lock (the 8350's 12 DIs of 7
 /// shown fields).

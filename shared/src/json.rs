@@ -1,6 +1,7 @@
-//! The request bodies of the web console's API: one flat JSON object each (`{"value": 5}`,
-//! `{"ip": "10.0.0.5", ...}`, `{"networks": ["10.0.0.0/8"]}`), read without serde (docs/web.md,
-//! "Budgets": serde-json-core's deserializers, one per body type, took about 9 KB of flash).
+//! Bodies that are one flat JSON object: the web console API's requests (`{"value": 5}`,
+//! `{"ip": "10.0.0.5", ...}`, `{"networks": ["10.0.0.0/8"]}`) and MQTT's commands
+//! (`{"level": true}`), read without serde (docs/web.md, "Budgets": serde-json-core's
+//! deserializers, one per body type, took about 9 KB of flash).
 //!
 //! What is taken, RFC 8259 narrowed to what the API's bodies hold:
 //! - one object, whitespace around its tokens;
