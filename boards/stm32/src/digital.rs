@@ -8,7 +8,7 @@
 //! - Outputs DO0-DO5 on PF12, PF13, PF14, PF15, PF3, PF5. TIM8's update event, 10 000 times a
 //!   second (the pulse engine's 0.1 ms tick), triggers DMA2 stream 1 (channel 7) to copy one
 //!   word per tick from a 128-tick circular pattern into GPIOF's set/reset register; the output
-//!   task refills each half as it is played. A 5 kHz train is exact however busy the CPU is. An
+//!   task writes a chunk (half the ring) as soon as one has played, timed from the ticks queued. A 5 kHz train is exact however busy the CPU is. An
 //!   output command is written into the queued words from 3 ticks after the DMA's position
 //!   (read from NDTR), so it reaches the pin 0.3-0.4 ms after the output task runs. The margin
 //!   against the DMA is at least 0.2 ms, not 0.3: in direct mode the stream has already fetched
@@ -16,7 +16,6 @@
 //!   spent; the latency counted from NDTR under-reports by up to one tick (stm32 review N1).
 
 use core::cell::UnsafeCell;
-use core::future::Future as _;
 
 use embassy_stm32::dma::{Channel, ReadableRingBuffer, Transfer, TransferOptions};
 use embassy_stm32::gpio::{Input, Level, Output, Pull, Speed};
@@ -80,8 +79,7 @@ impl InputCapture for Capture {
 /// The running output pattern.
 pub struct Pattern {
     /// The circular transfer of the pattern into GPIOF's BSRR, for as long as the module runs
-    /// (dropping it would stop the stream). Polling it registers the task's waker for the
-    /// stream's half-transfer and transfer-complete interrupts.
+    /// (dropping it would stop the stream).
     transfer: Transfer<'static>,
     /// The pattern's words ([`PATTERN`]): read by the DMA, written only through this pointer.
     words: *mut u32,
@@ -161,25 +159,28 @@ impl Pattern {
 
 impl OutputPattern for Pattern {
     async fn room(&mut self) {
-        core::future::poll_fn(|cx| {
-            // Registers this task for the stream's next half or whole pass (the transfer is
-            // circular: it never ends, so this is always pending).
-            let _ = core::pin::Pin::new(&mut self.transfer).poll(cx);
-            match self.queued() {
-                Some(queued) if (PATTERN_LEN as u64).saturating_sub(queued) < OUTPUT_CHUNK as u64 => {
-                    core::task::Poll::Pending
-                }
-                // Room, or a pattern run dry that `write` reports.
-                _ => core::task::Poll::Ready(()),
+        // Until the DMA has played enough for a chunk: the moment is known from the ticks
+        // queued (the pattern plays at exactly TICK_HZ), so a timer waits for it, wherever the
+        // chunks' ends fall in the ring (a refill after running dry starts anywhere).
+        loop {
+            let wait = match self.queued() {
+                Some(queued) => (queued + OUTPUT_CHUNK as u64).saturating_sub(PATTERN_LEN as u64),
+                // Run dry: `write` reports it.
+                None => 0,
+            };
+            if wait == 0 {
+                return;
             }
-        })
-        .await
+            embassy_time::Timer::after_micros(wait * 1_000_000 / u64::from(TICK_HZ)).await;
+        }
     }
 
     fn write(&mut self, levels: &[u8]) -> Result<u32, PatternUnderrun> {
         let playing = self.playing();
-        let dry = playing > self.written && self.started;
-        if playing > self.written || !self.started {
+        // The word at the DMA's place is read already (direct mode fetches it ahead, RM0090
+        // §10.3.11): a refill that starts there is late too.
+        let dry = playing >= self.written && self.started;
+        if playing >= self.written || !self.started {
             // From a few ticks after the DMA's place: the first write, or after the pattern ran
             // dry (the DMA played old ticks meanwhile), as the other boards' rings do.
             self.written = playing + u64::from(FORCE_AHEAD);
@@ -269,9 +270,10 @@ impl DigitalPeripherals {
         static CHANNEL: StaticCell<Channel<'static>> = StaticCell::new();
         let channel = CHANNEL.init(Channel::new(self.dma_out, Irqs));
         let mut options = TransferOptions::default();
+        // No interrupt: the output task times its refills from the ticks queued (`room`).
         options.circular = true;
-        options.half_transfer_ir = true;
-        options.complete_transfer_ir = true;
+        options.half_transfer_ir = false;
+        options.complete_transfer_ir = false;
         // SAFETY: GPIOF's set/reset register is a valid, write-only peripheral address whose
         // writes only change the pins of its set bits; the pattern is 'static, in SRAM, and
         // reached by the CPU only through `words`, by volatile accesses.
