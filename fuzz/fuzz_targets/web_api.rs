@@ -21,12 +21,12 @@ use libfuzzer_sys::fuzz_target;
 use picoserve::{Config, Router, Timeouts};
 use remodaq_protocol::resources::{self, Format};
 use remodaq_shared::identity::Identity;
+use remodaq_shared::json::Value;
 use remodaq_shared::modbus::RegisterMap;
 use remodaq_shared::module::SettingsAccess;
 use remodaq_shared::password::AUTH;
 use remodaq_shared::ram_flash::RamFlash;
 use remodaq_shared::settings::{Schema, SettingsStore};
-use remodaq_shared::json::Value;
 use remodaq_web::service::{write_request, Api, SharedSessions};
 use remodaq_web::Sessions;
 

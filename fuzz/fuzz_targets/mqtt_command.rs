@@ -1,0 +1,51 @@
+//! MQTT's command parsing (issue #40, docs/mqtt.md): arbitrary topics and payloads never panic;
+//! a payload taken as a command writes what it says, re-read from its canonical form; a topic
+//! taken as a command names that output's own topic; a prefix taken as valid makes topics that
+//! read back. `cargo +nightly fuzz run mqtt_command` (from the repository root).
+#![no_main]
+
+use libfuzzer_sys::fuzz_target;
+use remodaq_mqtt::command::{Command, MAX_COMMAND};
+use remodaq_mqtt::topics::{command_output, point, prefix_is_valid, Kind};
+
+fuzz_target!(|data: &[u8]| {
+    let Some((&split, rest)) = data.split_first() else { return };
+    let (text, payload) = rest.split_at(usize::from(split).min(rest.len()));
+    let text = String::from_utf8_lossy(text);
+    let (prefix, topic) = text.split_once('\n').unwrap_or((&text, ""));
+
+    match Command::parse(payload) {
+        Ok(command) => {
+            assert!(payload.len() <= MAX_COMMAND);
+            let canonical = match command {
+                Command::Level(level) => format!("{{\"level\":{level}}}"),
+                Command::Pulse { low, high, count } => format!(
+                    "{{\"low_ms\":{}.{},\"high_ms\":{}.{},\"count\":{count}}}",
+                    low / 10,
+                    low % 10,
+                    high / 10,
+                    high % 10
+                ),
+            };
+            assert_eq!(Command::parse(canonical.as_bytes()), Ok(command), "{canonical}");
+            for n in 0..6 {
+                let requests = command.requests(n);
+                let expected = if matches!(command, Command::Level(_)) { 2 } else { 5 };
+                assert_eq!(requests.len(), expected);
+                assert!(requests.iter().all(|r| matches!(r.bytes().len(), 5 | 10)));
+            }
+        }
+        Err(_) => {}
+    }
+
+    if let Some(n) = command_output(prefix, topic, 6) {
+        assert!(n < 6);
+        assert_eq!(format!("{}/set", point(prefix, Kind::Do, n)), topic);
+    }
+    if prefix_is_valid(prefix) {
+        for n in 0..6 {
+            let t = format!("{}/set", point(prefix, Kind::Do, n));
+            assert_eq!(command_output(prefix, &t, 6), Some(n), "{t}");
+        }
+    }
+});

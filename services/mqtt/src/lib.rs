@@ -1,0 +1,13 @@
+//! MQTT (issue #40, docs/mqtt.md): what a module publishes and the commands the 8350 takes, as
+//! plain `no_std` logic tested on the host: the topics ([`topics`]), when a point is published
+//! ([`schedule`]), and an output command's Modbus writes ([`command`]). The client session
+//! (minimq over embedded-tls) is built on these.
+#![no_std]
+#![warn(missing_docs)]
+
+#[cfg(test)]
+extern crate std;
+
+pub mod command;
+pub mod schedule;
+pub mod topics;
