@@ -10,4 +10,5 @@ extern crate std;
 
 pub mod command;
 pub mod schedule;
+pub mod session;
 pub mod topics;
