@@ -11,4 +11,5 @@ extern crate std;
 pub mod command;
 pub mod schedule;
 pub mod session;
+pub mod tls;
 pub mod topics;

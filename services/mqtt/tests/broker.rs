@@ -4,11 +4,9 @@
 //! what the broker delivers. Needs `mosquitto` and `mosquitto-clients` (scripts/setup installs
 //! them); without them each test says so and fails.
 
-use std::io::{BufRead, BufReader};
-use std::net::{SocketAddr, TcpListener, TcpStream};
-use std::process::{Child, Command as Process, Stdio};
+use std::net::{SocketAddr, TcpStream};
+use std::process::Command as Process;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc::{channel, Receiver};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -20,126 +18,9 @@ use remodaq_mqtt::schedule::Point;
 use remodaq_mqtt::session::{serve, Module, Payload, PointTopic, Reading, Refused, Settings, OFFLINE};
 use remodaq_mqtt::topics::Kind;
 
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0").expect("a free port").local_addr().expect("its address").port()
-}
+mod common;
 
-/// mosquitto on a port of its own, killed when dropped.
-struct Broker {
-    child: Child,
-    port: u16,
-    dir: std::path::PathBuf,
-}
-
-impl Broker {
-    fn start() -> Self {
-        let port = free_port();
-        let dir = std::env::temp_dir().join(format!("rdaq-mqtt-{}-{port}", std::process::id()));
-        std::fs::create_dir_all(&dir).expect("a directory");
-        let conf = dir.join("mosquitto.conf");
-        let log = dir.join("mosquitto.log");
-        std::fs::write(
-            &conf,
-            format!(
-                "listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\nlog_type all\nlog_dest stdout\n"
-            ),
-        )
-        .expect("the configuration");
-        // Debian puts the broker in /usr/sbin, which a user's PATH may lack.
-        let program =
-            if std::path::Path::new("/usr/sbin/mosquitto").exists() { "/usr/sbin/mosquitto" } else { "mosquitto" };
-        let child = Process::new(program)
-            .arg("-c")
-            .arg(&conf)
-            .stdout(std::fs::File::create(&log).map(Stdio::from).unwrap_or_else(|_| Stdio::null()))
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("mosquitto (Debian: apt-get install mosquitto mosquitto-clients)");
-        let deadline = Instant::now() + Duration::from_secs(5);
-        while TcpStream::connect(("127.0.0.1", port)).is_err() {
-            assert!(Instant::now() < deadline, "mosquitto did not listen on {port}");
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        Self { child, port, dir }
-    }
-}
-
-impl Drop for Broker {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-        let _ = std::fs::remove_dir_all(&self.dir);
-    }
-}
-
-/// A subscriber to `test/#`: each message as `retained topic payload`.
-struct Subscriber {
-    child: Child,
-    lines: Receiver<String>,
-}
-
-impl Subscriber {
-    fn start(port: u16) -> Self {
-        let mut child = Process::new("mosquitto_sub")
-            .args(["-h", "127.0.0.1", "-p", &port.to_string(), "-t", "test/#", "-F", "%r %t %p"])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("mosquitto_sub (Debian: apt-get install mosquitto-clients)");
-        let out = child.stdout.take().expect("its output");
-        let (tx, lines) = channel();
-        std::thread::spawn(move || {
-            for line in BufReader::new(out).lines().map_while(Result::ok) {
-                if tx.send(line).is_err() {
-                    break;
-                }
-            }
-        });
-        // Subscribed before anything is published (retained messages come anyway).
-        std::thread::sleep(Duration::from_millis(300));
-        Self { child, lines }
-    }
-
-    /// The next message on `topic` within `within`, as (retained, payload).
-    fn next_on(&self, topic: &str, within: Duration) -> Option<(bool, String)> {
-        let deadline = Instant::now() + within;
-        loop {
-            let left = deadline.checked_duration_since(Instant::now())?;
-            let line = self.lines.recv_timeout(left).ok()?;
-            let mut parts = line.splitn(3, ' ');
-            let (retained, t, payload) = (parts.next()?, parts.next()?, parts.next().unwrap_or(""));
-            if t == topic {
-                return Some((retained == "1", payload.to_string()));
-            }
-        }
-    }
-
-    /// Every message on `topic` within `within`.
-    fn all_on(&self, topic: &str, within: Duration) -> Vec<String> {
-        let deadline = Instant::now() + within;
-        let mut seen = Vec::new();
-        while let Some(left) = deadline.checked_duration_since(Instant::now()) {
-            match self.lines.recv_timeout(left) {
-                Ok(line) => {
-                    let mut parts = line.splitn(3, ' ');
-                    let (_, t, payload) = (parts.next(), parts.next(), parts.next().unwrap_or(""));
-                    if t == Some(topic) {
-                        seen.push(payload.to_string());
-                    }
-                }
-                Err(_) => break,
-            }
-        }
-        seen
-    }
-}
-
-impl Drop for Subscriber {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
+use common::{Broker, Subscriber};
 
 /// What the test sets and sees of the fake module.
 #[derive(Default)]

@@ -1,0 +1,91 @@
+//! TLS to the broker (docs/mqtt.md, "Decisions"): TLS 1.3 by embedded-tls, the broker's chain
+//! checked against the one CA certificate the user installed, its names against the broker's
+//! host name, its validity against the module's time ([`Clock`]); without a time, no TLS
+//! connection is tried ([`Refused::NoTime`]).
+
+use embedded_io_async::{Read, Write};
+use embedded_tls::pki::CertVerifier;
+use embedded_tls::{
+    Aes128GcmSha256, Certificate, CryptoProvider, CryptoRngCore, TlsClock, TlsConfig, TlsConnection, TlsContext,
+    TlsError, TlsVerifier,
+};
+
+/// The largest certificate message of the broker the verifier keeps, bytes (a P-256 server
+/// certificate and its chain).
+pub const MAX_CHAIN: usize = 2048;
+
+/// The module's time for the certificates' validity: seconds since 1970 (SNTP), or `None`
+/// before it has one.
+pub trait Clock {
+    /// Now, or `None`.
+    fn now() -> Option<u64>;
+}
+
+/// embedded-tls's view of a [`Clock`].
+struct Validity<C>(core::marker::PhantomData<C>);
+
+impl<C: Clock> TlsClock for Validity<C> {
+    fn now() -> Option<u64> {
+        C::now()
+    }
+}
+
+/// The session's cryptography: randomness from the board, the CA's verifier.
+struct Provider<'a, R, C: Clock> {
+    rng: R,
+    verifier: CertVerifier<'a, Aes128GcmSha256, Validity<C>, MAX_CHAIN>,
+}
+
+impl<R: CryptoRngCore, C: Clock> CryptoProvider for Provider<'_, R, C> {
+    type CipherSuite = Aes128GcmSha256;
+    // No client certificate: nothing is signed.
+    type Signature = [u8; 0];
+
+    fn rng(&mut self) -> impl CryptoRngCore {
+        &mut self.rng
+    }
+
+    fn verifier(&mut self) -> Result<&mut impl TlsVerifier<Aes128GcmSha256>, TlsError> {
+        Ok(&mut self.verifier)
+    }
+}
+
+/// Why no TLS connection was made (each counted in the diagnostics).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Refused {
+    /// The module has no time yet: a certificate's validity cannot be checked.
+    NoTime,
+    /// The broker's chain does not lead to the installed CA, names another host, or is not
+    /// valid now.
+    Certificate,
+    /// The handshake failed otherwise (the link, the broker's alert, a protocol error).
+    Handshake,
+}
+
+/// A TLS connection to the broker, over `transport` (a TCP connection already open to it).
+pub type Tls<'b, T> = TlsConnection<'b, T, Aes128GcmSha256>;
+
+/// Opens TLS on `transport` to the broker named `host`, its chain checked against `ca` (DER),
+/// with the record buffers `read` (up to 16 KiB: TLS's largest record) and `write`.
+pub async fn open<'b, T: Read + Write + 'b, R: CryptoRngCore, C: Clock>(
+    transport: T,
+    read: &'b mut [u8],
+    write: &'b mut [u8],
+    ca: &[u8],
+    host: &str,
+    rng: R,
+) -> Result<Tls<'b, T>, Refused> {
+    if C::now().is_none() {
+        return Err(Refused::NoTime);
+    }
+    let config = TlsConfig::new().with_server_name(host);
+    let provider = Provider::<R, C> { rng, verifier: CertVerifier::new(Certificate::X509(ca)) };
+    let mut tls = TlsConnection::new(transport, read, write);
+    match tls.open(TlsContext::new(&config, provider)).await {
+        Ok(()) => Ok(tls),
+        Err(TlsError::InvalidCertificate | TlsError::InvalidSignature | TlsError::DecodeError) => {
+            Err(Refused::Certificate)
+        }
+        Err(_) => Err(Refused::Handshake),
+    }
+}

@@ -1,0 +1,135 @@
+//! What the tests against mosquitto share: the broker on a port of its own and a subscriber.
+#![allow(dead_code)]
+
+use std::io::{BufRead, BufReader};
+use std::net::{TcpListener, TcpStream};
+use std::process::{Child, Command as Process, Stdio};
+use std::sync::mpsc::{channel, Receiver};
+use std::time::{Duration, Instant};
+
+pub fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0").expect("a free port").local_addr().expect("its address").port()
+}
+
+/// mosquitto on a port of its own, killed when dropped.
+pub struct Broker {
+    child: Child,
+    pub port: u16,
+    pub dir: std::path::PathBuf,
+}
+
+impl Broker {
+    pub fn start() -> Self {
+        Self::with(|port, _| format!("listener {port} 127.0.0.1\nallow_anonymous true\n"))
+    }
+
+    /// A broker whose configuration `conf(port, dir)` gives (logging and persistence are added).
+    pub fn with(conf: impl FnOnce(u16, &std::path::Path) -> String) -> Self {
+        let port = free_port();
+        let dir = std::env::temp_dir().join(format!("rdaq-mqtt-{}-{port}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("a directory");
+        let text = format!("{}persistence false\nlog_type all\nlog_dest stdout\n", conf(port, &dir));
+        let conf = dir.join("mosquitto.conf");
+        let log = dir.join("mosquitto.log");
+        std::fs::write(&conf, text).expect("the configuration");
+        // Debian puts the broker in /usr/sbin, which a user's PATH may lack.
+        let program =
+            if std::path::Path::new("/usr/sbin/mosquitto").exists() { "/usr/sbin/mosquitto" } else { "mosquitto" };
+        let child = Process::new(program)
+            .arg("-c")
+            .arg(&conf)
+            .stdout(std::fs::File::create(&log).map(Stdio::from).unwrap_or_else(|_| Stdio::null()))
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("mosquitto (Debian: apt-get install mosquitto mosquitto-clients)");
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while TcpStream::connect(("127.0.0.1", port)).is_err() {
+            assert!(Instant::now() < deadline, "mosquitto did not listen on {port}");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        Self { child, port, dir }
+    }
+}
+
+impl Drop for Broker {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+/// A subscriber to `test/#`: each message as `retained topic payload`.
+pub struct Subscriber {
+    child: Child,
+    lines: Receiver<String>,
+}
+
+impl Subscriber {
+    pub fn start(port: u16) -> Self {
+        Self::with_args(port, &[])
+    }
+
+    /// A subscriber with more options of `mosquitto_sub` (TLS, a user).
+    pub fn with_args(port: u16, extra: &[&str]) -> Self {
+        let mut child = Process::new("mosquitto_sub")
+            .args(["-h", "127.0.0.1", "-p", &port.to_string(), "-t", "test/#", "-F", "%r %t %p"])
+            .args(extra)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("mosquitto_sub (Debian: apt-get install mosquitto-clients)");
+        let out = child.stdout.take().expect("its output");
+        let (tx, lines) = channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(out).lines().map_while(Result::ok) {
+                if tx.send(line).is_err() {
+                    break;
+                }
+            }
+        });
+        // Subscribed before anything is published (retained messages come anyway).
+        std::thread::sleep(Duration::from_millis(300));
+        Self { child, lines }
+    }
+
+    /// The next message on `topic` within `within`, as (retained, payload).
+    pub fn next_on(&self, topic: &str, within: Duration) -> Option<(bool, String)> {
+        let deadline = Instant::now() + within;
+        loop {
+            let left = deadline.checked_duration_since(Instant::now())?;
+            let line = self.lines.recv_timeout(left).ok()?;
+            let mut parts = line.splitn(3, ' ');
+            let (retained, t, payload) = (parts.next()?, parts.next()?, parts.next().unwrap_or(""));
+            if t == topic {
+                return Some((retained == "1", payload.to_string()));
+            }
+        }
+    }
+
+    /// Every message on `topic` within `within`.
+    pub fn all_on(&self, topic: &str, within: Duration) -> Vec<String> {
+        let deadline = Instant::now() + within;
+        let mut seen = Vec::new();
+        while let Some(left) = deadline.checked_duration_since(Instant::now()) {
+            match self.lines.recv_timeout(left) {
+                Ok(line) => {
+                    let mut parts = line.splitn(3, ' ');
+                    let (_, t, payload) = (parts.next(), parts.next(), parts.next().unwrap_or(""));
+                    if t == Some(topic) {
+                        seen.push(payload.to_string());
+                    }
+                }
+                Err(_) => break,
+            }
+        }
+        seen
+    }
+}
+
+impl Drop for Subscriber {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
