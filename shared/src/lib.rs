@@ -26,6 +26,7 @@ pub mod module;
 pub mod net;
 pub mod nonces;
 pub mod password;
+pub mod points;
 pub mod ram_flash;
 pub mod settings;
 pub mod sockets;

@@ -11,6 +11,7 @@ use remodaq_protocol::Table;
 use remodaq_shared::modbus::pdu::{handle_pdu, MAX_PDU};
 use remodaq_shared::modbus::{Pdu, RegisterMap};
 use remodaq_shared::module::SettingsAccess;
+use remodaq_shared::points::readable;
 
 use super::api::{Answer, Api, Json};
 use remodaq_shared::json::Object;
@@ -92,9 +93,4 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
             exception_answer(out, resp[1], field)
         }
     }
-}
-
-/// Whether `n` addresses from `addr` lie inside the 16-bit space and the map lets them be read.
-pub(super) fn readable<M: RegisterMap>(map: &M, table: Table, addr: u16, n: u16) -> bool {
-    u32::from(addr) + u32::from(n) <= 0x1_0000 && map.allows(table, addr, n, false)
 }

@@ -8,30 +8,18 @@ use embassy_sync::blocking_mutex::raw::RawMutex;
 use embedded_storage_async::nor_flash::NorFlash;
 use picoserve::response::StatusCode;
 use remodaq_protocol::m8318::{InputType, REG_INPUT_TYPE};
-use remodaq_protocol::m8350::{DiMode, REG_DI_MODE};
-use remodaq_protocol::resources::{self, Field, Format, Resource};
-use remodaq_protocol::{u32_low_first, Table};
+use remodaq_protocol::resources::{Field, Format, Resource};
+use remodaq_protocol::Table;
 use remodaq_shared::modbus::{Pdu, RegisterMap};
 use remodaq_shared::module::SettingsAccess;
+use remodaq_shared::points::{json_value, seen, Seen};
 
 use super::api::{Answer, Api, Json};
-use super::registers::readable;
 use remodaq_shared::json::Object;
 
 /// The most values one resource read copies under the map's lock (the 8350's 12 DIs of 7
 /// shown fields).
 const MAX_VALUES: usize = 96;
-
-/// What a field reads as.
-#[derive(Clone, Copy)]
-enum Seen {
-    /// The module does not map it (left out of the answer).
-    Unmapped,
-    /// `null` (a DI's frequency outside frequency mode).
-    Null,
-    /// Its value (two registers: low word first).
-    Value(u32),
-}
 
 impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F> {
     /// `GET /api/v1/{resource}` (every item) or `/api/v1/{resource}/{n}` (one).
@@ -163,80 +151,6 @@ fn hundredths(number: &str) -> Option<i32> {
     Some(if negative { -h } else { h })
 }
 
-/// Writes `thousandths` as a decimal number with three decimals.
-fn write_thousandths(json: &mut Json, thousandths: i64) -> core::fmt::Result {
-    let sign = if thousandths < 0 { "-" } else { "" };
-    let a = thousandths.unsigned_abs();
-    write!(json, "{sign}{}.{:03}", a / 1000, a % 1000)
-}
-
-/// What field `f` of item `n` reads as, from the map as it stands.
-fn seen<M: RegisterMap>(map: &mut M, f: &Field, n: u16) -> Seen {
-    let addr = f.addr(n);
-    if !readable(map, f.table, addr, f.words()) {
-        return Seen::Unmapped;
-    }
-    if matches!(f.format, Format::Long | Format::Ipv4) && f.table == Table::Registers {
-        let mut words = [0u16; 2];
-        map.observe_registers(addr, &mut words);
-        return Seen::Value(u32_low_first(words[0], words[1]));
-    }
-    let low = map.observe(f.table, addr);
-    Seen::Value(match f.format {
-        Format::MaskBit => u32::from(low >> (n % 16) & 1),
-        Format::Frequency => {
-            if map.observe(Table::Registers, REG_DI_MODE + n) != DiMode::Frequency as u16 {
-                return Seen::Null;
-            }
-            u32::from(low)
-        }
-        _ => u32::from(low),
-    })
-}
-
-/// Writes the JSON value of field `f` read as `v` (`input_type`: the 8318's, for its values).
-fn json_value(json: &mut Json, f: &Field, v: u32, input_type: Option<&InputType>) {
-    let _ = match f.format {
-        Format::Bool | Format::MaskBit => write!(json, "{}", v != 0),
-        Format::Word | Format::Long | Format::Frequency => write!(json, "{v}"),
-        Format::Hundredths => {
-            let h = i32::from(v as u16 as i16);
-            let sign = if h < 0 { "-" } else { "" };
-            write!(json, "{sign}{}.{:02}", h.unsigned_abs() / 100, h.unsigned_abs() % 100)
-        }
-        Format::Named(names) => match names.get(v as usize) {
-            Some(name) => write!(json, "\"{name}\""),
-            None => write!(json, "{v}"),
-        },
-        // spec §2.3 inverted in integers (every range's ends are whole units): lo + raw / 65535
-        // x (hi - lo), in thousandths, rounded (no float formatting in the image).
-        Format::Engineering => match input_type {
-            Some(t) => {
-                let (lo, hi) = (t.lo as i64, t.hi as i64);
-                write_thousandths(json, lo * 1000 + (i64::from(v as u16) * (hi - lo) * 1000 + 32767) / 65535)
-            }
-            None => write!(json, "null"),
-        },
-        Format::InputType => match InputType::from_code(v as u8).filter(|_| v <= 0xFF) {
-            Some(t) => {
-                let thermocouple = t.thermocouple().map_or("", |tc| tc.letter());
-                write!(
-                    json,
-                    "{{\"code\":{v},\"unit\":\"{}\",\"lo\":{},\"hi\":{},\"thermocouple\":\"{thermocouple}\"}}",
-                    resources::unit(&t),
-                    t.lo as i64,
-                    t.hi as i64
-                )
-            }
-            None => write!(json, "{{\"code\":{v}}}"),
-        },
-        Format::Ipv4 => {
-            let [c, d, a, b] = v.to_be_bytes();
-            write!(json, "\"{a}.{b}.{c}.{d}\"")
-        }
-    };
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -260,15 +174,6 @@ mod tests {
         ] {
             let got = Object::parse(body.as_bytes()).and_then(|o| o.number("value")).and_then(hundredths);
             assert_eq!(got, want, "{body}");
-        }
-    }
-
-    #[test]
-    fn thousandths_as_decimals() {
-        for (t, want) in [(1200, "1.200"), (-250_000, "-250.000"), (-5, "-0.005"), (0, "0.000")] {
-            let mut json = Json::default();
-            write_thousandths(&mut json, t).unwrap();
-            assert_eq!(json.text.as_str(), want);
         }
     }
 }
