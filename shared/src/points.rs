@@ -69,10 +69,7 @@ pub fn json_value(json: &mut impl Write, f: &Field, v: u32, input_type: Option<&
         // spec §2.3 inverted in integers (every range's ends are whole units): lo + raw / 65535
         // x (hi - lo), in thousandths, rounded (no float formatting in the image).
         Format::Engineering => match input_type {
-            Some(t) => {
-                let (lo, hi) = (t.lo as i64, t.hi as i64);
-                write_thousandths(json, lo * 1000 + (i64::from(v as u16) * (hi - lo) * 1000 + 32767) / 65535)
-            }
+            Some(t) => write_thousandths(json, engineering_thousandths(t, v as u16)),
             None => write!(json, "null"),
         },
         Format::InputType => match InputType::from_code(v as u8).filter(|_| v <= 0xFF) {
@@ -93,6 +90,14 @@ pub fn json_value(json: &mut impl Write, f: &Field, v: u32, input_type: Option<&
             write!(json, "\"{a}.{b}.{c}.{d}\"")
         }
     };
+}
+
+/// The engineering value of raw code `raw` for input type `t`, in thousandths of its unit: spec
+/// §2.3 inverted in integers (every range's ends are whole units): lo + raw / 65535 x (hi - lo),
+/// rounded (no float formatting in the image).
+pub fn engineering_thousandths(t: &InputType, raw: u16) -> i64 {
+    let (lo, hi) = (t.lo as i64, t.hi as i64);
+    lo * 1000 + (i64::from(raw) * (hi - lo) * 1000 + 32767) / 65535
 }
 
 /// Writes `thousandths` as a decimal number with three decimals.

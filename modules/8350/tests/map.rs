@@ -413,3 +413,74 @@ fn counters_run_bits_and_flags_are_not_persisted() {
     assert_eq!(m.ask("01 01 00 2B 00 01"), "01 01 01 00", "the latch flag set before is gone");
     assert_eq!(m.ask("01 01 00 10 00 06"), "01 01 01 02", "outputs at their power-on levels");
 }
+
+/// MQTT's module over this map (issue #40, docs/mqtt.md).
+fn mqtt(m: &Module) -> remodaq_mqtt::points::MapModule<'_, NoopRawMutex, Map8350<'static, Flash, NoopRawMutex>> {
+    remodaq_mqtt::points::MapModule {
+        map: &m.map,
+        model: 0x8350,
+        firmware: 0xA100,
+        mac: [0, 0x80, 0xE1, 0, 0, 1],
+        uptime_s: || 0,
+        time_ms: || None,
+        options: remodaq_mqtt::points::Options { deadbands: [0; 8], on_change: true, broker: [127, 0, 0, 1] },
+        refusals: [0; 3],
+    }
+}
+
+/// Issue #40: every published value equals a Modbus read of the same point (spec §3.1: DI n's
+/// state at bit n; §3.2: its counter at registers 2n, 2n+1, low word first).
+#[test]
+fn mqtt_publishes_what_a_modbus_read_gives() {
+    use remodaq_mqtt::session::{Module as _, Payload};
+    let mut m = Module::new();
+    assert_eq!(m.ask("01 06 01 03 00 01"), "01 06 01 03 00 01", "DI3 a counter");
+    m.inputs(&[0, 0b1000, 0, 0b1000, 0, 0b1001]);
+    let mut payload = Payload::new();
+    for n in 0..12u16 {
+        block_on(mqtt(&m).read(usize::from(n), &mut payload));
+        let o = remodaq_shared::json::Object::parse(payload.as_bytes()).expect("a flat JSON object");
+        let state = m.ask(&format!("01 02 00 {n:02X} 00 01"));
+        let counter = m.ask(&format!("01 03 00 {:02X} 00 02", 2 * n));
+        let c = hex(&counter);
+        // Station, function, byte count, then the low word and the high word.
+        let modbus_counter = (u32::from(c[3]) << 8 | u32::from(c[4])) | (u32::from(c[5]) << 8 | u32::from(c[6])) << 16;
+        assert_eq!(o.bool("state"), Some(state.ends_with("01")), "DI{n} {payload}");
+        assert_eq!(o.u32("counter"), Some(modbus_counter), "DI{n} {payload}");
+    }
+    block_on(mqtt(&m).read(3, &mut payload));
+    assert!(payload.contains("\"counter\":3") && payload.contains("\"state\":true"), "{payload}");
+    block_on(mqtt(&m).read(12 + 2, &mut payload));
+    assert!(payload.starts_with("{\"state\":false,\"mode\":\"normal\""), "DO2: {payload}");
+}
+
+/// Issue #40: a command is the Modbus writes of a master, all checked before any is applied
+/// (a refused command changes nothing), refused while the watchdog has tripped.
+#[test]
+fn mqtt_commands_are_all_or_nothing() {
+    use remodaq_mqtt::command::Command;
+    use remodaq_mqtt::session::Module as _;
+    let mut m = Module::new();
+    let before = m.ask("01 03 00 18 00 24");
+    // A zero low width (spec §3.4: each width >= 1): refused, nothing written.
+    let bad = Command::Pulse { low: 0, high: 5, count: 3 };
+    assert_eq!(block_on(mqtt(&m).command(1, bad)), Err(()));
+    assert_eq!(m.ask("01 03 00 18 00 24"), before, "no width or count written");
+    assert_eq!(m.ask("01 03 01 11 00 01"), "01 03 02 00 00", "DO1 still normal");
+    // A good one: widths, count, pulse mode, started.
+    assert_eq!(block_on(mqtt(&m).command(1, Command::Pulse { low: 5, high: 20, count: 3 })), Ok(()));
+    assert_eq!(m.ask("01 03 00 1A 00 02"), "01 03 04 00 05 00 00", "DO1 low width 0.5 ms");
+    assert_eq!(m.ask("01 03 00 26 00 02"), "01 03 04 00 14 00 00", "DO1 high width 2 ms");
+    assert_eq!(m.ask("01 03 00 32 00 02"), "01 03 04 00 03 00 00", "DO1 3 pulses");
+    assert_eq!(m.ask("01 03 01 11 00 01"), "01 03 02 00 01", "DO1 in pulse mode");
+    assert_eq!(m.ask("01 01 00 11 00 01"), "01 01 01 01", "DO1's train running");
+    // A level: normal mode, DO4 on.
+    assert_eq!(block_on(mqtt(&m).command(4, Command::Level(true))), Ok(()));
+    assert_eq!(m.ask("01 01 00 14 00 01"), "01 01 01 01");
+    // Tripped: a command that moves an output is refused (as a Modbus write: 04).
+    assert_eq!(m.ask("01 06 01 30 00 05"), "01 06 01 30 00 05", "a 0.5 s watchdog, armed");
+    let later = embassy_time::Instant::now() + embassy_time::Duration::from_secs(5);
+    io::with(m.io, |s| s.poll_watchdog(later));
+    assert_eq!(block_on(mqtt(&m).command(0, Command::Level(true))), Err(()));
+    assert_eq!(m.ask("01 01 00 10 00 01"), "01 01 01 00", "DO0 stays off");
+}

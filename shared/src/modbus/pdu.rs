@@ -55,6 +55,19 @@ pub async fn handle_pdu<R: RawMutex, M: RegisterMap>(
     }
 }
 
+/// Whether the write request `req` from the client at `from` would be carried out: the map's
+/// admission and every check [`handle_pdu`] makes, nothing applied. `Err` holds the exception
+/// code it would answer with (01 for a request that is no write). A service that carries out
+/// several writes as one (MQTT's output commands) checks them all first.
+pub fn check_write<M: RegisterMap>(map: &mut M, from: [u8; 4], req: &[u8]) -> Result<(), u8> {
+    let mut resp = [0u8; MAX_PDU];
+    match prepare(map, from, req, &mut resp) {
+        Step::Write { .. } => Ok(()),
+        Step::Answered(_) if resp[0] & 0x80 != 0 => Err(resp[1]),
+        Step::Answered(_) => Err(Exception::IllegalFunction as u8),
+    }
+}
+
 /// The answer to a write once applied: codes 05, 06, 15 and 16 answer with the request's
 /// function and first four data bytes; a failed apply with its exception.
 #[inline]
