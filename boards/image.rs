@@ -113,6 +113,14 @@ async fn web(app: &'static Running) -> ! {
     core::pin::pin!(transport::web(app.net(), app.map(), app.store(), app.identity())).await
 }
 
+/// MQTT (docs/mqtt.md): on the host board with `--mqtt`; the embassy-net boards' session is
+/// not built yet.
+#[cfg(not(target_os = "none"))]
+#[embassy_executor::task]
+async fn mqtt(app: &'static Running) -> ! {
+    transport::mqtt(app.net(), app.map(), app.identity()).await
+}
+
 /// Brings the module up, then starts its tasks: a Modbus connection task per slot, discovery,
 /// updates (target boards), the module's application (main or realtime executor, by the image
 /// crate), and the web console's connection tasks. A task that cannot be spawned is logged, not
@@ -125,6 +133,8 @@ async fn start(spawner: Spawner) {
         spawn(spawner, modbus(app, slot), "modbus");
     }
     spawn(spawner, discovery(app), "discovery");
+    #[cfg(not(target_os = "none"))]
+    spawn(spawner, mqtt(app), "mqtt");
     #[cfg(target_os = "none")]
     spawn(spawner, update(app), "update");
     spawn_application(spawner, app, io);

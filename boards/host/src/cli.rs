@@ -41,6 +41,11 @@ pub struct Options {
     #[arg(long, value_name = "ADDR:PORT")]
     pub http: Option<SocketAddr>,
 
+    /// Publish the module's points to the MQTT broker at ADDR:PORT (docs/mqtt.md; plain TCP,
+    /// anonymous, the default topics): a stand-in for the module's MQTT settings, not built yet.
+    #[arg(long, value_name = "ADDR:PORT")]
+    pub mqtt: Option<SocketAddr>,
+
     /// Reset every setting (network, password, I/O) to factory defaults at start-up, as
     /// holding the USER button at power-up does on the module.
     #[arg(long)]

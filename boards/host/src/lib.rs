@@ -9,6 +9,7 @@ pub mod digital;
 pub mod discovery;
 pub mod flash;
 pub mod modbus;
+pub mod mqtt;
 pub mod scenario;
 pub mod services;
 pub mod testing;
@@ -64,6 +65,8 @@ pub struct HostNet {
     pub(crate) discovery: discovery::HostDatagrams,
     /// The web console's listener (`--http`).
     pub(crate) web: Option<web::Listener>,
+    /// The MQTT broker (`--mqtt`).
+    pub(crate) mqtt: Option<SocketAddr>,
 }
 
 impl Board for HostBoard {
@@ -138,7 +141,7 @@ impl Board for HostBoard {
             log::info!("web: listening on {}", web.get_ref().local_addr().unwrap_or(addr));
             web
         });
-        (HostNet { listener, discovery, web }, running)
+        (HostNet { listener, discovery, web, mqtt: self.options.mqtt }, running)
     }
 
     /// The PC has no watchdog.

@@ -48,3 +48,11 @@ pub async fn web<A: RegisterMap + SettingsAccess, F: NorFlash>(
         None => core::future::pending().await,
     }
 }
+
+/// Publishes to the MQTT broker of `--mqtt`, forever; without it, waits for ever.
+pub async fn mqtt<A: RegisterMap>(net: &'static HostNet, map: &'static Shared<A>, identity: Identity) -> ! {
+    match net.mqtt {
+        Some(broker) => crate::mqtt::run(broker, map, identity).await,
+        None => core::future::pending().await,
+    }
+}
