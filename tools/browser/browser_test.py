@@ -203,6 +203,16 @@ class Module:
         self.process.wait()
 
 
+def qemu_command(image, nic):
+    """qemu-system-arm running `image` of the QEMU board as tools/qemu-e2e starts it: the board's
+    bootloader (beside the image) as QEMU's kernel, the image's raw binary as the firmware
+    partition's seed, its NIC `nic`."""
+    bootloader = os.path.join(os.path.dirname(image), "remodaq-qemu-bootloader")
+    return ["qemu-system-arm", "-M", "mps2-an386", "-nographic", "-monitor", "none", "-serial", "null",
+            "-semihosting-config", "enable=on,target=native", "-nic", nic,
+            "-kernel", bootloader, "-device", f"loader,file={image}.bin,addr=0x300000"]
+
+
 class QemuModule:
     """An 8350 image under QEMU (mps2-an386, the board's bootloader and the image as the
     firmware partition's seed, as tools/qemu-e2e starts it), Modbus and the web console
@@ -213,10 +223,7 @@ class QemuModule:
         self.modbus = (MODULE_IP, 8000)
         self.web = f"http://{MODULE_IP}"
         nic = f"user,id=nic0,model=lan9118,hostfwd=tcp:{MODULE_IP}:8000-:8000,hostfwd=tcp:{MODULE_IP}:80-:80"
-        bootloader = os.path.join(os.path.dirname(image), "remodaq-qemu-bootloader")
-        args = ["ip", "netns", "exec", netns, "qemu-system-arm", "-M", "mps2-an386", "-nographic", "-monitor", "none", "-serial", "null",
-                "-semihosting-config", "enable=on,target=native", "-nic", nic,
-                "-kernel", bootloader, "-device", f"loader,file={image}.bin,addr=0x300000"]
+        args = ["ip", "netns", "exec", netns] + qemu_command(image, nic)
         self.log = open(f"{image}.browser.log", "w")
         self.process = subprocess.Popen(args, stdout=self.log, stderr=subprocess.STDOUT)
         wait_for_identity(self.web, self.process, 60, f"{image} under QEMU")

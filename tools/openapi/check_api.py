@@ -37,7 +37,8 @@ except ImportError:  # a fresh machine: PyYAML from PyPI
 HERE = os.path.dirname(os.path.abspath(__file__))
 SPEC = os.path.join(HERE, "..", "..", "docs", "openapi.yaml")
 sys.path.insert(0, os.path.join(HERE, "..", "browser"))
-from browser_test import FACTORY_PASSWORD, Module, free_port, read_coils, read_registers, wait_for_identity  # noqa: E402
+from browser_test import (  # noqa: E402
+    FACTORY_PASSWORD, Module, free_port, qemu_command, read_coils, read_registers, wait_for_identity)
 
 # Where each writable field of a resource is, as the spec gives it (never as the module's own
 # table says): (model, resource, field) -> (Modbus table, address of item 0, addresses from one
@@ -538,10 +539,7 @@ class QemuModule:
         web = free_port()
         self.web = f"http://127.0.0.1:{web}"
         nic = f"user,model=lan9118,hostfwd=tcp:127.0.0.1:{self.modbus[1]}-:8000,hostfwd=tcp:127.0.0.1:{web}-:80"
-        bootloader = os.path.join(os.path.dirname(image), "remodaq-qemu-bootloader")
-        args = ["qemu-system-arm", "-M", "mps2-an386", "-nographic", "-monitor", "none", "-serial", "null",
-                "-semihosting-config", "enable=on,target=native", "-nic", nic,
-                "-kernel", bootloader, "-device", f"loader,file={image}.bin,addr=0x300000"]
+        args = qemu_command(image, nic)
         self.log = open(os.path.join(work, os.path.basename(image) + ".qemu.log"), "w")
         self.process = subprocess.Popen(args, stdout=self.log, stderr=subprocess.STDOUT)
         wait_for_identity(self.web, self.process, 60, f"{image} under QEMU")
