@@ -5,12 +5,14 @@
 #![no_std]
 #![warn(missing_docs)]
 
-#[cfg(test)]
+#[cfg(any(test, feature = "testing"))]
 extern crate std;
 
 pub mod command;
 pub mod points;
 pub mod schedule;
 pub mod session;
+#[cfg(feature = "testing")]
+pub mod testing;
 pub mod tls;
 pub mod topics;

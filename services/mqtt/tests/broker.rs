@@ -16,11 +16,8 @@ use minimq::{Buffers, ConfigBuilder, QoS, Session, Will};
 use remodaq_mqtt::command::Command;
 use remodaq_mqtt::schedule::Point;
 use remodaq_mqtt::session::{serve, Module, Payload, PointTopic, Reading, Refused, Settings, OFFLINE};
+use remodaq_mqtt::testing::{Broker, Subscriber};
 use remodaq_mqtt::topics::Kind;
-
-mod common;
-
-use common::{Broker, Subscriber};
 
 /// What the test sets and sees of the fake module.
 #[derive(Default)]

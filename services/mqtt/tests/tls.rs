@@ -4,8 +4,6 @@
 //! certificate and a module without a time are refused; the password never crosses the link in
 //! clear (every byte the TCP connection carried is kept and searched).
 
-mod common;
-
 use std::net::{SocketAddr, TcpStream};
 use std::path::Path;
 use std::process::Command as Process;
@@ -14,12 +12,12 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use async_io::Async;
-use common::{Broker, Subscriber};
 use embedded_io_adapters::futures_03::FromFutures;
 use minimq::{Buffers, ConfigBuilder, Session};
 use remodaq_mqtt::command::Command;
 use remodaq_mqtt::schedule::Point;
 use remodaq_mqtt::session::{serve, Module, Payload, PointTopic, Reading, Refused, Settings};
+use remodaq_mqtt::testing::{Broker, Subscriber};
 use remodaq_mqtt::tls::{open, Clock, Refused as TlsRefused};
 use remodaq_mqtt::topics::Kind;
 

@@ -1,12 +1,16 @@
-//! What the tests against mosquitto share: the broker on a port of its own and a subscriber.
-#![allow(dead_code)]
+//! What the tests against mosquitto share (feature `testing`, the tests' only): Debian's
+//! mosquitto on a port of its own, and a subscriber (`mosquitto_sub`).
 
+use std::format;
 use std::io::{BufRead, BufReader};
 use std::net::{TcpListener, TcpStream};
 use std::process::{Child, Command as Process, Stdio};
+use std::string::{String, ToString};
 use std::sync::mpsc::{channel, Receiver};
 use std::time::{Duration, Instant};
+use std::vec::Vec;
 
+/// A free TCP port of the loopback.
 pub fn free_port() -> u16 {
     TcpListener::bind("127.0.0.1:0").expect("a free port").local_addr().expect("its address").port()
 }
@@ -14,11 +18,14 @@ pub fn free_port() -> u16 {
 /// mosquitto on a port of its own, killed when dropped.
 pub struct Broker {
     child: Child,
+    /// Its port on 127.0.0.1.
     pub port: u16,
+    /// Its directory (configuration, log, the tests' files), removed with it.
     pub dir: std::path::PathBuf,
 }
 
 impl Broker {
+    /// An anonymous broker.
     pub fn start() -> Self {
         Self::with(|port, _| format!("listener {port} 127.0.0.1\nallow_anonymous true\n"))
     }
@@ -66,6 +73,7 @@ pub struct Subscriber {
 }
 
 impl Subscriber {
+    /// A subscriber to `test/#` of the broker on `port`.
     pub fn start(port: u16) -> Self {
         Self::with_args(port, &[])
     }

@@ -1,0 +1,115 @@
+//! MQTT on the simulated 8350 (`--mqtt`, docs/mqtt.md) against Debian's mosquitto started here:
+//! a point changed over Modbus is published with the value a Modbus read of it gives, and a
+//! command published to the module is applied and read back over Modbus (issue #40).
+
+use std::io::{Read, Write};
+use std::net::TcpStream;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use remodaq_mqtt::testing::{free_port, Broker, Subscriber};
+
+const BIN: &str = env!("CARGO_BIN_EXE_firmware-8350");
+/// The module's MAC (`--mac`): its default prefix is `remodaq/8350/028350000001`.
+const MAC: &str = "02:83:50:00:00:01";
+const PREFIX: &str = "remodaq/8350/028350000001";
+
+struct Module(Child);
+
+impl Drop for Module {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// One Modbus/TCP request (MBAP + `pdu`) on a new connection; the answer's PDU.
+fn modbus(port: u16, pdu: &[u8]) -> Vec<u8> {
+    let mut s = TcpStream::connect(("127.0.0.1", port)).expect("the module's Modbus port");
+    s.set_read_timeout(Some(Duration::from_secs(5))).expect("timeout");
+    let mut frame = vec![0, 1, 0, 0, 0, (pdu.len() + 1) as u8, 1];
+    frame.extend_from_slice(pdu);
+    s.write_all(&frame).expect("send");
+    let mut head = [0u8; 7];
+    s.read_exact(&mut head).expect("MBAP");
+    let mut body = vec![0u8; usize::from(u16::from_be_bytes([head[4], head[5]])) - 1];
+    s.read_exact(&mut body).expect("PDU");
+    body
+}
+
+/// The payload's `"name":value` text (flat JSON, as the module publishes it).
+fn field<'a>(payload: &'a str, name: &str) -> Option<&'a str> {
+    let rest = payload.split(&format!("\"{name}\":")).nth(1)?;
+    Some(rest.split([',', '}']).next().unwrap_or(""))
+}
+
+#[test]
+fn published_values_are_modbus_reads_and_commands_apply() {
+    let broker = Broker::start();
+    let sub = Subscriber::with_args(broker.port, &["-t", "remodaq/#"]);
+    let modbus_port = free_port();
+    let flash = broker.dir.join("module.flash");
+    let module = Module(
+        Command::new(BIN)
+            .args(["--listen", &format!("127.0.0.1:{modbus_port}"), "--mac", MAC])
+            .arg("--flash")
+            .arg(&flash)
+            .args([
+                "--discovery",
+                &format!("127.0.0.1:{}", free_port()),
+                "--mqtt",
+                &format!("127.0.0.1:{}", broker.port),
+            ])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("the simulated 8350"),
+    );
+    let status = sub.next_on(&format!("{PREFIX}/status"), Duration::from_secs(15)).expect("online");
+    assert!(status.1.contains("\"state\":\"online\"") && status.1.contains("\"model\":\"8350\""), "{status:?}");
+
+    // DI5 to frequency mode over Modbus (spec §3.2: register 105h, value 4): published with
+    // the mode a Modbus read gives.
+    assert_eq!(modbus(modbus_port, &[0x06, 0x01, 0x05, 0x00, 0x04]), [0x06, 0x01, 0x05, 0x00, 0x04]);
+    let read = modbus(modbus_port, &[0x03, 0x01, 0x05, 0x00, 0x01]);
+    assert_eq!(read, [0x03, 0x02, 0x00, 0x04], "a Modbus read of DI5's mode");
+    let deadline = Instant::now() + Duration::from_secs(5);
+    loop {
+        let (_, payload) = sub.next_on(&format!("{PREFIX}/di/5"), Duration::from_secs(5)).expect("DI5 published");
+        if field(&payload, "mode") == Some("\"frequency\"") {
+            break;
+        }
+        assert!(Instant::now() < deadline, "DI5's mode never published as Modbus reads it: {payload}");
+    }
+
+    // A command: DO3 on (normal mode), applied and read back over Modbus (spec §3.1: coil 13h),
+    // and echoed on its point.
+    let ok = Command::new("mosquitto_pub")
+        .args([
+            "-h",
+            "127.0.0.1",
+            "-p",
+            &broker.port.to_string(),
+            "-t",
+            &format!("{PREFIX}/do/3/set"),
+            "-m",
+            r#"{"level": true}"#,
+        ])
+        .status()
+        .expect("mosquitto_pub");
+    assert!(ok.success());
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while modbus(modbus_port, &[0x01, 0x00, 0x13, 0x00, 0x01]) != [0x01, 0x01, 0x01] {
+        assert!(Instant::now() < deadline, "DO3 never on");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let deadline = Instant::now() + Duration::from_secs(5);
+    loop {
+        let (_, payload) = sub.next_on(&format!("{PREFIX}/do/3"), Duration::from_secs(5)).expect("DO3 published");
+        if field(&payload, "state") == Some("true") {
+            break;
+        }
+        assert!(Instant::now() < deadline, "DO3's state never published on: {payload}");
+    }
+    drop(module);
+}
