@@ -14,5 +14,6 @@ pub mod schedule;
 pub mod session;
 #[cfg(feature = "testing")]
 pub mod testing;
+#[cfg(feature = "tls")]
 pub mod tls;
 pub mod topics;
