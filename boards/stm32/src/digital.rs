@@ -182,7 +182,8 @@ impl OutputPattern for Pattern {
         let dry = playing >= self.written && self.started;
         if playing >= self.written || !self.started {
             // From a few ticks after the DMA's place: the first write, or after the pattern ran
-            // dry (the DMA played old ticks meanwhile), as the other boards' rings do.
+            // dry (the DMA played old ticks meanwhile; the host and QEMU boards' simulated rings
+            // write from the tick playing, which no DMA has fetched ahead there).
             self.written = playing + u64::from(FORCE_AHEAD);
             self.started = true;
         }
