@@ -214,17 +214,28 @@ def qemu_command(image, nic):
 
 
 class QemuModule:
-    """An 8350 image under QEMU (mps2-an386, the board's bootloader and the image as the
-    firmware partition's seed, as tools/qemu-e2e starts it), Modbus and the web console
-    forwarded to free ports of this PC."""
+    """An image of the QEMU board under QEMU (mps2-an386, the board's bootloader and the image as
+    the firmware partition's seed, as tools/qemu-e2e starts it): in network namespace `netns`
+    with Modbus and the web console at MODULE_IP's ports 8000 and 80, or, without a namespace,
+    forwarded to free ports of this PC's loopback. QEMU's output goes to `log`."""
 
-    def __init__(self, image, netns):
+    updates = True  # the QEMU board has an update partition
+
+    def __init__(self, image, netns=None, log=None):
         self.image = image
-        self.modbus = (MODULE_IP, 8000)
-        self.web = f"http://{MODULE_IP}"
-        nic = f"user,id=nic0,model=lan9118,hostfwd=tcp:{MODULE_IP}:8000-:8000,hostfwd=tcp:{MODULE_IP}:80-:80"
-        args = ["ip", "netns", "exec", netns] + qemu_command(image, nic)
-        self.log = open(f"{image}.browser.log", "w")
+        if netns:
+            self.modbus = (MODULE_IP, 8000)
+            self.web = f"http://{MODULE_IP}"
+            forwards = f"hostfwd=tcp:{MODULE_IP}:8000-:8000,hostfwd=tcp:{MODULE_IP}:80-:80"
+            prefix = ["ip", "netns", "exec", netns]
+        else:
+            self.modbus = ("127.0.0.1", free_port())
+            web = free_port()
+            self.web = f"http://127.0.0.1:{web}"
+            forwards = f"hostfwd=tcp:127.0.0.1:{self.modbus[1]}-:8000,hostfwd=tcp:127.0.0.1:{web}-:80"
+            prefix = []
+        args = prefix + qemu_command(image, f"user,id=nic0,model=lan9118,{forwards}")
+        self.log = open(log or f"{image}.browser.log", "w")
         self.process = subprocess.Popen(args, stdout=self.log, stderr=subprocess.STDOUT)
         wait_for_identity(self.web, self.process, 60, f"{image} under QEMU")
 

@@ -38,7 +38,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 SPEC = os.path.join(HERE, "..", "..", "docs", "openapi.yaml")
 sys.path.insert(0, os.path.join(HERE, "..", "browser"))
 from browser_test import (  # noqa: E402
-    FACTORY_PASSWORD, Module, free_port, qemu_command, read_coils, read_registers, wait_for_identity)
+    FACTORY_PASSWORD, Module, QemuModule, read_coils, read_registers)
 
 # Where each writable field of a resource is, as the spec gives it (never as the module's own
 # table says): (model, resource, field) -> (Modbus table, address of item 0, addresses from one
@@ -527,29 +527,6 @@ def exercise_8318(c):
     c.signed("POST", "/api/v1/restart", expect=202)
 
 
-class QemuModule:
-    """A firmware image of the QEMU board (scripts/qemu build: the board's bootloader beside it,
-    the image's raw binary as the firmware partition's seed, as tools/qemu-e2e starts it) under
-    qemu-system-arm, its Modbus and web ports forwarded to free ports of this PC's loopback."""
-
-    updates = True
-
-    def __init__(self, image, work):
-        self.modbus = ("127.0.0.1", free_port())
-        web = free_port()
-        self.web = f"http://127.0.0.1:{web}"
-        nic = f"user,model=lan9118,hostfwd=tcp:127.0.0.1:{self.modbus[1]}-:8000,hostfwd=tcp:127.0.0.1:{web}-:80"
-        args = qemu_command(image, nic)
-        self.log = open(os.path.join(work, os.path.basename(image) + ".qemu.log"), "w")
-        self.process = subprocess.Popen(args, stdout=self.log, stderr=subprocess.STDOUT)
-        wait_for_identity(self.web, self.process, 60, f"{image} under QEMU")
-
-    def stop(self):
-        self.process.kill()
-        self.process.wait()
-        self.log.close()
-
-
 def main():
     """`check_api.py [TARGET_DIR]`: the host build of both models (default target/debug);
     `check_api.py --qemu IMAGES_DIR`: both models' images of the QEMU board (the features the
@@ -564,9 +541,9 @@ def main():
     try:
         if qemu:
             # The QEMU board's DI0 is a 1 kHz square wave (boards/qemu/src/digital.rs).
-            m8350 = QemuModule(os.path.join(target, "firmware-8350"), work)
+            m8350 = QemuModule(os.path.join(target, "firmware-8350"), log=os.path.join(work, "firmware-8350.qemu.log"))
             modules.append(m8350)
-            m8318 = QemuModule(os.path.join(target, "firmware-8318"), work)
+            m8318 = QemuModule(os.path.join(target, "firmware-8318"), log=os.path.join(work, "firmware-8318.qemu.log"))
         else:
             m8350 = Module(os.path.join(target, "firmware-8350"), work, "[di0]\nsquare_hz = 5.0\n")
             modules.append(m8350)
