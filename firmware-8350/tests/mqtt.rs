@@ -1,6 +1,7 @@
 //! MQTT on the simulated 8350 (`--mqtt`, docs/mqtt.md) against Debian's mosquitto started here:
 //! a point changed over Modbus is published with the value a Modbus read of it gives, and a
-//! command published to the module is applied and read back over Modbus (issue #40).
+//! command published to the module is applied and read back over Modbus, and after the broker
+//! restarted the module is online again with its current values (issue #40).
 
 use std::io::{Read, Write};
 use std::net::TcpStream;
@@ -111,5 +112,21 @@ fn published_values_are_modbus_reads_and_commands_apply() {
         }
         assert!(Instant::now() < deadline, "DO3's state never published on: {payload}");
     }
+
+    // The broker restarted (down 2 s, nothing kept): the module connects again after its
+    // back-off, says online again, and publishes its current values (DI5 in frequency mode,
+    // DO3 on) to the new subscriber.
+    let mut broker = broker;
+    drop(sub);
+    broker.restart(Duration::from_secs(2));
+    let sub = Subscriber::with_args(broker.port, &["-t", "remodaq/#"]);
+    let back = Instant::now();
+    let status = sub.next_on(&format!("{PREFIX}/status"), Duration::from_secs(15)).expect("online again");
+    assert!(status.1.contains("\"state\":\"online\""), "{status:?}");
+    let di5 = sub.next_on(&format!("{PREFIX}/di/5"), Duration::from_secs(3)).expect("DI5 again").1;
+    assert_eq!(field(&di5, "mode"), Some("\"frequency\""), "{di5}");
+    let do3 = sub.next_on(&format!("{PREFIX}/do/3"), Duration::from_secs(3)).expect("DO3 again").1;
+    assert_eq!(field(&do3, "state"), Some("true"), "{do3}");
+    eprintln!("online again {:?} after the broker came back", back.elapsed());
     drop(module);
 }

@@ -36,16 +36,21 @@ impl Broker {
         let dir = std::env::temp_dir().join(format!("rdaq-mqtt-{}-{port}", std::process::id()));
         std::fs::create_dir_all(&dir).expect("a directory");
         let text = format!("{}persistence false\nlog_type all\nlog_dest stdout\n", conf(port, &dir));
-        let conf = dir.join("mosquitto.conf");
-        let log = dir.join("mosquitto.log");
-        std::fs::write(&conf, text).expect("the configuration");
+        std::fs::write(dir.join("mosquitto.conf"), text).expect("the configuration");
+        let child = Self::run(port, &dir);
+        Self { child, port, dir }
+    }
+
+    /// mosquitto on `port` with the configuration in `dir`, once it listens.
+    fn run(port: u16, dir: &std::path::Path) -> Child {
         // Debian puts the broker in /usr/sbin, which a user's PATH may lack.
         let program =
             if std::path::Path::new("/usr/sbin/mosquitto").exists() { "/usr/sbin/mosquitto" } else { "mosquitto" };
+        let log = std::fs::OpenOptions::new().create(true).append(true).open(dir.join("mosquitto.log"));
         let child = Process::new(program)
             .arg("-c")
-            .arg(&conf)
-            .stdout(std::fs::File::create(&log).map(Stdio::from).unwrap_or_else(|_| Stdio::null()))
+            .arg(dir.join("mosquitto.conf"))
+            .stdout(log.map(Stdio::from).unwrap_or_else(|_| Stdio::null()))
             .stderr(Stdio::null())
             .spawn()
             .expect("mosquitto (Debian: apt-get install mosquitto mosquitto-clients)");
@@ -54,7 +59,16 @@ impl Broker {
             assert!(Instant::now() < deadline, "mosquitto did not listen on {port}");
             std::thread::sleep(Duration::from_millis(20));
         }
-        Self { child, port, dir }
+        child
+    }
+
+    /// Stops the broker (its clients lose their connections and what it kept: no persistence),
+    /// waits `down`, and starts it again on the same port.
+    pub fn restart(&mut self, down: Duration) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        std::thread::sleep(down);
+        self.child = Self::run(self.port, &self.dir);
     }
 }
 
