@@ -1,14 +1,25 @@
-//! MQTT's command parsing (issue #40, docs/mqtt.md): arbitrary topics and payloads never panic;
-//! a payload taken as a command writes what it says, re-read from its canonical form; a topic
-//! taken as a command names that output's own topic; a prefix taken as valid makes topics that
-//! read back. `cargo +nightly fuzz run mqtt_command` (from the repository root).
+//! MQTT's command parsing and settings (issue #40, docs/mqtt.md): arbitrary topics, payloads
+//! and stored records never panic; a payload taken as a command writes what it says, re-read
+//! from its canonical form; a topic taken as a command names that output's own topic; a prefix
+//! taken as valid makes topics that read back; a stored record reads as settings that are off
+//! or valid, and that store and read back the same. `cargo +nightly fuzz run mqtt_command`
+//! (from the repository root).
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
 use remodaq_mqtt::command::{Command, MAX_COMMAND};
+use remodaq_mqtt::config::Config;
 use remodaq_mqtt::topics::{command_output, point, prefix_is_valid, Kind};
+use remodaq_shared::settings::{decode_record, encode_record, MAX_RECORD};
 
 fuzz_target!(|data: &[u8]| {
+    // The whole input as a stored record of MQTT's settings.
+    if let Some(config) = decode_record::<Config>(data) {
+        assert!(!config.on || config.check().is_ok(), "{config:?}");
+        let mut record = [0u8; MAX_RECORD];
+        let n = encode_record(&config, &mut record).expect("settings that were read fit a record");
+        assert_eq!(decode_record::<Config>(&record[..n]).as_ref(), Some(&config));
+    }
     let Some((&split, rest)) = data.split_first() else { return };
     let (text, payload) = rest.split_at(usize::from(split).min(rest.len()));
     let text = String::from_utf8_lossy(text);

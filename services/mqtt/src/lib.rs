@@ -9,6 +9,7 @@
 extern crate std;
 
 pub mod command;
+pub mod config;
 pub mod points;
 pub mod schedule;
 pub mod session;

@@ -1,0 +1,253 @@
+//! MQTT's settings (docs/mqtt.md, "Settings"), as a record of the settings store
+//! (`remodaq_shared::settings::Schema`): the broker, the session, the topics and what is
+//! published. The CA certificate and the credentials are records of their own (they do not fit
+//! this one, and are never shown back). Checked whole before a commit ([`Config::check`]); a
+//! stored field that is not valid reads as its default ([`Schema::decode`]).
+
+use remodaq_protocol::m8318::CHANNELS;
+use remodaq_shared::settings::{RecordReader, RecordWriter, Schema};
+
+use crate::schedule::PERIOD_MS;
+use crate::topics;
+
+/// The longest broker host name (TLS checks the broker's certificate against it).
+pub const MAX_HOST: usize = 64;
+/// The longest client identifier every broker takes (MQTT 5 §3.1.3.1).
+pub const MAX_CLIENT_ID: usize = 23;
+
+/// MQTT's settings.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Config {
+    /// Whether the module connects at all (off by default).
+    pub on: bool,
+    /// The broker's IPv4 address.
+    pub broker: [u8; 4],
+    /// The broker's host name, which its certificate must name (TLS).
+    pub host: heapless::String<MAX_HOST>,
+    /// The broker's TCP port.
+    pub port: u16,
+    /// The client identifier; empty: `remodaq-<mac>`.
+    pub client_id: heapless::String<MAX_CLIENT_ID>,
+    /// TLS to the broker.
+    pub tls: bool,
+    /// The topics' prefix; empty: `remodaq/<model>/<mac>`.
+    pub prefix: heapless::String<{ topics::MAX_PREFIX }>,
+    /// Each point at least once per this, ms.
+    pub period_ms: u32,
+    /// QoS 1 (else 0).
+    pub at_least_once: bool,
+    /// The 8318's deadbands, thousandths of each channel's unit.
+    pub deadbands: [u32; CHANNELS],
+    /// The 8350's points on any change (else on the period alone).
+    pub on_change: bool,
+    /// The 8350's output commands taken.
+    pub commands: bool,
+}
+
+/// A setting that is not valid, by name (as the web console's API names its fields).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Invalid(pub &'static str);
+
+const TAG_ON: u8 = 1;
+const TAG_BROKER: u8 = 2;
+const TAG_HOST: u8 = 3;
+const TAG_PORT: u8 = 4;
+const TAG_CLIENT_ID: u8 = 5;
+const TAG_TLS: u8 = 6;
+const TAG_PREFIX: u8 = 7;
+const TAG_PERIOD: u8 = 8;
+const TAG_QOS: u8 = 9;
+const TAG_DEADBANDS: u8 = 10;
+const TAG_ON_CHANGE: u8 = 11;
+const TAG_COMMANDS: u8 = 12;
+
+/// MQTT over TLS's port (IANA), the default.
+pub const TLS_PORT: u16 = 8883;
+
+impl Config {
+    /// Whether every setting is valid: a port, a client id of 1-23 of `[0-9A-Za-z_-]` or none,
+    /// a prefix [`topics::prefix_is_valid`] or none, a period of 100 ms to 1 h, a host name of
+    /// letters, digits, `-` and `.` (needed on with TLS, whose check names the broker), a broker
+    /// address when on.
+    pub fn check(&self) -> Result<(), Invalid> {
+        let id_ok = self.client_id.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_');
+        let host_ok = self.host.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'.');
+        if self.port == 0 {
+            Err(Invalid("port"))
+        } else if !id_ok {
+            Err(Invalid("client_id"))
+        } else if !self.prefix.is_empty() && !topics::prefix_is_valid(&self.prefix) {
+            Err(Invalid("prefix"))
+        } else if !PERIOD_MS.contains(&self.period_ms) {
+            Err(Invalid("period_ms"))
+        } else if !host_ok || (self.on && self.tls && self.host.is_empty()) {
+            Err(Invalid("host"))
+        } else if self.on && (self.broker == [0; 4] || self.broker[0] == 127 || self.broker[0] >= 224) {
+            Err(Invalid("broker"))
+        } else {
+            Ok(())
+        }
+    }
+}
+
+fn string<const N: usize>(r: &RecordReader<'_>, tag: u8) -> Option<heapless::String<N>> {
+    let bytes = r.get(tag)?;
+    let text = core::str::from_utf8(bytes).ok()?;
+    heapless::String::try_from(text).ok()
+}
+
+fn flag(r: &RecordReader<'_>, tag: u8) -> Option<bool> {
+    match r.get(tag)? {
+        [0] => Some(false),
+        [1] => Some(true),
+        _ => None,
+    }
+}
+
+impl Schema for Config {
+    const VERSION: u8 = 1;
+
+    fn defaults() -> Self {
+        Self {
+            on: false,
+            broker: [0; 4],
+            host: heapless::String::new(),
+            port: TLS_PORT,
+            client_id: heapless::String::new(),
+            tls: true,
+            prefix: heapless::String::new(),
+            period_ms: 10_000,
+            at_least_once: true,
+            deadbands: [0; CHANNELS],
+            on_change: true,
+            commands: false,
+        }
+    }
+
+    /// Off: settings that cannot be read never connect anywhere.
+    fn unreadable() -> Self {
+        Self::defaults()
+    }
+
+    fn encode(&self, w: &mut RecordWriter<'_>) {
+        w.put(TAG_ON, &[u8::from(self.on)]);
+        w.put(TAG_BROKER, &self.broker);
+        w.put(TAG_HOST, self.host.as_bytes());
+        w.put_u16(TAG_PORT, self.port);
+        w.put(TAG_CLIENT_ID, self.client_id.as_bytes());
+        w.put(TAG_TLS, &[u8::from(self.tls)]);
+        w.put(TAG_PREFIX, self.prefix.as_bytes());
+        w.put_u32(TAG_PERIOD, self.period_ms);
+        w.put(TAG_QOS, &[u8::from(self.at_least_once)]);
+        let mut deadbands = [0u8; 4 * CHANNELS];
+        for (out, d) in deadbands.chunks_mut(4).zip(self.deadbands) {
+            out.copy_from_slice(&d.to_le_bytes());
+        }
+        w.put(TAG_DEADBANDS, &deadbands);
+        w.put(TAG_ON_CHANGE, &[u8::from(self.on_change)]);
+        w.put(TAG_COMMANDS, &[u8::from(self.commands)]);
+    }
+
+    fn decode(_version: u8, r: &RecordReader<'_>) -> Self {
+        let d = Self::defaults();
+        let mut c = Self {
+            on: flag(r, TAG_ON).unwrap_or(d.on),
+            broker: r.array(TAG_BROKER).unwrap_or(d.broker),
+            host: string(r, TAG_HOST).unwrap_or(d.host.clone()),
+            port: r.u16(TAG_PORT).unwrap_or(d.port),
+            client_id: string(r, TAG_CLIENT_ID).unwrap_or(d.client_id.clone()),
+            tls: flag(r, TAG_TLS).unwrap_or(d.tls),
+            prefix: string(r, TAG_PREFIX).unwrap_or(d.prefix.clone()),
+            period_ms: r.u32(TAG_PERIOD).unwrap_or(d.period_ms),
+            at_least_once: flag(r, TAG_QOS).unwrap_or(d.at_least_once),
+            deadbands: r
+                .array::<{ 4 * CHANNELS }>(TAG_DEADBANDS)
+                .map(|b| {
+                    core::array::from_fn(|i| u32::from_le_bytes([b[4 * i], b[4 * i + 1], b[4 * i + 2], b[4 * i + 3]]))
+                })
+                .unwrap_or(d.deadbands),
+            on_change: flag(r, TAG_ON_CHANGE).unwrap_or(d.on_change),
+            commands: flag(r, TAG_COMMANDS).unwrap_or(d.commands),
+        };
+        // A stored record that is not valid whole is not used: off (never a connection made on
+        // half a configuration).
+        if c.check().is_err() {
+            c = Self { on: false, ..c };
+        }
+        c
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use remodaq_shared::settings::{decode_record, encode_record, MAX_RECORD};
+
+    fn on() -> Config {
+        Config {
+            on: true,
+            broker: [192, 168, 0, 10],
+            host: heapless::String::try_from("broker.plant.example").unwrap(),
+            client_id: heapless::String::try_from("rdaq-line-2").unwrap(),
+            prefix: heapless::String::try_from("plant/line-2/daq").unwrap(),
+            period_ms: 1_000,
+            deadbands: [50, 0, 0, 0, 0, 0, 0, 1_000_000],
+            commands: true,
+            ..Config::defaults()
+        }
+    }
+
+    #[test]
+    fn off_by_default_and_a_round_trip() {
+        let d = Config::defaults();
+        assert!(!d.on && !d.commands && d.tls && d.port == 8883, "off, TLS, no commands: {d:?}");
+        assert_eq!(d.check(), Ok(()));
+        let mut record = [0u8; MAX_RECORD];
+        let longest = Config {
+            host: heapless::String::try_from("h".repeat(MAX_HOST).as_str()).unwrap(),
+            client_id: heapless::String::try_from("c".repeat(MAX_CLIENT_ID).as_str()).unwrap(),
+            prefix: heapless::String::try_from("p".repeat(topics::MAX_PREFIX).as_str()).unwrap(),
+            ..on()
+        };
+        for c in [d, on(), longest] {
+            let n = encode_record(&c, &mut record).expect("fits a record");
+            assert_eq!(decode_record::<Config>(&record[..n]), Some(c));
+        }
+    }
+
+    /// Docs/mqtt.md's ranges.
+    #[test]
+    fn what_is_not_valid() {
+        let cases: [(Config, &str); 8] = [
+            (Config { port: 0, ..on() }, "port"),
+            (Config { client_id: heapless::String::try_from("a b").unwrap(), ..on() }, "client_id"),
+            (Config { prefix: heapless::String::try_from("a/#").unwrap(), ..on() }, "prefix"),
+            (Config { period_ms: 99, ..on() }, "period_ms"),
+            (Config { period_ms: 3_600_001, ..on() }, "period_ms"),
+            (Config { host: heapless::String::new(), ..on() }, "host"),
+            (Config { broker: [0; 4], ..on() }, "broker"),
+            (Config { broker: [224, 0, 0, 1], ..on() }, "broker"),
+        ];
+        for (c, field) in cases {
+            assert_eq!(c.check(), Err(Invalid(field)), "{c:?}");
+        }
+        assert_eq!(Config { host: heapless::String::new(), tls: false, ..on() }.check(), Ok(()), "no name without TLS");
+        assert_eq!(Config { period_ms: 100, ..on() }.check(), Ok(()));
+        assert_eq!(Config { period_ms: 3_600_000, ..on() }.check(), Ok(()));
+    }
+
+    /// A record written by someone else's hand: a field not valid reads as its default, and a
+    /// configuration not valid whole is off.
+    #[test]
+    fn a_stored_record_not_valid_is_off() {
+        let mut record = [0u8; MAX_RECORD];
+        let n = encode_record(&Config { period_ms: 5, ..on() }, &mut record).unwrap();
+        let read = decode_record::<Config>(&record[..n]).unwrap();
+        assert!(!read.on, "{read:?}");
+        // A flag that is neither 0 nor 1: its default.
+        let mut fields = std::vec![TAG_TLS, 1, 7, TAG_COMMANDS, 1, 2];
+        fields.extend_from_slice(&[TAG_PORT, 2, 0x5B, 0x07]);
+        let c = Config::decode(1, &RecordReader::default_for_tests(&fields));
+        assert_eq!((c.tls, c.commands, c.port), (true, false, 1883));
+    }
+}
