@@ -32,9 +32,19 @@ impl Answer {
     }
 }
 
-/// Sends `request` (the whole text) and reads the answer until the module closes.
+/// Sends `request` (the whole text) and reads the answer until the module closes. A refused
+/// connection is tried again for up to 5 s: a module just restarted opens its web port last.
 pub fn send_raw(web: SocketAddr, request: &[u8]) -> Answer {
-    let mut s = TcpStream::connect(web).expect("connect");
+    let deadline = std::time::Instant::now() + Duration::from_secs(5);
+    let mut s = loop {
+        match TcpStream::connect(web) {
+            Ok(s) => break s,
+            Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused && std::time::Instant::now() < deadline => {
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            Err(e) => panic!("connect: {e:?}"),
+        }
+    };
     s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
     let _ = s.write_all(request);
     let mut text = Vec::new();
