@@ -112,8 +112,17 @@ fn poll_once<F: Future>(f: core::pin::Pin<&mut F>) -> Poll<F::Output> {
     f.poll(&mut Context::from_waker(core::task::Waker::noop()))
 }
 
+/// The commits under way are counted module-wide (a static): these tests take turns, or one's
+/// commit would be under way while the other looks.
+static TURN: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn turn() -> std::sync::MutexGuard<'static, ()> {
+    TURN.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
 #[test]
 fn a_connections_deadline_waits_for_the_commit_under_way() {
+    let _turn = turn();
     let map = Mutex::<NoopRawMutex, _>::new(Live(S::defaults()));
     let flash = Gated(Ram::new());
     let store = Mutex::<CriticalSectionRawMutex, _>::new(futures_executor::block_on(SettingsStore::open(
@@ -151,6 +160,7 @@ fn a_connections_deadline_waits_for_the_commit_under_way() {
 
 #[test]
 fn a_commit_dropped_anyway_is_no_longer_under_way() {
+    let _turn = turn();
     let map = Mutex::<NoopRawMutex, _>::new(Live(S::defaults()));
     let store = Mutex::<CriticalSectionRawMutex, _>::new(futures_executor::block_on(SettingsStore::open(
         Gated(Ram::new()),
