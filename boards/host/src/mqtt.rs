@@ -25,14 +25,8 @@ const BACK_OFF_MAX: Duration = Duration::from_secs(30);
 pub async fn run<A: RegisterMap>(broker: SocketAddr, map: &'static Shared<A>, identity: Identity) -> ! {
     let prefix = topics::default_prefix(identity.model, identity.mac);
     let status = topics::leaf(&prefix, "status");
-    let mut client_id: heapless::String<23> = heapless::String::new();
-    let _ = core::fmt::Write::write_fmt(
-        &mut client_id,
-        format_args!(
-            "remodaq-{:02x}{:02x}{:02x}{:02x}{:02x}{:02x}",
-            identity.mac[0], identity.mac[1], identity.mac[2], identity.mac[3], identity.mac[4], identity.mac[5]
-        ),
-    );
+    let mut digits = [0u8; 12];
+    let client_id = format!("remodaq-{}", remodaq_protocol::web::hex(&identity.mac, &mut digits).unwrap_or(""));
     let (mut rx, mut tx) = ([0u8; 1024], [0u8; 4096]);
     let will = Will::new(&status, OFFLINE.as_bytes(), &[]).map(|w| w.retained().qos(QoS::AtLeastOnce));
     let config = ConfigBuilder::new(Buffers::new(&mut rx, &mut tx))
@@ -63,6 +57,7 @@ pub async fn run<A: RegisterMap>(broker: SocketAddr, map: &'static Shared<A>, id
         options,
         refusals: [0; 3],
     };
+    // A schedule per point: the most a module has (the 8350's 12 DIs and 6 DOs).
     let mut schedules = [Point::new(); 18];
     let mut back_off = Duration::from_secs(1);
     log::info!("mqtt: publishing to {broker} under {prefix}");

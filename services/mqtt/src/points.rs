@@ -174,15 +174,15 @@ impl<R: RawMutex, M: RegisterMap> Module for MapModule<'_, R, M> {
     }
 
     fn online(&self, payload: &mut Payload) {
+        let mut digits = [0u8; 12];
+        let mac = remodaq_protocol::web::hex(&self.mac, &mut digits).unwrap_or("");
         let _ = write!(
             payload,
-            "{{\"state\":\"online\",\"model\":\"{:04X}\",\"firmware\":\"{:04X}\",\"mac\":\"",
-            self.model, self.firmware
+            "{{\"state\":\"online\",\"model\":\"{:04X}\",\"firmware\":\"{:04X}\",\"mac\":\"{mac}\",\"uptime_s\":{}}}",
+            self.model,
+            self.firmware,
+            (self.uptime_s)()
         );
-        for b in self.mac {
-            let _ = write!(payload, "{b:02x}");
-        }
-        let _ = write!(payload, "\",\"uptime_s\":{}}}", (self.uptime_s)());
     }
 
     fn outputs(&self) -> u8 {

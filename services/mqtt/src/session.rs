@@ -128,7 +128,9 @@ pub async fn serve<IO: Io, M: Module>(
             return Ended::Link;
         }
         let command = match select(conn.poll(), Timer::after(TICK)).await {
-            Either::First(Ok(Some(inbound))) => take(settings, module.outputs(), inbound.topic(), inbound.payload()),
+            Either::First(Ok(Some(inbound))) => {
+                Some(take(settings, module.outputs(), inbound.topic(), inbound.payload()))
+            }
             Either::First(Ok(None)) | Either::Second(()) => None,
             Either::First(Err(_)) => return Ended::Link,
         };
@@ -171,10 +173,9 @@ async fn publish_due<IO: Io, M: Module>(
 }
 
 /// The command an inbound publication carries: its output and command, or why it is refused.
-fn take(settings: &Settings<'_>, outputs: u8, topic: &str, payload: &[u8]) -> Option<Result<(u8, Command), Refused>> {
-    let n = topics::command_output(settings.prefix, topic, outputs);
-    Some(match (settings.commands, n) {
+fn take(settings: &Settings<'_>, outputs: u8, topic: &str, payload: &[u8]) -> Result<(u8, Command), Refused> {
+    match (settings.commands, topics::command_output(settings.prefix, topic, outputs)) {
         (true, Some(n)) => Command::parse(payload).map(|c| (n, c)).map_err(Refused::Payload),
         _ => Err(Refused::NotTaken),
-    })
+    }
 }

@@ -48,10 +48,9 @@ pub fn prefix_is_valid(prefix: &str) -> bool {
 /// and the MAC in 12 lower-case hex digits.
 pub fn default_prefix(model: u16, mac: [u8; 6]) -> heapless::String<MAX_PREFIX> {
     let mut p = heapless::String::new();
-    let _ = write!(p, "remodaq/{model:04X}/");
-    for b in mac {
-        let _ = write!(p, "{b:02x}");
-    }
+    let mut digits = [0u8; 12];
+    let mac = remodaq_protocol::web::hex(&mac, &mut digits).unwrap_or("");
+    let _ = write!(p, "remodaq/{model:04X}/{mac}");
     p
 }
 
