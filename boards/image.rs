@@ -37,7 +37,27 @@ mod build {
         },
         update_key: UPDATE_KEY,
     };
+
+    /// The security counter this image is built with (protocol's `SECURITY_COUNTER`, or
+    /// `REMODAQ_SECURITY_COUNTER` for a test image).
+    #[allow(dead_code)]
+    pub const SECURITY_COUNTER: u32 = match SECURITY_COUNTER_OVERRIDE {
+        Some(counter) => counter,
+        None => remodaq_shared::identity::SECURITY_COUNTER,
+    };
 }
+
+/// This image's identity (its model and security counter), where the bootloaders read it before
+/// a swap: `IDENTITY_AT` bytes into the image, where both boards' memory.x place this section
+/// (docs/update.md, "Anti-rollback"; security review finding 11c). `remodaq sign` reads it too.
+#[cfg(target_os = "none")]
+#[link_section = ".remodaq_identity"]
+#[used]
+static IDENTITY: [u8; remodaq_shared::protocol::update::IDENTITY_LEN] = remodaq_shared::protocol::update::Identity {
+    model: <Module as remodaq_shared::board::Module>::MODULE_NAME,
+    counter: build::SECURITY_COUNTER,
+}
+.encode();
 
 #[cfg(not(target_os = "none"))]
 use remodaq_board_host::HostBoard as Board;

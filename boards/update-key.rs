@@ -64,10 +64,16 @@ fn write_update_key(refuse_without_key: bool, test_key: bool) {
 }
 
 /// Writes `$OUT_DIR/firmware_version.rs`: `FIRMWARE_VERSION_OVERRIDE`, the 4 hex digits of
-/// `REMODAQ_FIRMWARE_VERSION` (test images of another version, docs/update.md), or `None`.
+/// `REMODAQ_FIRMWARE_VERSION` (test images of another version, docs/update.md), or `None`; and
+/// `SECURITY_COUNTER_OVERRIDE`, the decimal `REMODAQ_SECURITY_COUNTER` (test images of another
+/// security counter), or `None`.
 #[allow(dead_code)]
 fn write_firmware_version() {
     println!("cargo:rerun-if-env-changed=REMODAQ_FIRMWARE_VERSION");
+    println!("cargo:rerun-if-env-changed=REMODAQ_SECURITY_COUNTER");
+    let counter = std::env::var("REMODAQ_SECURITY_COUNTER").ok().map(|text| {
+        text.parse::<u32>().unwrap_or_else(|_| panic!("REMODAQ_SECURITY_COUNTER: a decimal number, not {text:?}"))
+    });
     let version = std::env::var("REMODAQ_FIRMWARE_VERSION").ok().map(|text| {
         match u16::from_str_radix(&text, 16) {
             Ok(v) if text.len() == 4 => v,
@@ -77,7 +83,9 @@ fn write_firmware_version() {
     let out = std::path::PathBuf::from(std::env::var_os("OUT_DIR").unwrap_or_default()).join("firmware_version.rs");
     let code = format!(
         "/// `REMODAQ_FIRMWARE_VERSION` at build time, if given (docs/update.md).\n\
-         const FIRMWARE_VERSION_OVERRIDE: Option<u16> = {version:?};\n"
+         const FIRMWARE_VERSION_OVERRIDE: Option<u16> = {version:?};\n\
+         /// `REMODAQ_SECURITY_COUNTER` at build time, if given (docs/update.md).\n\
+         const SECURITY_COUNTER_OVERRIDE: Option<u32> = {counter:?};\n"
     );
     std::fs::write(&out, code).unwrap_or_else(|e| panic!("{}: {e}", out.display()));
 }

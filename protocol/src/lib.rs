@@ -68,6 +68,12 @@ pub mod identity {
     /// version (docs/update.md) is built with `REMODAQ_FIRMWARE_VERSION`, which the image crate
     /// reads (boards/update-key.rs) and hands to the runtime (`remodaq_shared::identity`).
     pub const FIRMWARE_VERSION: u16 = 0xA100;
+    /// Security counter (anti-rollback) of this release, compiled into the image's identity
+    /// (`update::Identity`, which the bootloaders compare before a swap) and signed into its
+    /// header by `remodaq sign`: raise it when a release fixes a vulnerability, so that modules
+    /// running it refuse every older image. A test image is built with another counter by
+    /// `REMODAQ_SECURITY_COUNTER` (boards/update-key.rs).
+    pub const SECURITY_COUNTER: u32 = 0;
 }
 
 /// One word of a 32-bit value: the low word comes first.

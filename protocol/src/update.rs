@@ -6,7 +6,8 @@
 //! ed25519 signature covers all of that (the first [`SIGNED_LEN`] bytes), so neither the model
 //! nor the version nor the counter can be changed without the signing key. The module checks
 //! the model and the counter before it takes the firmware, the digest and the signature after;
-//! the bootloaders check digest and signature again before a swap ([`check_before_swap`]). A session authenticates as the discovery protocol's commands do (`crate::auth`,
+//! the bootloaders check digest and signature again before a swap, and the model and counter
+//! against the [`Identity`] compiled into the running image ([`check_before_swap`]). A session authenticates as the discovery protocol's commands do (`crate::auth`,
 //! docs/security.md), with no password on the wire:
 //! 1. the PC sends the session's [`OPENING`] (magic and version), then its nonce
 //!    ([`NONCE_LEN`] bytes); a stream that opens otherwise is closed at once, before anything
@@ -168,6 +169,68 @@ impl Header {
     }
 }
 
+/// Where every firmware image carries its [`Identity`]: this many bytes from its start, after
+/// the vector table (both boards' memory.x place the section `.remodaq_identity` there and
+/// start `.text` after it).
+pub const IDENTITY_AT: u32 = 0x400;
+/// Bytes of an encoded [`Identity`].
+pub const IDENTITY_LEN: usize = 16;
+/// The first bytes of an encoded [`Identity`].
+pub const IDENTITY_MAGIC: [u8; 8] = *b"RDQ\x00ID\x00\x01";
+
+/// What an image is, compiled into it at [`IDENTITY_AT`] (security review finding 11c): the
+/// model it runs on and its security counter. `remodaq sign` signs an image only with the
+/// model and counter its identity names, so the signed header and the bytes agree; the
+/// bootloaders compare a marked update's with the running image's before a swap, without the
+/// application's settings.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Identity {
+    /// Module name register value (8318h, 8350h).
+    pub model: u16,
+    /// The security counter (anti-rollback) the image was built with.
+    pub counter: u32,
+}
+
+impl Identity {
+    /// The encoded identity: magic, model, two zero bytes, counter (big-endian).
+    pub const fn encode(&self) -> [u8; IDENTITY_LEN] {
+        let mut out = [0u8; IDENTITY_LEN];
+        let mut i = 0;
+        while i < IDENTITY_MAGIC.len() {
+            out[i] = IDENTITY_MAGIC[i];
+            i += 1;
+        }
+        let model = self.model.to_be_bytes();
+        let counter = self.counter.to_be_bytes();
+        out[8] = model[0];
+        out[9] = model[1];
+        out[12] = counter[0];
+        out[13] = counter[1];
+        out[14] = counter[2];
+        out[15] = counter[3];
+        out
+    }
+
+    /// Decodes an identity; `None` for another magic or a reserved byte not 0.
+    pub fn decode(bytes: &[u8; IDENTITY_LEN]) -> Option<Self> {
+        if bytes[..8] != IDENTITY_MAGIC || bytes[10..12] != [0, 0] {
+            return None;
+        }
+        Some(Self {
+            model: u16::from_be_bytes([bytes[8], bytes[9]]),
+            counter: u32::from_be_bytes([bytes[12], bytes[13], bytes[14], bytes[15]]),
+        })
+    }
+
+    /// The identity in a firmware binary (as `llvm-objcopy -O binary` writes it); `None` when
+    /// it has none.
+    pub fn of_firmware(firmware: &[u8]) -> Option<Self> {
+        let at = IDENTITY_AT as usize;
+        let bytes: &[u8; IDENTITY_LEN] = firmware.get(at..at + IDENTITY_LEN)?.try_into().ok()?;
+        Self::decode(bytes)
+    }
+}
+
 /// The SHA-512 of `length` bytes read through `read` (offset, buffer; false: a read error) in
 /// chunks of `chunk.len()`; `None` on a read error.
 pub fn digest_of(length: u32, chunk: &mut [u8], mut read: impl FnMut(u32, &mut [u8]) -> bool) -> Option<[u8; 64]> {
@@ -207,10 +270,21 @@ pub enum BeforeSwap {
 /// started (embassy-boot's layout: the swap magic in the first word, its progress words still
 /// erased), the manifest the application wrote at the start of the update partition's last
 /// page (`manifest_at`, the swap's scratch page, which the swap's first step overwrites) must
-/// be a header signed with `key` whose digest is that of the firmware in the partition.
+/// be a header signed with `key` whose digest is that of the firmware in the partition, and
+/// whose model and security counter are the [`Identity`] of that firmware, the running image's
+/// model (in `active`), and a counter not below the running image's (security review finding
+/// 11c: the application checks both before it marks an update; this check does not rely on it).
+/// A running image without an identity takes no update (fail closed).
 #[cfg(feature = "bootloader")]
-pub fn check_before_swap<D, S>(dfu: &mut D, state: &mut S, manifest_at: u32, key: &[u8; 32]) -> BeforeSwap
+pub fn check_before_swap<A, D, S>(
+    active: &mut A,
+    dfu: &mut D,
+    state: &mut S,
+    manifest_at: u32,
+    key: &[u8; 32],
+) -> BeforeSwap
 where
+    A: embedded_storage::nor_flash::ReadNorFlash,
     D: embedded_storage::nor_flash::ReadNorFlash,
     S: embedded_storage::nor_flash::NorFlash,
 {
@@ -242,11 +316,30 @@ where
     let Some(header) = Header::decode(&header).filter(|h| h.length <= manifest_at) else {
         return BeforeSwap::Refuse;
     };
+    let running = identity_in(active);
+    let marked = identity_in(dfu);
+    let named = Identity { model: header.model, counter: header.counter };
+    match (running, marked) {
+        (Some(running), Some(marked))
+            if marked == named
+                && header.length >= IDENTITY_AT + IDENTITY_LEN as u32
+                && named.model == running.model
+                && named.counter >= running.counter => {}
+        _ => return BeforeSwap::Refuse,
+    }
     let mut chunk = [0u8; 256];
     match digest_of(header.length, &mut chunk, |at, buf| dfu.read(at, buf).is_ok()) {
         Some(digest) if header.verify(&digest, key) => BeforeSwap::Verified,
         _ => BeforeSwap::Refuse,
     }
+}
+
+/// The [`Identity`] of the image in `flash`; `None` when it cannot be read or is none.
+#[cfg(feature = "bootloader")]
+fn identity_in<F: embedded_storage::nor_flash::ReadNorFlash>(flash: &mut F) -> Option<Identity> {
+    let mut bytes = [0u8; IDENTITY_LEN];
+    flash.read(IDENTITY_AT, &mut bytes).ok()?;
+    Identity::decode(&bytes)
 }
 
 /// The module's answers in a session: the status codes of the discovery protocol's commands
@@ -257,6 +350,22 @@ pub use crate::status::Status;
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn identity_round_trip_and_place() {
+        let identity = Identity { model: 0x8350, counter: 0x0102_0304 };
+        let bytes = identity.encode();
+        assert_eq!(&bytes[..], b"RDQ\x00ID\x00\x01\x83\x50\x00\x00\x01\x02\x03\x04");
+        assert_eq!(Identity::decode(&bytes), Some(identity));
+        let mut reserved = bytes;
+        reserved[10] = 1;
+        assert_eq!(Identity::decode(&reserved), None);
+        let mut firmware = [0xA5; 0x500];
+        firmware[0x400..0x410].copy_from_slice(&bytes);
+        assert_eq!(Identity::of_firmware(&firmware), Some(identity));
+        assert_eq!(Identity::of_firmware(&firmware[..0x40F]), None, "too short");
+        assert_eq!(Identity::of_firmware(&[0xA5; 0x500]), None, "none");
+    }
 
     #[test]
     fn header_round_trip() {

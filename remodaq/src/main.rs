@@ -123,16 +123,18 @@ enum Command {
         /// The secret key file (from `remodaq keygen`).
         #[arg(long)]
         key: std::path::PathBuf,
-        /// The module the firmware is for: 8318 or 8350.
+        /// The module the firmware is for: 8318 or 8350 (the model its identity names).
         #[arg(long, value_parser = hex16)]
         model: u16,
         /// The firmware version (register 40213), in hex, e.g. A101.
         #[arg(long, value_parser = hex16)]
         version: u16,
         /// The security counter (anti-rollback): a module refuses images below the highest
-        /// counter it has confirmed. Raise it when a release fixes a vulnerability.
-        #[arg(long, default_value_t = 0)]
-        counter: u32,
+        /// counter it has confirmed, its bootloader images below the running one's. It is
+        /// compiled into the image (`SECURITY_COUNTER`, or `REMODAQ_SECURITY_COUNTER` at build
+        /// time); by default the image's, and when given it must be the image's.
+        #[arg(long)]
+        counter: Option<u32>,
         /// The firmware binary (the application image, as the bootloader starts it).
         firmware: std::path::PathBuf,
         /// The image file to write.

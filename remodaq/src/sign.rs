@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use ed25519_dalek::{Signer, SigningKey};
 use remodaq_client::Error;
-use remodaq_protocol::update::{Header, SIGNED_LEN};
+use remodaq_protocol::update::{Header, Identity, IDENTITY_AT, SIGNED_LEN};
 use sha2::{Digest, Sha512};
 
 fn hex(bytes: &[u8]) -> String {
@@ -82,12 +82,43 @@ pub fn image_file(firmware: &[u8], model: u16, version: u16, counter: u32, key: 
     Ok([&header.encode()[..], firmware].concat())
 }
 
-/// `remodaq sign`: writes the signed image file of a firmware binary.
-pub fn sign(key: &Path, firmware: &Path, model: u16, version: u16, counter: u32, out: &Path) -> Result<(), Error> {
+/// `remodaq sign`: writes the signed image file of a firmware binary, for the model and security
+/// counter of the identity compiled into it (`Identity`, at `IDENTITY_AT`), which the bootloader
+/// compares before a swap: `model` must be its model, and `counter`, when given, its counter.
+pub fn sign(
+    key: &Path,
+    firmware: &Path,
+    model: u16,
+    version: u16,
+    counter: Option<u32>,
+    out: &Path,
+) -> Result<(), Error> {
     let text = std::fs::read_to_string(key).map_err(|e| Error::Other(format!("cannot read {}: {e}", key.display())))?;
     let signing = SigningKey::from_bytes(&unhex32(&text, key)?);
     let bytes =
         std::fs::read(firmware).map_err(|e| Error::Other(format!("cannot read {}: {e}", firmware.display())))?;
+    let identity = Identity::of_firmware(&bytes).ok_or_else(|| {
+        Error::Other(format!(
+            "{}: no image identity at {IDENTITY_AT:#x} (a raw binary of a RemoDAQ image of this release, \
+             `llvm-objcopy -O binary`)",
+            firmware.display()
+        ))
+    })?;
+    if identity.model != model {
+        return Err(Error::Other(format!(
+            "{}: an image for the {:04X}, not the {model:04X}",
+            firmware.display(),
+            identity.model
+        )));
+    }
+    let counter = counter.unwrap_or(identity.counter);
+    if counter != identity.counter {
+        return Err(Error::Other(format!(
+            "{}: built with security counter {} (REMODAQ_SECURITY_COUNTER), not {counter}",
+            firmware.display(),
+            identity.counter
+        )));
+    }
     let file = image_file(&bytes, model, version, counter, &signing)?;
     std::fs::write(out, &file).map_err(|e| Error::Other(format!("cannot write {}: {e}", out.display())))?;
     println!(
@@ -135,9 +166,17 @@ mod tests {
             assert_eq!(mode, 0o600, "the secret key is its owner's only");
         }
         let firmware = dir.join("fw.bin");
-        std::fs::write(&firmware, (0..5000u32).map(|i| i as u8).collect::<Vec<_>>()).unwrap();
+        let mut bytes = (0..5000u32).map(|i| i as u8).collect::<Vec<_>>();
+        std::fs::write(&firmware, &bytes).unwrap();
         let out = dir.join("fw.rdq");
-        sign(&key, &firmware, 0x8350, 0xA101, 3, &out).unwrap();
+        assert!(sign(&key, &firmware, 0x8350, 0xA101, Some(3), &out).is_err(), "no identity: not an image");
+        let at = IDENTITY_AT as usize;
+        bytes[at..at + 16].copy_from_slice(&Identity { model: 0x8350, counter: 3 }.encode());
+        std::fs::write(&firmware, &bytes).unwrap();
+        assert!(sign(&key, &firmware, 0x8318, 0xA101, Some(3), &out).is_err(), "another model's image");
+        assert!(sign(&key, &firmware, 0x8350, 0xA101, Some(4), &out).is_err(), "another counter");
+        assert!(!out.exists(), "nothing written for a refused image");
+        sign(&key, &firmware, 0x8350, 0xA101, None, &out).unwrap();
         let file = std::fs::read(&out).unwrap();
         let public = unhex32(&std::fs::read_to_string(public_path(&key)).unwrap(), &key).unwrap();
         let public = VerifyingKey::from_bytes(&public).unwrap();

@@ -17,8 +17,8 @@ use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
 use futures_executor::block_on;
 use remodaq_protocol::auth::{client_proof, derive, server_signature, Credential};
 use remodaq_protocol::update::{
-    answer_message, auth_message, check_before_swap, BeforeSwap, Greeting, GREETING_LEN, HEADER_LEN, OPENING,
-    SIGNED_LEN,
+    answer_message, auth_message, check_before_swap, BeforeSwap, Greeting, Identity, GREETING_LEN, HEADER_LEN,
+    IDENTITY_AT, OPENING, SIGNED_LEN,
 };
 use remodaq_shared::ram_flash::{RamFlash, RamFlashError};
 use remodaq_shared::settings::Counter;
@@ -44,8 +44,16 @@ fn key() -> SigningKey {
     SigningKey::from_bytes(&[0x5A; 32])
 }
 
+/// A firmware of `len` bytes, with the identity of this module's model and security counter 0
+/// where every image has it (the bootloader reads it: `check_before_swap`).
 fn image(seed: u8, len: usize) -> Vec<u8> {
-    (0..len).map(|i| (i as u8).wrapping_mul(31).wrapping_add(seed)).collect()
+    image_of(seed, len, Identity { model: MODEL, counter: 0 })
+}
+
+fn image_of(seed: u8, len: usize, identity: Identity) -> Vec<u8> {
+    let mut bytes: Vec<u8> = (0..len).map(|i| (i as u8).wrapping_mul(31).wrapping_add(seed)).collect();
+    bytes[IDENTITY_AT as usize..][..16].copy_from_slice(&identity.encode());
+    bytes
 }
 
 /// An image file: header (signed with `key`) and firmware, security counter 0.
@@ -185,11 +193,22 @@ fn store_with(settings: Option<S>) -> Mutex<CriticalSectionRawMutex, SettingsSto
 
 /// Sessions against a module with `settings`; the answers and outcomes, and the settings after.
 fn sessions_with(settings: S, dfu: &mut Dfu, state: &mut StateFlash, each: Vec<Plan>) -> (Vec<(Vec<u8>, Outcome)>, S) {
+    sessions_as(MODEL, settings, dfu, state, each)
+}
+
+/// [`sessions_with`] by an update service that takes itself for `model`.
+fn sessions_as(
+    model: u16,
+    settings: S,
+    dfu: &mut Dfu,
+    state: &mut StateFlash,
+    each: Vec<Plan>,
+) -> (Vec<(Vec<u8>, Outcome)>, S) {
     let store = store_with(Some(settings));
     let map = Mutex::<NoopRawMutex, _>::new(Live(settings));
     let mut aligned = [0u8; 4];
     let mut target = updater(dfu, state, &mut aligned);
-    let mut service = UpdateService::new(MODEL, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
+    let mut service = UpdateService::new(model, [2, 0, 0, 0, 0, 1], 4 * PAGE as u32);
     let results = each
         .into_iter()
         .enumerate()
@@ -446,7 +465,7 @@ fn the_bootloader_checks_the_manifest_before_the_swap() {
     let (old, new) = (image(1, 3000), image(2, 3001));
     let public = key().verifying_key().to_bytes();
     let mut m = module_with(&old);
-    let check = |m: &mut Module| check_before_swap(&mut m.dfu, &mut m.state, MANIFEST_AT, &public);
+    let check = |m: &mut Module| check_before_swap(&mut m.active, &mut m.dfu, &mut m.state, MANIFEST_AT, &public);
     assert_eq!(check(&mut m), BeforeSwap::Nothing, "no swap requested");
     let file = signed(&new, 0xA101, &key());
     let (answers, _) = session(&mut m.dfu, &mut m.state, session_bytes(PASSWORD, &file, None));
@@ -497,6 +516,46 @@ fn the_bootloader_checks_the_manifest_before_the_swap() {
     assert!(seen.contains_key("Nothing"), "{seen:?}");
 }
 
+/// The bootloaders check the model and the security counter themselves (security review
+/// finding 11c), against the identity compiled into the running image, whatever the
+/// application checked before it marked the update: here the update service of a module that
+/// takes itself for the image's model with no counter confirmed marks each (as a compromised or
+/// mistaken application could). Against 4cfaadc, whose check knew neither, each was `Verified`.
+#[test]
+fn the_bootloader_refuses_another_models_or_an_older_image_whoever_marked_it() {
+    let public = key().verifying_key().to_bytes();
+    let old = image_of(1, 3000, Identity { model: MODEL, counter: 5 });
+    let id = |model, counter| Identity { model, counter };
+    let cases = [
+        ("the 8318's image, signed for the 8318", id(0x8318, 5), id(0x8318, 5), BeforeSwap::Refuse),
+        ("an older release (counter 4)", id(MODEL, 4), id(MODEL, 4), BeforeSwap::Refuse),
+        ("a header naming another counter than the image's", id(MODEL, 4), id(MODEL, 6), BeforeSwap::Refuse),
+        ("a header naming another model than the image's", id(0x8318, 5), id(MODEL, 5), BeforeSwap::Refuse),
+        ("the running release again (counter 5)", id(MODEL, 5), id(MODEL, 5), BeforeSwap::Verified),
+        ("a newer release (counter 6)", id(MODEL, 6), id(MODEL, 6), BeforeSwap::Verified),
+    ];
+    for (what, built, named, want) in cases {
+        let new = image_of(2, 3001, built);
+        let mut m = module_with(&old);
+        let file = signed_as(&new, named.model, 0xA101, named.counter, &key());
+        let settings = S { password: credential(), ..S::defaults() };
+        let (mut results, _) =
+            sessions_as(named.model, settings, &mut m.dfu, &mut m.state, vec![session_bytes(PASSWORD, &file, None)]);
+        assert_eq!(results.remove(0), (vec![0, 0], Outcome::Updated { version: 0xA101 }), "{what}: marked");
+        assert_eq!(check_before_swap(&mut m.active, &mut m.dfu, &mut m.state, MANIFEST_AT, &public), want, "{what}");
+    }
+    // A running image without an identity (or one that cannot be read) takes no update.
+    let mut m = module_with(&image(1, 3000)[..IDENTITY_AT as usize]);
+    let file = signed(&image(2, 3001), 0xA101, &key());
+    let results = sessions(&mut m.dfu, &mut m.state, vec![session_bytes(PASSWORD, &file, None)]);
+    assert_eq!(results[0].0, [0, 0], "marked");
+    assert_eq!(
+        check_before_swap(&mut m.active, &mut m.dfu, &mut m.state, MANIFEST_AT, &public),
+        BeforeSwap::Refuse,
+        "no identity in the running image"
+    );
+}
+
 /// A state partition whose reads fail from `from` on (a flash fault), for the bootloaders' check.
 struct ReadsFail<'a> {
     flash: &'a mut StateFlash,
@@ -542,16 +601,23 @@ fn a_state_that_cannot_be_read_is_neither_a_swap_nor_nothing() {
     let file = signed(&new, 0xA101, &key());
     let (answers, _) = session(&mut m.dfu, &mut m.state, session_bytes(PASSWORD, &file, None));
     assert_eq!(answers, [0, 0]);
-    assert_eq!(check_before_swap(&mut m.dfu, &mut m.state, MANIFEST_AT, &public), BeforeSwap::Verified);
+    assert_eq!(check_before_swap(&mut m.active, &mut m.dfu, &mut m.state, MANIFEST_AT, &public), BeforeSwap::Verified);
     let word = <StateFlash as NorFlash>::WRITE_SIZE as u32;
     for (what, from) in [("the swap word", 0), ("the progress words", word), ("the first progress index", 2 * word)] {
         let mut state = ReadsFail { flash: &mut m.state, from };
-        assert_eq!(check_before_swap(&mut m.dfu, &mut state, MANIFEST_AT, &public), BeforeSwap::Unreadable, "{what}");
+        assert_eq!(
+            check_before_swap(&mut m.active, &mut m.dfu, &mut state, MANIFEST_AT, &public),
+            BeforeSwap::Unreadable,
+            "{what}"
+        );
     }
     // Nothing asked for, and unreadable: still no "nothing to do".
     let mut fresh = module_with(&old);
     let mut state = ReadsFail { flash: &mut fresh.state, from: 0 };
-    assert_eq!(check_before_swap(&mut fresh.dfu, &mut state, MANIFEST_AT, &public), BeforeSwap::Unreadable);
+    assert_eq!(
+        check_before_swap(&mut fresh.active, &mut fresh.dfu, &mut state, MANIFEST_AT, &public),
+        BeforeSwap::Unreadable
+    );
 }
 
 #[test]

@@ -158,7 +158,7 @@ pub(crate) async fn updates(
     println!("qemu-8350: v1 -> v2 in {:.1} s", started.elapsed().as_secs_f64());
     report.check("update: v1 -> v2 through the emulated NIC, v2 answers (Modbus, search) after the reset", v1_to_v2);
     report.check(
-        "update: after v2 (counter 2), its firmware signed with counter 1 is refused (status 8), nothing changed",
+        "update: after v2 (counter 2), A101 built with counter 1 is refused (status 8), nothing changed",
         refused_at(0xA101, "an older counter", &old, usize::MAX, &[8]).await,
     );
 
@@ -226,7 +226,7 @@ pub(crate) async fn updates(
         let started = Instant::now();
         loop {
             let text = std::fs::read_to_string(&log).unwrap_or_default();
-            let refused = text.contains("bootloader: the marked update is not signed with the key: not swapped");
+            let refused = text.contains("bootloader: the marked update is not signed with the key, or not for this model and counter: not swapped");
             if refused {
                 if let Ok(0xA103) = version(addr).await {
                     println!(

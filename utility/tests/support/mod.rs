@@ -49,10 +49,17 @@ pub fn not_applicable(what: &str, why: &str) {
     let _ = writeln!(std::io::stderr(), "{what}: not applicable: {why}");
 }
 
-/// Signs `firmware` (any bytes) into the image file `out` for `model` (`8318`, `8350`),
-/// `version` (hex) and security `counter`, with the test update key, as a vendor does
-/// (`remodaq sign --key keys/test-update.key`, docs/update.md).
+/// Signs `firmware` (any bytes, at least 1 KiB and 16 bytes: a copy stamped with the identity of
+/// `model` and `counter` that `remodaq sign` asks of an image) into the image file `out` for
+/// `model` (`8318`, `8350`), `version` (hex) and security `counter`, with the test update key,
+/// as a vendor does (`remodaq sign --key keys/test-update.key`, docs/update.md).
 pub fn sign(firmware: &Path, model: &str, version: &str, counter: u32, out: &Path) {
+    use remodaq_protocol::update::{Identity, IDENTITY_AT, IDENTITY_LEN};
+    let mut bytes = std::fs::read(firmware).expect("the firmware");
+    let identity = Identity { model: u16::from_str_radix(model, 16).expect("a model"), counter };
+    bytes[IDENTITY_AT as usize..][..IDENTITY_LEN].copy_from_slice(&identity.encode());
+    let firmware = &out.with_extension("bin");
+    std::fs::write(firmware, bytes).expect("the stamped firmware");
     let key = workspace().join("keys/test-update.key");
     let result = std::process::Command::new(workspace_program("remodaq"))
         .args(["sign", "--key"])

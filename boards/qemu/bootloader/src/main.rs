@@ -4,7 +4,8 @@
 //! then copies the first application from SEED into ACTIVE and erases the state and update
 //! partitions, as a factory would program the module's flash. The flash layout is in
 //! `../layout.x`; docs/update.md explains it. As on the STM32, a swap starts only for an image
-//! signed with the key (`remodaq_protocol::update::check_before_swap`); otherwise it is
+//! signed with the key, for the running image's model, with a counter not below its
+//! (`remodaq_protocol::update::check_before_swap`); otherwise it is
 //! cancelled and the running image starts again.
 #![cfg_attr(target_os = "none", no_std, no_main)]
 
@@ -66,11 +67,11 @@ mod boot {
             }
         }
         // The manifest sits where the swap's scratch page starts: right after ACTIVE's size.
-        match check_before_swap(&mut dfu, &mut state, size as u32, &UPDATE_KEY) {
+        match check_before_swap(&mut active, &mut dfu, &mut state, size as u32, &UPDATE_KEY) {
             BeforeSwap::Nothing | BeforeSwap::Verified => {}
             BeforeSwap::Refuse => {
                 cortex_m_semihosting::hprintln!(
-                    "bootloader: the marked update is not signed with the key: not swapped"
+                    "bootloader: the marked update is not signed with the key, or not for this model and counter: not swapped"
                 );
                 let mut word = [0u8; 4];
                 if BlockingFirmwareState::new(&mut state, &mut word).mark_booted().is_err() {

@@ -16,7 +16,8 @@
 //!
 //! Before a swap starts, the update partition must hold an image signed with the module's key:
 //! the manifest the application wrote at the start of DFU's last page, and the digest of the
-//! firmware it names (`remodaq_protocol::update::check_before_swap`). Otherwise the swap is
+//! firmware it names, for the running image's model with a security counter not below its
+//! (`remodaq_protocol::update::check_before_swap`). Otherwise the swap is
 //! cancelled (the state marked booted) and the running image starts again.
 #![cfg_attr(target_os = "none", no_std, no_main)]
 
@@ -73,9 +74,10 @@ mod boot {
         let state = Mutex::<NoopRawMutex, _>::new(RefCell::new(layout.bank2_region2));
         {
             // The manifest sits where the swap's scratch page starts: right after ACTIVE's size.
+            let mut active = BlockingPartition::new(&active, ACTIVE_OFFSET, ACTIVE_SIZE);
             let mut dfu = BlockingPartition::new(&dfu, 0, DFU_SIZE);
             let mut state = BlockingPartition::new(&state, STATE_OFFSET, STATE_SIZE);
-            match check_before_swap(&mut dfu, &mut state, ACTIVE_SIZE, &UPDATE_KEY) {
+            match check_before_swap(&mut active, &mut dfu, &mut state, ACTIVE_SIZE, &UPDATE_KEY) {
                 BeforeSwap::Nothing | BeforeSwap::Verified => {}
                 // A refused image is never swapped in: if the cancel cannot be written (the
                 // state would still ask for the swap), nothing starts; this bootloader runs
