@@ -101,6 +101,37 @@ impl Credential {
     }
 }
 
+/// A domain tag (security review of 4cfaadc, "label prefixes"): a label's length in one byte,
+/// then the label, as a `&'static [u8]` made at compile time. Every proof, signature, sealing
+/// key and keystream block of the protocols starts its HMAC message with one, so that no
+/// message made for one purpose is a message of another, whatever the labels: two tags are
+/// equal only when their labels are, and no tag is a prefix of another (a label that was a
+/// prefix of another, `"RDAQ update v2"` of `"RDAQ update v2 answer"`, no longer is one once
+/// tagged). The page's JavaScript (`tag` in services/web/web/auth.js) and the Python tools make
+/// the same bytes.
+#[macro_export]
+macro_rules! domain_tag {
+    ($label:literal) => {{
+        const LABEL: &[u8] = $label;
+        const TAG: [u8; LABEL.len() + 1] = $crate::auth::tag_of(LABEL);
+        &TAG
+    }};
+}
+
+/// The bytes of [`domain_tag!`]: `label.len()` (below 256), then `label`; `N` must be one more
+/// than the label's length (a build error otherwise).
+pub const fn tag_of<const N: usize>(label: &[u8]) -> [u8; N] {
+    assert!(label.len() + 1 == N && label.len() < 256, "a domain tag's label is 0-255 bytes");
+    let mut out = [0u8; N];
+    out[0] = label.len() as u8;
+    let mut i = 0;
+    while i < label.len() {
+        out[i + 1] = label[i];
+        i += 1;
+    }
+    out
+}
+
 /// HMAC-SHA-256 of the concatenation of `parts`.
 pub fn hmac(key: &[u8], parts: &[&[u8]]) -> [u8; KEY_LEN] {
     // HMAC takes keys of any length: `new_from_slice` cannot fail for it.
@@ -164,7 +195,7 @@ pub const BASE_POINT: [u8; KEY_LEN] = {
 pub fn seal(shared: &[u8; KEY_LEN], context: &[&[u8]], data: &mut [u8]) {
     let key = hmac(shared, context);
     for (block, chunk) in data.chunks_mut(KEY_LEN).enumerate() {
-        let stream = hmac(&key, &[b"RDAQ seal", &[block as u8]]);
+        let stream = hmac(&key, &[crate::domain_tag!(b"RDAQ seal"), &[block as u8]]);
         for (d, s) in chunk.iter_mut().zip(stream.iter()) {
             *d ^= s;
         }
@@ -176,7 +207,7 @@ pub const SEAL_TAG_LEN: usize = 16;
 /// Bytes of a sealed credential: the credential XORed with the keystream, then its tag.
 pub const SEALED_LEN: usize = CREDENTIAL_LEN + SEAL_TAG_LEN;
 /// Label of the key confirmation of a sealed credential.
-const SEAL_TAG_LABEL: &[u8] = b"RDAQ seal confirm";
+const SEAL_TAG_LABEL: &[u8] = crate::domain_tag!(b"RDAQ seal confirm");
 
 fn seal_tag(shared: &[u8; KEY_LEN], context: &[&[u8]], ciphertext: &[u8]) -> [u8; SEAL_TAG_LEN] {
     let key = hmac(shared, context);
@@ -240,6 +271,29 @@ pub fn fingerprint(public_key: &[u8; KEY_LEN]) -> [u8; 8] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every label of the protocols as a domain tag: its length in a byte, then its text; no tag
+    /// is a prefix of another (the review's "label prefixes": the update labels were).
+    #[test]
+    fn domain_tags_are_length_prefixed_and_none_is_a_prefix_of_another() {
+        assert_eq!(crate::domain_tag!(b"RDAQ seal"), b"\x09RDAQ seal");
+        assert_eq!(crate::update::UPDATE_LABEL, b"\x0eRDAQ update v2");
+        let tags: [&[u8]; 7] = [
+            crate::update::UPDATE_LABEL,
+            crate::update::ANSWER_LABEL,
+            crate::discovery::CLIENT_LABEL,
+            crate::discovery::SERVER_LABEL,
+            crate::discovery::SEAL_LABEL,
+            crate::web::PASSWORD_SEAL_LABEL,
+            SEAL_TAG_LABEL,
+        ];
+        for (i, a) in tags.iter().enumerate() {
+            assert_eq!(a[0] as usize, a.len() - 1, "{a:?}");
+            for (j, b) in tags.iter().enumerate() {
+                assert!(i == j || !b.starts_with(a), "{a:?} is a prefix of {b:?}");
+            }
+        }
+    }
 
     fn unhex<const N: usize>(s: &str) -> [u8; N] {
         let mut out = [0u8; N];

@@ -29,14 +29,16 @@ use crate::auth::{KEY_LEN, NONCE_LEN, SALT_LEN};
 /// The NUL bytes keep it out of reach of a browser page (security review finding 7): an HTTP
 /// request opens with its method and a space, never a NUL, so the module closes a browser's
 /// connection after its first 8 bytes, without reading a proof or spending the guessing budget.
-pub const OPENING: [u8; 8] = *b"RDAQ\x00UP\x03";
+/// Version 4: the proofs' messages start with domain tags (a PC tool of version 3 is closed at
+/// once, rather than answered "wrong password").
+pub const OPENING: [u8; 8] = *b"RDAQ\x00UP\x04";
 
 /// Seconds the handshake may take, and the longest silence of a peer in a session.
 pub const HANDSHAKE_S: u64 = 10;
-/// Label of the AuthMessage of an update session.
-pub const UPDATE_LABEL: &[u8] = b"RDAQ update v2";
-/// Label of the module's signatures in an update session.
-pub const ANSWER_LABEL: &[u8] = b"RDAQ update v2 answer";
+/// Domain tag of the AuthMessage of an update session (`crate::domain_tag!`).
+pub const UPDATE_LABEL: &[u8] = crate::domain_tag!(b"RDAQ update v2");
+/// Domain tag of the module's signatures in an update session.
+pub const ANSWER_LABEL: &[u8] = crate::domain_tag!(b"RDAQ update v2 answer");
 /// Bytes of an encoded [`Greeting`].
 pub const GREETING_LEN: usize = 6 + SALT_LEN + 4 + NONCE_LEN + 1;
 

@@ -24,13 +24,15 @@
 
 use crate::auth::{hmac, KEY_LEN, NONCE_LEN};
 
-/// The context label of a new credential sealed by a page (the module's public key follows).
-pub const PASSWORD_SEAL_LABEL: &[u8] = b"RDAQ web new credential";
+/// The context's domain tag of a new credential sealed by a page (the module's public key
+/// follows). Each label here is a domain tag (`crate::domain_tag!`: its length, then its text);
+/// docs/web.md writes it tag("...").
+pub const PASSWORD_SEAL_LABEL: &[u8] = crate::domain_tag!(b"RDAQ web new credential");
 
-/// HMAC(session key, "RDAQ web agreement" || the module's ephemeral public key): signs the key
-/// the module offers a session for a password change.
+/// HMAC(session key, tag("RDAQ web agreement") || the module's ephemeral public key): signs the
+/// key the module offers a session for a password change.
 pub fn agreement_proof(session_key: &[u8; KEY_LEN], public: &[u8; KEY_LEN]) -> [u8; KEY_LEN] {
-    hmac(session_key, &[b"RDAQ web agreement", public])
+    hmac(session_key, &[crate::domain_tag!(b"RDAQ web agreement"), public])
 }
 
 /// Bytes of a session id.
@@ -55,7 +57,7 @@ pub fn login_message<'a>(
     module_nonce: &'a [u8; NONCE_LEN],
     page_nonce: &'a [u8; NONCE_LEN],
 ) -> [&'a [u8]; 4] {
-    [b"RDAQ web login", mac, module_nonce, page_nonce]
+    [crate::domain_tag!(b"RDAQ web login"), mac, module_nonce, page_nonce]
 }
 
 /// The module's signature of a successful login: HMAC(ServerKey, AuthMessage || session id).
@@ -67,23 +69,35 @@ pub fn login_signature(
     hmac(server_key, &[message[0], message[1], message[2], message[3], session])
 }
 
-/// The session's key: HMAC(ClientKey, "RDAQ web session" || module nonce || page nonce). Only
+/// The session's key: HMAC(ClientKey, tag("RDAQ web session") || module nonce || page nonce). Only
 /// the page (from the password) and the module (from the proof) know ClientKey.
 pub fn session_key(
     client_key: &[u8; KEY_LEN],
     module_nonce: &[u8; NONCE_LEN],
     page_nonce: &[u8; NONCE_LEN],
 ) -> [u8; KEY_LEN] {
-    hmac(client_key, &[b"RDAQ web session", module_nonce, page_nonce])
+    hmac(client_key, &[crate::domain_tag!(b"RDAQ web session"), module_nonce, page_nonce])
 }
 
-/// The signature of a state-changing request: HMAC(session key, "RDAQ web request\n" ||
+/// The signature of a state-changing request: HMAC(session key, tag("RDAQ web request\n") ||
 /// METHOD || "\n" || path || "\n" || counter in decimal || "\n" || body), where `path` is the
 /// request target as sent (path and query).
 pub fn request_signature(key: &[u8; KEY_LEN], method: &str, path: &str, counter: u64, body: &[u8]) -> [u8; KEY_LEN] {
     let mut digits = [0u8; 20];
     let counter = decimal(counter, &mut digits);
-    hmac(key, &[b"RDAQ web request\n", method.as_bytes(), b"\n", path.as_bytes(), b"\n", counter, b"\n", body])
+    hmac(
+        key,
+        &[
+            crate::domain_tag!(b"RDAQ web request\n"),
+            method.as_bytes(),
+            b"\n",
+            path.as_bytes(),
+            b"\n",
+            counter,
+            b"\n",
+            body,
+        ],
+    )
 }
 
 /// `n` in decimal, in `buf`.
@@ -129,13 +143,14 @@ mod tests {
     use super::*;
 
     /// The canonical form, written out: its HMAC under the key 00 01 .. 1f was computed
-    /// independently with Python's `hmac` (`hmac.new(bytes(range(32)), b"RDAQ web
-    /// request\nPUT\n/api/v1/do/0?x=1\n42\n{\"on\":true}", "sha256").hexdigest()`).
+    /// independently with Python's `hmac` (`hmac.new(bytes(range(32)), b"\x11RDAQ web
+    /// request\nPUT\n/api/v1/do/0?x=1\n42\n{\"on\":true}", "sha256").hexdigest()`: the domain
+    /// tag's length byte, 17, then the label).
     #[test]
     fn request_signature_is_the_documented_hmac() {
         let key: [u8; 32] = core::array::from_fn(|i| i as u8);
         let expected: [u8; 32] =
-            unhex("2fee5c3589aefbefbc31f7fc28dcdec936c9ff5754f1aae3ad59f4752de51e22").unwrap_or([0; 32]);
+            unhex("ceb9b08e80757b9fddbca501018dd4e4695fe33005480973fd7dd202d695d6a4").unwrap_or([0; 32]);
         let got = request_signature(&key, "PUT", "/api/v1/do/0?x=1", 42, br#"{"on":true}"#);
         assert_eq!(got, expected);
         // Any part changed changes it.
@@ -147,7 +162,8 @@ mod tests {
 
     /// A whole login computed independently with Python's `hashlib` and `hmac` (docs/web.md's
     /// recipe: password "correct horse battery", salt 00..0f, 4096 iterations, MAC
-    /// 02:00:00:83:50:01, module nonce a0..af, page nonce 10..1f, session id 01..08); the same
+    /// 02:00:00:83:50:01, module nonce a0..af, page nonce 10..1f, session id 01..08, each label
+    /// a domain tag: its length in a byte, then its text); the same
     /// values check the page's JavaScript (`services/web/web/test/auth.test.js`).
     #[test]
     fn a_login_computed_elsewhere_verifies() {
@@ -157,7 +173,7 @@ mod tests {
         let server: [u8; 32] =
             unhex("f612eb7e77fbcef0ad0c1f5dae455790c814b1de2fa477e0e584090eb6da677d").unwrap_or([0; 32]);
         let proof: [u8; 32] =
-            unhex("61ac8d6e4f6756c44e681d6e4ce8c999ae490853372bea16b87c795885457484").unwrap_or([0; 32]);
+            unhex("7a3e1ebd5d67c927c6debfa2d27218b75556031993e96cc595fb7a3a600b14ab").unwrap_or([0; 32]);
         let mac = [0x02, 0, 0, 0x83, 0x50, 1];
         let module_nonce: [u8; 16] = core::array::from_fn(|i| 0xA0 + i as u8);
         let page_nonce: [u8; 16] = core::array::from_fn(|i| 0x10 + i as u8);
@@ -165,13 +181,13 @@ mod tests {
         let client_key = verify_proof(&stored, &message, &proof).expect("the proof verifies");
         assert_eq!(
             session_key(&client_key, &module_nonce, &page_nonce),
-            unhex::<32>("0483f2f4f46283278fe99d3e2a5881141d117796b1d06a958ce5336bc0bb0d84").unwrap_or([0; 32])
+            unhex::<32>("d6d8ccb09cca07a18fc54cbddaf738b925162097f2bbfa5e93c4d13fbbd0f5c8").unwrap_or([0; 32])
         );
         let session = [1, 2, 3, 4, 5, 6, 7, 8];
         let signature = login_signature(&server, &message, &session);
         assert_eq!(
             signature,
-            unhex::<32>("9dd2da6fad6dfda31c427b090e9dab6347de32a1948608f11eb3f2ca5db68fba").unwrap_or([0; 32])
+            unhex::<32>("976a80013e4a26e292344d774f87d908cf31003920ed2039ff0f7070ec3e2564").unwrap_or([0; 32])
         );
         assert_eq!(signature, server_signature(&server, &[message[0], message[1], message[2], message[3], &session]));
     }

@@ -47,7 +47,7 @@ import threading
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from rdaq import (FACTORY_ITERATIONS, FACTORY_SALT, Modbus, allow_body, challenge_salt, command,  # noqa: E402
+from rdaq import (FACTORY_ITERATIONS, FACTORY_SALT, Modbus, allow_body, challenge_salt, command, label,  # noqa: E402
                   exchange, header, password_equivalents, search_raw)
 
 BIN = "target/debug"
@@ -337,7 +337,7 @@ def password_on_the_wire():
             for salt, iterations in sent:
                 keys = password_equivalents(pw, salt, iterations)
                 for request in requests:
-                    message = b"RDAQ discovery v2 request" + request[:46] + request[78:]
+                    message = label(b"RDAQ discovery v2 request") + request[:46] + request[78:]
                     signature = hmac.new(keys["StoredKey"], message, hashlib.sha256).digest()
                     opened = bytes(a ^ b for a, b in zip(request[46:78], signature))
                     need(opened == keys["ClientKey"], "a captured proof does not open to the ClientKey computed here")

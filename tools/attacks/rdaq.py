@@ -10,6 +10,17 @@ import struct
 
 TARGET = "127.0.0.1"
 
+# Whether the proofs' messages start with domain tags (protocol/src/auth.rs `domain_tag!`, issue
+# #38): the modules of this tree; `RDAQ_UNTAGGED=1` for an older commit's (scripts/attacks
+# --against sets it when that commit has no `domain_tag!`).
+TAGGED = not os.environ.get("RDAQ_UNTAGGED")
+
+
+def label(text):
+    """The label of a proof's message as the module under attack makes it: a domain tag (its
+    length in a byte, then the label), or the bare label of an older commit."""
+    return bytes([len(text)]) + text if TAGGED else text
+
 
 # --- the configuration protocol, both versions ---------------------------------------------
 
@@ -98,7 +109,7 @@ def command_reply(sim, opcode, body, password, src="127.0.0.1"):
         salt, iterations = challenge_salt(challenge)
         client_key, stored_key, _ = scram_keys(pw, salt, iterations)
         request = bytearray(header(2, opcode, 10) + sim.mac + cnonce + snonce + bytes(32) + body)
-        message = b"RDAQ discovery v2 request" + bytes(request[:46]) + bytes(request[78:])
+        message = label(b"RDAQ discovery v2 request") + bytes(request[:46]) + bytes(request[78:])
         signature = hmac.new(stored_key, message, hashlib.sha256).digest()
         request[46:78] = bytes(a ^ b for a, b in zip(client_key, signature))
         s.sendto(bytes(request), (TARGET, sim.disc))

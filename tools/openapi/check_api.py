@@ -78,6 +78,11 @@ SPEC_NAMES = {
 }
 
 
+def tag(label):
+    """A domain tag (protocol/src/auth.rs `domain_tag!`): the label's length in a byte, then the label."""
+    return bytes([len(label)]) + label
+
+
 def spec_words(resource, field, value, words):
     """The register (or coil) values `value` of `field` is written as, by the spec."""
     if isinstance(value, bool):
@@ -237,7 +242,7 @@ class Client:
         session, key, counter = self.session
         counter += 1
         self.session = (session, key, counter)
-        message = b"RDAQ web request\n" + f"{method}\n{target}\n{counter}\n".encode() + body
+        message = tag(b"RDAQ web request\n") + f"{method}\n{target}\n{counter}\n".encode() + body
         signature = hmac.new(key, message, hashlib.sha256).hexdigest()
         headers = [("X-RDAQ-Session", session), ("X-RDAQ-Counter", str(counter)), ("X-RDAQ-Signature", signature)]
         status, answer = self.call(method, target, headers=headers + list(extra), raw=body, expect=expect)
@@ -322,14 +327,14 @@ class Client:
         _, identity = exchange(self.web, "GET", "/api/v1/identity")
         mac = bytes.fromhex(json.loads(identity)["mac"])
         page_nonce = os.urandom(16)
-        message = b"RDAQ web login" + mac + bytes.fromhex(c["nonce"]) + page_nonce
+        message = tag(b"RDAQ web login") + mac + bytes.fromhex(c["nonce"]) + page_nonce
         proof = bytes(a ^ b for a, b in zip(client_key, hmac.new(stored_key, message, hashlib.sha256).digest()))
         body = json.dumps({"nonce": c["nonce"], "page_nonce": page_nonce.hex(), "proof": proof.hex()}).encode()
         status, s = self.call("POST", "/api/v1/session", raw=body, headers=[("Content-Type", "application/json")],
                               expect=None)
         if status != 200:
             return status
-        key = hmac.new(client_key, b"RDAQ web session" + bytes.fromhex(c["nonce"]) + page_nonce, hashlib.sha256).digest()
+        key = hmac.new(client_key, tag(b"RDAQ web session") + bytes.fromhex(c["nonce"]) + page_nonce, hashlib.sha256).digest()
         self.session = (json.loads(s)["session"], key, 0)
         return status
 
@@ -425,7 +430,7 @@ def seal(shared, context, data):
     key = hmac.new(shared, context, hashlib.sha256).digest()
     out = bytearray(data)
     for block in range((len(out) + 31) // 32):
-        stream = hmac.new(key, b"RDAQ seal" + bytes([block]), hashlib.sha256).digest()
+        stream = hmac.new(key, tag(b"RDAQ seal") + bytes([block]), hashlib.sha256).digest()
         for i in range(32):
             if block * 32 + i < len(out):
                 out[block * 32 + i] ^= stream[i]
@@ -437,7 +442,7 @@ def change_password(c, new):
     status, offer = c.signed("POST", "/api/v1/password/key", expect=200)
     offer = json.loads(offer)
     module = bytes.fromhex(offer["public"])
-    proof = hmac.new(c.session[1], b"RDAQ web agreement" + module, hashlib.sha256).hexdigest()
+    proof = hmac.new(c.session[1], tag(b"RDAQ web agreement") + module, hashlib.sha256).hexdigest()
     if proof != offer["proof"]:
         raise RuntimeError("the module's key is not signed by the session")
     salt, iterations, secret = os.urandom(16), 4096, os.urandom(32)
@@ -445,7 +450,7 @@ def change_password(c, new):
     client_key = hmac.new(salted, b"Client Key", hashlib.sha256).digest()
     credential = (salt + iterations.to_bytes(4, "big") + hashlib.sha256(client_key).digest()
                   + hmac.new(salted, b"Server Key", hashlib.sha256).digest())
-    sealed = seal(x25519(secret, module), b"RDAQ web new credential" + module, credential)
+    sealed = seal(x25519(secret, module), tag(b"RDAQ web new credential") + module, credential)
     public = x25519(secret, (9).to_bytes(32, "little"))
     body = json.dumps({"module": module.hex(), "public": public.hex(), "sealed": sealed.hex()}).encode()
     c.signed("PUT", "/api/v1/password", raw=body)

@@ -17,12 +17,12 @@ pub const VERSION: u8 = 2;
 pub const HEADER_LEN: usize = 8;
 /// Where the proof of an authenticated request starts: header, MAC, both nonces.
 pub const PROOF_AT: usize = HEADER_LEN + 6 + 2 * NONCE_LEN;
-/// Label of the AuthMessage of a configuration command.
-pub const CLIENT_LABEL: &[u8] = b"RDAQ discovery v2 request";
-/// Label of the module's signature over a command and its answer.
-pub const SERVER_LABEL: &[u8] = b"RDAQ discovery v2 answer";
-/// Label of the key that seals a new credential.
-pub const SEAL_LABEL: &[u8] = b"RDAQ new credential";
+/// Domain tag of the AuthMessage of a configuration command (`crate::domain_tag!`).
+pub const CLIENT_LABEL: &[u8] = crate::domain_tag!(b"RDAQ discovery v2 request");
+/// Domain tag of the module's signature over a command and its answer.
+pub const SERVER_LABEL: &[u8] = crate::domain_tag!(b"RDAQ discovery v2 answer");
+/// Domain tag of the key that seals a new credential.
+pub const SEAL_LABEL: &[u8] = crate::domain_tag!(b"RDAQ new credential");
 
 /// Request opcodes (replies set bit 7).
 pub mod op {

@@ -216,8 +216,15 @@
       return xor(keys.clientKey, await hmac(keys.storedKey, message));
     }
 
+    // A domain tag (protocol/src/auth.rs `domain_tag!`): the label's length in a byte, then the
+    // label, at the start of every message this page signs, proves or seals with.
+    function tag(label) {
+      const bytes = text.encode(label);
+      return [bytes.length, ...bytes];
+    }
+
     function loginMessage(mac, moduleNonce, pageNonce) {
-      return ["RDAQ web login", mac, moduleNonce, pageNonce];
+      return [tag("RDAQ web login"), mac, moduleNonce, pageNonce];
     }
 
     // Whether the module's answer to a login is signed with the ServerKey of this password.
@@ -227,20 +234,20 @@
     }
 
     async function sessionKey(keys, moduleNonce, pageNonce) {
-      return hmac(keys.clientKey, ["RDAQ web session", moduleNonce, pageNonce]);
+      return hmac(keys.clientKey, [tag("RDAQ web session"), moduleNonce, pageNonce]);
     }
 
-    // HMAC(key, "RDAQ web request\n" METHOD "\n" target "\n" counter "\n" body).
+    // HMAC(key, tag("RDAQ web request\n") METHOD "\n" target "\n" counter "\n" body).
     async function requestSignature(key, method, target, counter, body) {
-      return hmac(key, ["RDAQ web request\n", method, "\n", target, "\n", String(counter), "\n", body || ""]);
+      return hmac(key, [tag("RDAQ web request\n"), method, "\n", target, "\n", String(counter), "\n", body || ""]);
     }
 
-    // protocol/src/auth.rs `seal`: XOR with HMAC(HMAC(shared, context), "RDAQ seal" || block).
+    // protocol/src/auth.rs `seal`: XOR with HMAC(HMAC(shared, context), tag("RDAQ seal") || block).
     async function seal(shared, context, data) {
       const key = await hmac(shared, context);
       const out = Uint8Array.from(data);
       for (let block = 0; block * 32 < out.length; block++) {
-        const stream = await hmac(key, ["RDAQ seal", [block]]);
+        const stream = await hmac(key, [tag("RDAQ seal"), [block]]);
         for (let i = 0; i < 32 && block * 32 + i < out.length; i++) out[block * 32 + i] ^= stream[i];
       }
       return out;
@@ -258,16 +265,16 @@
     // under the session key; the new credential sealed under the key agreed with a fresh one of
     // the page's. `secret` and `salt` are random (the caller's).
     async function sealPassword(sessionKey, modulePublic, proofOfKey, password, secret, salt, iterations) {
-      const expected = await hmac(sessionKey, ["RDAQ web agreement", modulePublic]);
+      const expected = await hmac(sessionKey, [tag("RDAQ web agreement"), modulePublic]);
       if (hex(expected) !== hex(proofOfKey)) throw new Error("the module's key is not signed by this session");
       const shared = x25519(secret, modulePublic);
-      const sealed = await seal(shared, ["RDAQ web new credential", modulePublic], await credential(password, salt, iterations));
+      const sealed = await seal(shared, [tag("RDAQ web new credential"), modulePublic], await credential(password, salt, iterations));
       return { module: hex(modulePublic), public: hex(x25519(secret, BASE_POINT)), sealed: hex(sealed) };
     }
 
     return {
       hex, unhex, deriveKeys, proof, loginMessage, loginSignatureIsRight, sessionKey, requestSignature, core,
-      x25519, BASE_POINT, seal, credential, sealPassword,
+      x25519, BASE_POINT, seal, credential, sealPassword, tag,
     };
   }
 

@@ -88,13 +88,13 @@ check("a web login as computed with Python: proof, session key, the module's sig
   const moduleNonce = Uint8Array.from({ length: 16 }, (_, i) => 0xa0 + i);
   const pageNonce = Uint8Array.from({ length: 16 }, (_, i) => 0x10 + i);
   const message = auth.loginMessage(mac, moduleNonce, pageNonce);
-  assert.equal(hex(await auth.proof(keys, message)), "61ac8d6e4f6756c44e681d6e4ce8c999ae490853372bea16b87c795885457484");
+  assert.equal(hex(await auth.proof(keys, message)), "7a3e1ebd5d67c927c6debfa2d27218b75556031993e96cc595fb7a3a600b14ab");
   assert.equal(
     hex(await auth.sessionKey(keys, moduleNonce, pageNonce)),
-    "0483f2f4f46283278fe99d3e2a5881141d117796b1d06a958ce5336bc0bb0d84",
+    "d6d8ccb09cca07a18fc54cbddaf738b925162097f2bbfa5e93c4d13fbbd0f5c8",
   );
   const session = unhex("0102030405060708");
-  const signature = unhex("9dd2da6fad6dfda31c427b090e9dab6347de32a1948608f11eb3f2ca5db68fba");
+  const signature = unhex("976a80013e4a26e292344d774f87d908cf31003920ed2039ff0f7070ec3e2564");
   assert.ok(await auth.loginSignatureIsRight(keys, message, session, signature));
   signature[0] ^= 1;
   assert.ok(!(await auth.loginSignatureIsRight(keys, message, session, signature)), "a forged answer is seen");
@@ -103,7 +103,7 @@ check("a web login as computed with Python: proof, session key, the module's sig
 check("a request signature as computed with Python", async (auth) => {
   const key = Uint8Array.from({ length: 32 }, (_, i) => i);
   const signature = await auth.requestSignature(key, "PUT", "/api/v1/do/0?x=1", 42, '{"on":true}');
-  assert.equal(hex(signature), "2fee5c3589aefbefbc31f7fc28dcdec936c9ff5754f1aae3ad59f4752de51e22");
+  assert.equal(hex(signature), "ceb9b08e80757b9fddbca501018dd4e4695fe33005480973fd7dd202d695d6a4");
   assert.notEqual(hex(await auth.requestSignature(key, "PUT", "/api/v1/do/0?x=1", 43, '{"on":true}')), hex(signature));
 });
 
@@ -135,15 +135,15 @@ check("a sealed credential as computed with Python: the seal, the credential, th
   const shared = Uint8Array.from({ length: 32 }, (_, i) => i);
   const modulePublic = new Uint8Array(32).fill(0x42);
   const data = Uint8Array.from({ length: 84 }, (_, i) => 100 + i);
-  const sealed = await auth.seal(shared, ["RDAQ web new credential", modulePublic], data);
-  assert.equal(hex(sealed), "2fe610d1451620860e15f40eeee171f4780a94d41804571326568b2078ccd9009856c66f567b17524e10bd85c6a2608b"
-    + "aa2b6e0b4b85aba4b89b34bf1fc608e1e64b1edb3f1a6d6230672252ce289fb6924bbdc9");
+  const sealed = await auth.seal(shared, [auth.tag("RDAQ web new credential"), modulePublic], data);
+  assert.equal(hex(sealed), "bf5f16125ed76787080499b7ca80eab569c3df1663acef47bc0667389ac70dc28d8bfa835024675d9934790d00d54347"
+    + "c35ca4a6f70ec1f173fc61b74d4721264776de1a8bb67613bc19ab2db61ee4c7d0b9fdfb");
   const credential = await auth.credential("correct horse", bytes("0123456789abcdef"), 4096);
   assert.equal(hex(credential), "3031323334353637383961626364656600001000b5281eb63616e5242537323124028caf2b83187f129f0e6859c8f5"
     + "78e5b467226db67574932061868a291d5f535a061e4589ce2f4e418e3253c16e92c6b5b7bd");
-  // The module's key must carry its proof under the session key (Python: b0e3e9...).
+  // The module's key must carry its proof under the session key (Python: ec1fb2...).
   const session = new Uint8Array(32).fill(7);
-  const proof = unhex("b0e3e936321dd6307ed58076dccb96c71ad1405c59d0a9b2f885c6a3100bf13d");
+  const proof = unhex("ec1fb2129c11442deaef2821725e567a2db40a30cf03e973a7a098c54120ff53");
   const secret = new Uint8Array(32).fill(9);
   const done = await auth.sealPassword(session, modulePublic, proof, "correct horse", secret, bytes("0123456789abcdef"), 4096);
   assert.equal(done.public, hex(base.x25519(secret, base.BASE_POINT)));
@@ -151,6 +151,10 @@ check("a sealed credential as computed with Python: the seal, the credential, th
   const forged = Uint8Array.from(proof);
   forged[0] ^= 1;
   await assert.rejects(auth.sealPassword(session, modulePublic, forged, "correct horse", secret, bytes("0123456789abcdef"), 4096));
+});
+
+check("a domain tag is the label's length in a byte, then the label (protocol's domain_tag!)", async (auth) => {
+  assert.deepEqual(auth.tag("RDAQ seal"), [9, 0x52, 0x44, 0x41, 0x51, 0x20, 0x73, 0x65, 0x61, 0x6c]);
 });
 
 check("hex in and out; junk refused", async (auth) => {
