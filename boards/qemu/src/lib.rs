@@ -233,8 +233,10 @@ impl Board for QemuBoard {
             if test_switches::tap() { remodaq_net::backlog::HELD_PER_SOURCE } else { remodaq_net::backlog::HELD };
         remodaq_net::backlog::identify(self.mac, running.ip, held);
         static RESOURCES: StaticCell<StackResources<STACK_SOCKETS>> = StaticCell::new();
+        // No entropy on this machine: a fixed key for the keyed ISNs (remodaq_net::isn), as the
+        // stack's fixed seed; a test board only (docs/security.md).
         let (stack, runner) = embassy_net::new(
-            Backlogged::new(device, GATES),
+            Backlogged::new(device, GATES, *b"qemu: no entropy"),
             config,
             RESOURCES.init(StackResources::new()),
             0x5EED_8300,

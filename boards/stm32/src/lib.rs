@@ -97,6 +97,8 @@ pub struct Stm32Board {
     factory_reset: bool,
     eth: Device,
     seed: u64,
+    /// The key of the keyed TCP initial sequence numbers (RFC 6528, remodaq_net::isn), from the RNG.
+    isn_key: [u8; 16],
     /// 32 bytes of the RNG (RM0090 §24) for the module's random numbers (nonces, keys).
     entropy: [u8; 32],
     led: Output<'static>,
@@ -186,6 +188,8 @@ fn init(spawner: Spawner) -> (Stm32Board, SettingsFlash, Io) {
     let mut rng = Rng::new(p.RNG, Irqs);
     let mut seed = [0u8; 8];
     rng.fill_bytes(&mut seed);
+    let mut isn_key = [0u8; 16];
+    rng.fill_bytes(&mut isn_key);
     let mut entropy = [0u8; 32];
     rng.fill_bytes(&mut entropy);
 
@@ -261,7 +265,17 @@ fn init(spawner: Spawner) -> (Stm32Board, SettingsFlash, Io) {
             outputs: [p.PF12.into(), p.PF13.into(), p.PF14.into(), p.PF15.into(), p.PF3.into(), p.PF5.into()],
         },
     };
-    let board = Stm32Board { mac, factory_reset, eth, seed: u64::from_le_bytes(seed), entropy, led, reset_cause, boot };
+    let board = Stm32Board {
+        mac,
+        factory_reset,
+        eth,
+        seed: u64::from_le_bytes(seed),
+        isn_key,
+        entropy,
+        led,
+        reset_cause,
+        boot,
+    };
     (board, settings_flash, io)
 }
 
@@ -330,7 +344,7 @@ impl Board for Stm32Board {
     /// Starts the network with the stored settings (static IPv4), the watchdog and the
     /// identify LED.
     fn start_network(self, spawner: Spawner, net: NetConfig) -> (EmbassyNet<Stm32Effects>, NetConfig) {
-        let Stm32Board { eth, seed, led, mac, .. } = self;
+        let Stm32Board { eth, seed, isn_key, led, mac, .. } = self;
         // Only intact SYNs to this MAC and address wait in the ports' backlogs.
         remodaq_net::backlog::identify(mac, net.ip, remodaq_net::backlog::HELD_PER_SOURCE);
         let prefix = net.prefix_len().unwrap_or(24);
@@ -344,7 +358,7 @@ impl Board for Stm32Board {
         #[unsafe(link_section = ".bss.ccm.RESOURCES")]
         static RESOURCES: StaticCell<StackResources<STACK_SOCKETS>> = StaticCell::new();
         let (stack, runner) =
-            embassy_net::new(Backlogged::new(eth, GATES), config, RESOURCES.init(StackResources::new()), seed);
+            embassy_net::new(Backlogged::new(eth, GATES, isn_key), config, RESOURCES.init(StackResources::new()), seed);
         spawn(spawner, net_task(runner), "net");
         spawn(spawner, identify_task(led), "identify");
         info!("network: {}.{}.{}.{}/{} port {}", net.ip[0], net.ip[1], net.ip[2], net.ip[3], prefix, net.port);

@@ -1,6 +1,7 @@
 //! The module runtime's network part on embassy-net, for every board that runs it (the STM32 and
 //! QEMU boards): the board's running network ([`EmbassyNet`], the board contract's [`Network`]),
-//! the SYN backlog between the Ethernet driver and the stack ([`backlog`]), and the socket
+//! the SYN backlog between the Ethernet driver and the stack ([`backlog`]) with the keyed
+//! initial sequence numbers of every TCP connection ([`isn`]), and the socket
 //! helpers every service's embassy-net transport uses (accept through a backlog, close, reset,
 //! the peer). It knows no service: the socket plan it sizes the stack by is the runtime's
 //! (`remodaq_shared::sockets`).
@@ -11,6 +12,7 @@
 extern crate std;
 
 pub mod backlog;
+pub mod isn;
 
 use core::future::{poll_fn, Future};
 use core::pin::pin;
