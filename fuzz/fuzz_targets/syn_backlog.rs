@@ -8,7 +8,8 @@
 //! for byte, released before HOLD_MS; a release needs a listening task; the SYNs let through
 //! whose handshakes are under way (until accepted, reset by the client, or HANDSHAKE_MS) never
 //! outnumber the listening tasks, and a held SYN goes exactly when one is free; a SYN sent
-//! again during its handshake is dropped.
+//! again during its handshake is dropped. The arbitrary frames also go through the keyed ISNs'
+//! rewriting (remodaq_net::isn), both ways: no panic, the length unchanged.
 //! `cargo +nightly fuzz run syn_backlog` (from the repository root).
 #![no_main]
 
@@ -19,6 +20,7 @@ use remodaq_modbus::server::SOCKETS;
 use remodaq_net::backlog::{syn_to, ModbusBacklog, Peer, Verdict, HANDSHAKE_MS, HELD, HOLD_MS, MAX_SYN_FRAME};
 
 const PORT: u16 = 8000;
+const ISN_KEY: remodaq_net::isn::IsnKey = remodaq_net::isn::IsnKey::new(*b"fuzzing isn key!");
 
 /// A SYN from 10.0.0.`client`:(4000 + `client`) to the Modbus port (RFC 791 and RFC 9293
 /// layouts, no options).
@@ -120,6 +122,12 @@ fuzz_target!(|data: &[u8]| {
                 let Some((&len, rest)) = ops.split_first() else { return };
                 let (frame, rest) = rest.split_at(usize::from(len).min(rest.len()));
                 ops = rest;
+                // The keyed ISNs' rewriting of the same bytes (remodaq_net::isn, on every frame
+                // the embassy-net boards receive and send): never a panic, nothing added or cut.
+                let mut rewritten = frame.to_vec();
+                remodaq_net::isn::incoming(&ISN_KEY, &mut rewritten);
+                remodaq_net::isn::outgoing(&ISN_KEY, &mut rewritten, true);
+                assert_eq!(rewritten.len(), frame.len());
                 let verdict = backlog.arrive(frame, now);
                 if !listened {
                     assert_eq!(verdict, Verdict::Pass, "held before any task listened");
