@@ -133,12 +133,12 @@ async fn web(app: &'static Running) -> ! {
     core::pin::pin!(transport::web(app.net(), app.map(), app.store(), app.identity())).await
 }
 
-/// MQTT (docs/mqtt.md): on the host board with `--mqtt`; the embassy-net boards' session is
-/// not built yet.
+/// MQTT (docs/mqtt.md): on the host board, with the stored settings or `--mqtt`; the
+/// embassy-net boards' session is not built yet.
 #[cfg(not(target_os = "none"))]
 #[embassy_executor::task]
 async fn mqtt(app: &'static Running) -> ! {
-    transport::mqtt(app.net(), app.map(), app.identity()).await
+    transport::mqtt(app.net(), app.map(), app.store(), app.identity()).await
 }
 
 /// Brings the module up, then starts its tasks: a Modbus connection task per slot, discovery,

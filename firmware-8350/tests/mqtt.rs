@@ -130,3 +130,70 @@ fn published_values_are_modbus_reads_and_commands_apply() {
     eprintln!("online again {:?} after the broker came back", back.elapsed());
     drop(module);
 }
+
+/// MQTT's settings set through the web console (`PUT /api/v1/mqtt`, docs/mqtt.md): refused
+/// while the factory password is in force; once a password is set, stored and in force at once
+/// (the module comes online under the prefix set), read back by `GET`, kept across a restart
+/// (online again from the stored settings alone), and switched off at once (the broker gives
+/// the module's will, `offline`).
+#[test]
+fn settings_set_through_the_web_console_are_stored_and_in_force_at_once() {
+    use remodaq_board_host::testing::web::{log_in, request};
+    use remodaq_board_host::testing::SimModule;
+
+    let broker = Broker::start();
+    let sub = Subscriber::with_args(broker.port, &["-t", "test/sim/#"]);
+    let flash = broker.dir.join("settings.flash");
+    let start = || SimModule::start_with(BIN, &flash, &["--listen", "127.0.0.1:0", "--http", "127.0.0.1:0"]);
+    let module = start();
+    let web = module.web.expect("the web console");
+    let settings = |on: bool| {
+        format!(
+            r#"{{"on":{on},"broker":"127.0.0.1","host":"","port":{},"client_id":"","tls":false,"prefix":"test/sim",
+            "period_ms":1000,"qos":1,"deadbands":[0,0,0,0,0,0,0,0],"on_change":true,"commands":false}}"#,
+            broker.port
+        )
+    };
+    let put = |page: &mut remodaq_board_host::testing::web::Page, body: &str| {
+        request(web, "PUT", "/api/v1/mqtt", &page.sign("PUT", "/api/v1/mqtt", body), body)
+    };
+    let mut page = log_in(web, "remodaq").unwrap_or_else(|a| panic!("login: {} {}", a.status, a.body));
+    let on = settings(true);
+    let refused = put(&mut page, &on);
+    assert_eq!(refused.status, 403, "not with the factory password: {}", refused.body);
+    assert_eq!(page.change_password(web, "plant password", [7; 16]).status, 204);
+    let mut page = log_in(web, "plant password").unwrap_or_else(|a| panic!("login: {} {}", a.status, a.body));
+    let stored = put(&mut page, &on);
+    assert_eq!(stored.status, 204, "{}", stored.body);
+    let online = sub.next_on("test/sim/status", Duration::from_secs(10)).expect("online at once");
+    assert!(online.1.contains("\"state\":\"online\""), "{online:?}");
+    let shown = request(web, "GET", "/api/v1/mqtt", &page.sign("GET", "/api/v1/mqtt", ""), "");
+    assert_eq!(shown.status, 200);
+    assert!(shown.body.contains(r#""on":true"#) && shown.body.contains(r#""prefix":"test/sim""#), "{}", shown.body);
+
+    // Restarted on the same flash: online again from the stored settings alone.
+    module.kill();
+    let module = start();
+    let deadline = Instant::now() + Duration::from_secs(15);
+    loop {
+        let (_, payload) = sub.next_on("test/sim/status", Duration::from_secs(15)).expect("a status");
+        if payload.contains("\"state\":\"online\"") {
+            break;
+        }
+        assert!(Instant::now() < deadline, "not online again after the restart");
+    }
+    // Off: the session ends at once, and the broker gives the will.
+    let web = module.web.expect("the web console");
+    let mut page = log_in(web, "plant password").unwrap_or_else(|a| panic!("login: {} {}", a.status, a.body));
+    let off = settings(false);
+    let stored = request(web, "PUT", "/api/v1/mqtt", &page.sign("PUT", "/api/v1/mqtt", &off), &off);
+    assert_eq!(stored.status, 204, "{}", stored.body);
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        let (_, payload) = sub.next_on("test/sim/status", Duration::from_secs(10)).expect("offline");
+        if payload.contains("\"state\":\"offline\"") {
+            break;
+        }
+        assert!(Instant::now() < deadline, "still online after MQTT was switched off");
+    }
+}

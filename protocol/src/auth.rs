@@ -103,11 +103,12 @@ impl Credential {
 
 /// A domain tag (security review of 4cfaadc, "label prefixes"): a label's length in one byte,
 /// then the label, as a `&'static [u8]` made at compile time. Every proof, signature, sealing
-/// key and keystream block of the protocols starts its HMAC message with one, so that no
-/// message made for one purpose is a message of another, whatever the labels: two tags are
-/// equal only when their labels are, and no tag is a prefix of another (a label that was a
-/// prefix of another, `"RDAQ update v2"` of `"RDAQ update v2 answer"`, no longer is one once
-/// tagged). The page's JavaScript (`tag` in services/web/web/auth.js) and the Python tools make
+/// key and keystream block of the protocols starts its HMAC message with one, so that two
+/// messages of different labels never coincide, whatever the labels: two tags are equal only
+/// when their labels are, and no tag is a prefix of another (a label that was a prefix of
+/// another, `"RDAQ update v2"` of `"RDAQ update v2 answer"`, no longer is one once tagged).
+/// One label serves two messages only where their keys differ (a web login's proof, under the
+/// StoredKey, and the module's signature of it, under the ServerKey). The page's JavaScript (`tag` in services/web/web/auth.js) and the Python tools make
 /// the same bytes.
 #[macro_export]
 macro_rules! domain_tag {
@@ -195,12 +196,15 @@ pub const BASE_POINT: [u8; KEY_LEN] = {
 pub fn seal(shared: &[u8; KEY_LEN], context: &[&[u8]], data: &mut [u8]) {
     let key = hmac(shared, context);
     for (block, chunk) in data.chunks_mut(KEY_LEN).enumerate() {
-        let stream = hmac(&key, &[crate::domain_tag!(b"RDAQ seal"), &[block as u8]]);
+        let stream = hmac(&key, &[SEAL_STREAM_LABEL, &[block as u8]]);
         for (d, s) in chunk.iter_mut().zip(stream.iter()) {
             *d ^= s;
         }
     }
 }
+
+/// Domain tag of a seal's keystream blocks.
+const SEAL_STREAM_LABEL: &[u8] = crate::domain_tag!(b"RDAQ seal");
 
 /// Bytes of a sealed credential's key confirmation.
 pub const SEAL_TAG_LEN: usize = 16;
@@ -278,13 +282,18 @@ mod tests {
     fn domain_tags_are_length_prefixed_and_none_is_a_prefix_of_another() {
         assert_eq!(crate::domain_tag!(b"RDAQ seal"), b"\x09RDAQ seal");
         assert_eq!(crate::update::UPDATE_LABEL, b"\x0eRDAQ update v2");
-        let tags: [&[u8]; 7] = [
+        let tags: [&[u8]; 12] = [
             crate::update::UPDATE_LABEL,
             crate::update::ANSWER_LABEL,
             crate::discovery::CLIENT_LABEL,
             crate::discovery::SERVER_LABEL,
             crate::discovery::SEAL_LABEL,
             crate::web::PASSWORD_SEAL_LABEL,
+            crate::web::AGREEMENT_LABEL,
+            crate::web::LOGIN_LABEL,
+            crate::web::SESSION_LABEL,
+            crate::web::REQUEST_LABEL,
+            SEAL_STREAM_LABEL,
             SEAL_TAG_LABEL,
         ];
         for (i, a) in tags.iter().enumerate() {

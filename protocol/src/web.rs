@@ -32,8 +32,18 @@ pub const PASSWORD_SEAL_LABEL: &[u8] = crate::domain_tag!(b"RDAQ web new credent
 /// HMAC(session key, tag("RDAQ web agreement") || the module's ephemeral public key): signs the
 /// key the module offers a session for a password change.
 pub fn agreement_proof(session_key: &[u8; KEY_LEN], public: &[u8; KEY_LEN]) -> [u8; KEY_LEN] {
-    hmac(session_key, &[crate::domain_tag!(b"RDAQ web agreement"), public])
+    hmac(session_key, &[AGREEMENT_LABEL, public])
 }
+
+/// Domain tag of the proof of the module's key for a password change.
+pub const AGREEMENT_LABEL: &[u8] = crate::domain_tag!(b"RDAQ web agreement");
+/// Domain tag of a login's AuthMessage (and of the module's signature of the login, which
+/// covers the AuthMessage and the session id, under the ServerKey).
+pub const LOGIN_LABEL: &[u8] = crate::domain_tag!(b"RDAQ web login");
+/// Domain tag of the session key's derivation.
+pub const SESSION_LABEL: &[u8] = crate::domain_tag!(b"RDAQ web session");
+/// Domain tag of a signed request.
+pub const REQUEST_LABEL: &[u8] = crate::domain_tag!(b"RDAQ web request\n");
 
 /// Bytes of a session id.
 pub const SESSION_ID_LEN: usize = 8;
@@ -57,7 +67,7 @@ pub fn login_message<'a>(
     module_nonce: &'a [u8; NONCE_LEN],
     page_nonce: &'a [u8; NONCE_LEN],
 ) -> [&'a [u8]; 4] {
-    [crate::domain_tag!(b"RDAQ web login"), mac, module_nonce, page_nonce]
+    [LOGIN_LABEL, mac, module_nonce, page_nonce]
 }
 
 /// The module's signature of a successful login: HMAC(ServerKey, AuthMessage || session id).
@@ -76,7 +86,7 @@ pub fn session_key(
     module_nonce: &[u8; NONCE_LEN],
     page_nonce: &[u8; NONCE_LEN],
 ) -> [u8; KEY_LEN] {
-    hmac(client_key, &[crate::domain_tag!(b"RDAQ web session"), module_nonce, page_nonce])
+    hmac(client_key, &[SESSION_LABEL, module_nonce, page_nonce])
 }
 
 /// The signature of a state-changing request: HMAC(session key, tag("RDAQ web request\n") ||
@@ -85,19 +95,7 @@ pub fn session_key(
 pub fn request_signature(key: &[u8; KEY_LEN], method: &str, path: &str, counter: u64, body: &[u8]) -> [u8; KEY_LEN] {
     let mut digits = [0u8; 20];
     let counter = decimal(counter, &mut digits);
-    hmac(
-        key,
-        &[
-            crate::domain_tag!(b"RDAQ web request\n"),
-            method.as_bytes(),
-            b"\n",
-            path.as_bytes(),
-            b"\n",
-            counter,
-            b"\n",
-            body,
-        ],
-    )
+    hmac(key, &[REQUEST_LABEL, method.as_bytes(), b"\n", path.as_bytes(), b"\n", counter, b"\n", body])
 }
 
 /// `n` in decimal, in `buf`.
@@ -190,6 +188,28 @@ mod tests {
             unhex::<32>("976a80013e4a26e292344d774f87d908cf31003920ed2039ff0f7070ec3e2564").unwrap_or([0; 32])
         );
         assert_eq!(signature, server_signature(&server, &[message[0], message[1], message[2], message[3], &session]));
+    }
+
+    /// A page's seal of a new credential and the proof of the module's key, computed
+    /// independently with Python's `hmac` (shared secret 00..1f, the module's key 42h x 32, the
+    /// credential's bytes 100..183, session key 07h x 32); the same values check the page's
+    /// JavaScript (`services/web/web/test/auth.test.js`).
+    #[test]
+    fn a_sealed_password_computed_elsewhere() {
+        let shared: [u8; 32] = core::array::from_fn(|i| i as u8);
+        let public = [0x42; 32];
+        let mut data: [u8; 84] = core::array::from_fn(|i| 100 + i as u8);
+        crate::auth::seal(&shared, &[PASSWORD_SEAL_LABEL, &public], &mut data);
+        let expected: [u8; 84] = unhex(
+            "bf5f16125ed76787080499b7ca80eab569c3df1663acef47bc0667389ac70dc28d8bfa835024675d9934790d00d54347\
+             c35ca4a6f70ec1f173fc61b74d4721264776de1a8bb67613bc19ab2db61ee4c7d0b9fdfb",
+        )
+        .unwrap_or([0; 84]);
+        assert_eq!(data, expected);
+        assert_eq!(
+            agreement_proof(&[7; 32], &public),
+            unhex::<32>("ec1fb2129c11442deaef2821725e567a2db40a30cf03e973a7a098c54120ff53").unwrap_or([0; 32])
+        );
     }
 
     #[test]

@@ -66,6 +66,9 @@ where
         if store.commit(crate::module::factory_reset(store.get())).await.is_err() {
             crate::error!("factory reset: the settings could not be written");
         }
+        if store.reset_service_records().await.is_err() {
+            crate::error!("factory reset: a service's settings could not be removed");
+        }
     }
     crate::info!("self-test: reset cause {:?}; settings store open", reset_cause);
     let stored = store.get().net();

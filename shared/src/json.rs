@@ -5,7 +5,8 @@
 //!
 //! What is taken, RFC 8259 narrowed to what the API's bodies hold:
 //! - one object, whitespace around its tokens;
-//! - members whose values are strings, numbers, `true`, `false`, `null`, or arrays of strings;
+//! - members whose values are strings, numbers, `true`, `false`, `null`, or arrays of strings
+//!   or of numbers (all of one kind);
 //!   nested objects and arrays of anything else are refused;
 //! - strings without escapes or control characters (no field of the API needs one);
 //! - at most [`MAX_MEMBERS`] members, each name once (a duplicate is refused: which would
@@ -15,7 +16,7 @@
 //! ignored any value; no client of the API sends other members).
 
 /// Most members a body may have.
-pub const MAX_MEMBERS: usize = 8;
+pub const MAX_MEMBERS: usize = 12;
 
 /// A member's value, as its JSON text says it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -30,6 +31,8 @@ pub enum Value<'a> {
     Null,
     /// An array of strings: its text between the brackets (see [`Object::strings`]).
     Strings(&'a str),
+    /// An array of numbers: its text between the brackets (see [`Object::numbers`]).
+    Numbers(&'a str),
 }
 
 /// A request body that is one flat JSON object.
@@ -134,9 +137,17 @@ impl<'a> Cursor<'a> {
             b'[' => {
                 self.at += 1;
                 let start = self.at;
+                // An array of strings, or of numbers when its first item is one.
+                self.space();
+                let numbers = self.peek().is_some_and(|b| b == b'-' || b.is_ascii_digit());
                 if !self.eat(b']') {
                     loop {
-                        self.string()?;
+                        if numbers {
+                            self.space();
+                            self.number()?;
+                        } else {
+                            self.string()?;
+                        }
                         if self.eat(b']') {
                             break;
                         }
@@ -145,7 +156,8 @@ impl<'a> Cursor<'a> {
                         }
                     }
                 }
-                self.text.get(start..self.at - 1).map(Value::Strings)
+                let inner = self.text.get(start..self.at - 1)?;
+                Some(if numbers { Value::Numbers(inner) } else { Value::Strings(inner) })
             }
             _ if self.word("true") => Some(Value::Bool(true)),
             _ if self.word("false") => Some(Value::Bool(false)),
@@ -239,6 +251,19 @@ impl<'a> Object<'a> {
         self.number(name).filter(|n| n.bytes().all(|b| b.is_ascii_digit()))?.parse().ok()
     }
 
+    /// Member `name` as an array of integers from 0 to 2^32 - 1: each in turn (`None` for an
+    /// item that is not one).
+    pub fn u32s(&self, name: &str) -> Option<impl Iterator<Item = Option<u32>> + 'a> {
+        let Value::Numbers(inner) = self.get(name)? else { return None };
+        let mut c = Cursor { text: inner, at: 0 };
+        Some(core::iter::from_fn(move || {
+            c.eat(b',');
+            c.space();
+            let n = c.number()?;
+            Some(n.bytes().all(|b| b.is_ascii_digit()).then(|| n.parse().ok()).flatten())
+        }))
+    }
+
     /// Member `name` as an array of strings: each in turn.
     pub fn strings(&self, name: &str) -> Option<impl Iterator<Item = &'a str>> {
         let Value::Strings(inner) = self.get(name)? else { return None };
@@ -281,6 +306,11 @@ mod tests {
         let o = Object::parse(br#"{"networks":[]}"#).expect("an object");
         assert_eq!(o.strings("networks").expect("strings").count(), 0);
         assert_eq!(Object::parse(b"{}").expect("an object").get("value"), None);
+        // MQTT's deadbands: an array of numbers.
+        let o = Object::parse(br#"{"deadbands": [0, 50, 4294967295, 1.5, 7]}"#).expect("an object");
+        let bands: std::vec::Vec<Option<u32>> = o.u32s("deadbands").expect("numbers").collect();
+        assert_eq!(bands, [Some(0), Some(50), Some(u32::MAX), None, Some(7)]);
+        assert!(o.strings("deadbands").is_none() && o.u32s("networks").is_none());
     }
 
     /// Numbers as RFC 8259 writes them; the integer fields take plain integers only.
@@ -321,14 +351,17 @@ mod tests {
             br#"{value:1}"#,
             br#"{"value":1 "b":2}"#,
             br#"{"value":{"a":1}}"#,
-            br#"{"networks":[1]}"#,
+            br#"{"networks":[1,"a"]}"#,
+            br#"{"networks":["a",1]}"#,
+            br#"{"deadbands":[1,]}"#,
+            br#"{"deadbands":[01]}"#,
             br#"{"networks":["a",]}"#,
             br#"{"networks":[["a"]]}"#,
             br#"{"value":"a\"b"}"#,
             b"{\"value\":\"a\nb\"}",
             br#"{"value":tru}"#,
             br#"{"value":1,"value":2}"#,
-            br#"{"a":1,"b":2,"c":3,"d":4,"e":5,"f":6,"g":7,"h":8,"i":9}"#,
+            br#"{"a":1,"b":2,"c":3,"d":4,"e":5,"f":6,"g":7,"h":8,"i":9,"j":10,"k":11,"l":12,"m":13}"#,
             b"{\"value\":\"\xff\"}",
         ] {
             assert!(Object::parse(body).is_none(), "{:?}", std::string::String::from_utf8_lossy(body));

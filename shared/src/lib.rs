@@ -23,6 +23,7 @@ pub mod identity;
 pub mod json;
 pub mod modbus;
 pub mod module;
+pub mod mqtt;
 pub mod net;
 pub mod nonces;
 pub mod password;

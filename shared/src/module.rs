@@ -131,6 +131,33 @@ where
     Ok(out)
 }
 
+/// Commits a service's record (`settings::key::*`: MQTT's settings) as [`commit_change`] commits
+/// the module's: nothing when it does not change, drawn from the administration's budget
+/// (refused with [`StoreError::Budget`] when spent), a connection's deadline waiting for it;
+/// then the service is told (MQTT: [`crate::mqtt::CHANGED`]).
+pub async fn commit_service_record<F, S, T>(store: &Store<F, S>, key: u8, value: &T) -> Result<(), StoreError>
+where
+    F: NorFlash,
+    S: Schema,
+    T: Schema,
+{
+    let mut store = store.lock().await;
+    if store.service_record::<T>(key).await == *value {
+        return Ok(());
+    }
+    if !store.take(Draw::Admin, embassy_time::Instant::now().as_millis()) {
+        crate::warn!("settings: commit budget spent, change refused");
+        crate::diagnostics::DIAGNOSTICS.security(crate::diagnostics::Security::WriteBudgetRefusal, [0; 4]);
+        return Err(StoreError::Budget);
+    }
+    let _under_way = CommitUnderWay::begin();
+    store.commit_service_record(key, value).await?;
+    if key == crate::settings::key::MQTT {
+        crate::mqtt::CHANGED.signal(());
+    }
+    Ok(())
+}
+
 /// The settings a physical factory reset stores: every one back to its factory default but the
 /// update counters, kept (security review finding 11b: a reset to counter 0 let whoever claimed
 /// the module next install any older signed image). A store that could not be read has

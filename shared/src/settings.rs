@@ -20,6 +20,15 @@ use sequential_storage::map::{MapConfig, MapStorage};
 const MAGIC: u8 = 0x5D;
 /// The map key of the settings record.
 const RECORD_KEY: u8 = 1;
+
+/// The map keys of the records a service keeps beside the module's settings, each a [`Schema`]
+/// of its own ([`SettingsStore::service_record`]).
+pub mod key {
+    /// MQTT's settings (services/mqtt, docs/mqtt.md).
+    pub const MQTT: u8 = 2;
+    /// Every service record: what a factory reset removes.
+    pub const SERVICES: [u8; 1] = [MQTT];
+}
 /// Largest encoded record.
 pub const MAX_RECORD: usize = 448;
 /// Work buffer: key + record, rounded up to flash words.
@@ -410,6 +419,56 @@ impl<F: NorFlash, S: Schema> SettingsStore<F, S> {
                 Err(StoreError::Flash)
             }
         }
+    }
+
+    /// A service's record (`key::*`), or its defaults when the store holds none; what a store
+    /// that cannot be read, or a record that is not one, gives: [`Schema::unreadable`] (a
+    /// service's fails closed: MQTT's is off).
+    pub async fn service_record<T: Schema>(&mut self, key: u8) -> T {
+        if key == RECORD_KEY {
+            return T::unreadable();
+        }
+        match self.map.fetch_item::<&[u8]>(&mut self.buf.0, &key).await {
+            Ok(Some(record)) => decode_record::<T>(record).unwrap_or_else(T::unreadable),
+            Ok(None) => T::defaults(),
+            Err(_) => {
+                crate::error!("settings: a service's record cannot be read: its defaults for unreadable settings");
+                T::unreadable()
+            }
+        }
+    }
+
+    /// Commits a service's record (`key::*`), durable on return, as [`Self::commit`] does the
+    /// module's settings (the caller draws on the budget first, [`Self::take`]).
+    pub async fn commit_service_record<T: Schema>(&mut self, key: u8, value: &T) -> Result<(), StoreError> {
+        if key == RECORD_KEY {
+            return Err(StoreError::TooLarge);
+        }
+        let mut record = [0u8; MAX_RECORD];
+        let len = encode_record(value, &mut record).ok_or(StoreError::TooLarge)?;
+        let result = match self.map.store_item::<&[u8]>(&mut self.buf.0, &key, &&record[..len]).await {
+            Ok(()) => Ok(()),
+            Err(sequential_storage::Error::Corrupted { .. }) => Err(StoreError::Corrupted),
+            Err(sequential_storage::Error::ItemTooBig | sequential_storage::Error::BufferTooSmall(_)) => {
+                Err(StoreError::TooLarge)
+            }
+            Err(_) => Err(StoreError::Flash),
+        };
+        crate::diagnostics::DIAGNOSTICS.committed(&result);
+        result
+    }
+
+    /// Puts every service's record back to its defaults (a factory reset): an empty record,
+    /// which reads as the defaults whatever the service ([`Schema::decode`] starts from them).
+    /// (Removing the items would need a flash that takes a second write to a word.)
+    pub async fn reset_service_records(&mut self) -> Result<(), StoreError> {
+        for key in key::SERVICES {
+            let empty: &[u8] = &[MAGIC, 0];
+            if self.map.store_item::<&[u8]>(&mut self.buf.0, &key, &empty).await.is_err() {
+                return Err(StoreError::Flash);
+            }
+        }
+        Ok(())
     }
 
     /// Commits the settings in force changed by `change` (see [`Self::commit`]).

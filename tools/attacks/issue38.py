@@ -11,8 +11,8 @@ summary line. scripts/attacks runs them against this tree (each must fail) and, 
 `--set 38 --against 4cfaadc`, against the reviewed commit (each must succeed there).
 
 The findings shown elsewhere, as tests of this tree only: 3 and 15 (the utility:
-`utility/src/app/worker.rs`, `utility/src/export.rs`), 10 (the bootloaders:
-`services/update/tests/`), 12 (broadcast answers: `services/discovery/tests/discovery.rs`).
+`utility/src/worker.rs`, `utility/src/trend.rs`), 10 and 11c (the bootloaders:
+`services/update/tests/`), 6 (keyed ISNs: scripts/isn-predict, under QEMU), 12 (broadcast answers: `services/discovery/tests/discovery.rs`).
 """
 
 import os

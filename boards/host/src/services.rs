@@ -49,10 +49,12 @@ pub async fn web<A: RegisterMap + SettingsAccess, F: NorFlash>(
     }
 }
 
-/// Publishes to the MQTT broker of `--mqtt`, forever; without it, waits for ever.
-pub async fn mqtt<A: RegisterMap>(net: &'static HostNet, map: &'static Shared<A>, identity: Identity) -> ! {
-    match net.mqtt {
-        Some(broker) => crate::mqtt::run(broker, map, identity).await,
-        None => core::future::pending().await,
-    }
+/// MQTT with the stored settings (docs/mqtt.md), or to the broker of `--mqtt`, forever.
+pub async fn mqtt<A: RegisterMap + SettingsAccess, F: NorFlash>(
+    net: &'static HostNet,
+    map: &'static Shared<A>,
+    store: &'static Store<F, A::Settings>,
+    identity: Identity,
+) -> ! {
+    crate::mqtt::run(net.mqtt, map, store, identity).await
 }

@@ -9,7 +9,11 @@
 extern crate std;
 
 pub mod command;
-pub mod config;
+/// MQTT's settings: the record and its checks, in the runtime (`remodaq_shared::mqtt`), which
+/// the services that set them share.
+pub mod config {
+    pub use remodaq_shared::mqtt::*;
+}
 pub mod points;
 pub mod schedule;
 pub mod session;

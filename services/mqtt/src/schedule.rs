@@ -2,8 +2,7 @@
 //! last publication, when its status changed, and at least once per period. Nothing queues: a
 //! point that is due is published with its value as it stands then (docs/mqtt.md).
 
-/// The shortest and the longest publication period, ms (issue #40: 100 ms to 1 h).
-pub const PERIOD_MS: core::ops::RangeInclusive<u32> = 100..=3_600_000;
+pub use remodaq_shared::mqtt::PERIOD_MS;
 
 /// A point's last publication.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

@@ -3,8 +3,8 @@
 
 use core::fmt::Write as _;
 
-/// The longest prefix, bytes.
-pub const MAX_PREFIX: usize = 64;
+pub use remodaq_shared::mqtt::{prefix_is_valid, MAX_PREFIX};
+
 /// The longest topic: the prefix and the longest suffix (`/do/5/set`, `/status`).
 pub const MAX_TOPIC: usize = MAX_PREFIX + 16;
 
@@ -30,18 +30,6 @@ impl Kind {
             Kind::Do => "do",
         }
     }
-}
-
-/// Whether `prefix` can stand before the module's topics: 1 to [`MAX_PREFIX`] bytes of
-/// printable ASCII, no wildcard (`+`, `#`: a topic name may not hold one, MQTT 5 §4.7.1), not
-/// starting with `$` (the broker's own topics, §4.7.2) or `/`, no empty level and no `/` at the
-/// end (every topic adds `/` and its own levels).
-pub fn prefix_is_valid(prefix: &str) -> bool {
-    !prefix.is_empty()
-        && prefix.len() <= MAX_PREFIX
-        && prefix.bytes().all(|b| (b' '..=b'~').contains(&b) && b != b'+' && b != b'#')
-        && !prefix.starts_with('$')
-        && prefix.split('/').all(|level| !level.is_empty())
 }
 
 /// The default prefix: `remodaq/<model>/<mac>`, the model as the module names itself (`8318`)

@@ -95,6 +95,11 @@ where
     }
     let mut junk = [0xA5u8; 4096];
     junk[..8].copy_from_slice(MARK);
+    // An identity the bootloader's model and counter check lets through (this model, the
+    // highest counter), so that the signature alone refuses the swap.
+    let at = remodaq_protocol::update::IDENTITY_AT as usize;
+    let identity = remodaq_protocol::update::Identity { model: 0x8350, counter: u32::MAX };
+    junk[at..at + remodaq_protocol::update::IDENTITY_LEN].copy_from_slice(&identity.encode());
     let digest = salty::Sha512::new().updated(&junk).finalize();
     let forged =
         Header { model: 0x8350, version: 0xFFFF, counter: u32::MAX, length: 4096, digest, signature: [0x42; 64] };

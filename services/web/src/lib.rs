@@ -12,6 +12,8 @@ extern crate std;
 #[cfg(feature = "embassy-net")]
 pub mod embassy;
 pub mod firmware;
+#[cfg(feature = "mqtt")]
+pub mod mqtt;
 
 pub mod service;
 pub mod sessions;

@@ -2,9 +2,9 @@
 //!
 //! smoltcp draws each connection's initial sequence number (ISN) from its generator, an sPCG32
 //! seeded once by the board and never stirred: every output shows 32 of its 64 bits of state,
-//! so the ISNs of two connections an attacker opens itself give the state away after at most
+//! so the ISNs of three connections an attacker opens itself give the state away after at most
 //! 2^32 guesses, and with it every later ISN, those of other hosts' connections included
-//! (docs/security.md, "Source address is not identity"). RFC 6528 §3 makes the ISN
+//! (docs/security.md, "What is not protected", "A source address is not an identity"). RFC 6528 §3 makes the ISN
 //! `M + F(localip, localport, remoteip, remoteport, secretkey)`: here M is smoltcp's own ISN and
 //! F is SipHash-1-3 under a key from the board's entropy, so the ISN of a connection of another
 //! address or port is smoltcp's plus a number the attacker cannot compute.

@@ -67,7 +67,7 @@ pub struct Api<'a, R: RawMutex, M: SettingsAccess, F: NorFlash> {
 /// error, never sent cut short).
 #[derive(Default)]
 pub struct Json {
-    pub(super) text: heapless::String<MAX_ANSWER>,
+    pub(crate) text: heapless::String<MAX_ANSWER>,
     cut: bool,
 }
 

@@ -124,6 +124,13 @@ fn count(query: Option<&str>, most: u16) -> Option<u16> {
     query.strip_prefix("count=").and_then(|n| n.parse().ok()).filter(|n| (1..=most).contains(n))
 }
 
+/// The MQTT settings' resource name, where the build has them (feature `mqtt`); otherwise a name
+/// no request path segment can be, so that `/api/v1/mqtt` is no resource (404).
+#[cfg(feature = "mqtt")]
+const MQTT: &str = "mqtt";
+#[cfg(not(feature = "mqtt"))]
+const MQTT: &str = "/";
+
 impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F> {
     #[allow(clippy::too_many_arguments)]
     async fn route(
@@ -200,7 +207,7 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
                     _ => Answer::error(out, StatusCode::METHOD_NOT_ALLOWED, "method not allowed here", None),
                 }
             }
-            (method @ ("PUT" | "GET"), (Some(name @ ("network" | "access" | "password")), None, None))
+            (method @ ("PUT" | "GET"), (Some(name @ ("network" | "access" | "password" | MQTT)), None, None))
             | (method @ "POST", (Some(name @ ("restart" | "password")), None | Some("key"), None)) => {
                 // Reading the allow-list needs a session too (discovery shows it only with the
                 // password); every other read here is open.
@@ -217,6 +224,15 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
                         Answer::error(out, StatusCode::FORBIDDEN, "set a password first", None)
                     }
                     ("PUT", "access", _) => self.set_access(out, signed.body).await,
+                    #[cfg(feature = "mqtt")]
+                    ("GET", "mqtt", _) => self.mqtt(out).await,
+                    // Output commands from a broker: not on a module anyone may log in to.
+                    #[cfg(feature = "mqtt")]
+                    ("PUT", "mqtt", _) if verified.factory => {
+                        Answer::error(out, StatusCode::FORBIDDEN, "set a password first", None)
+                    }
+                    #[cfg(feature = "mqtt")]
+                    ("PUT", "mqtt", _) => self.set_mqtt(out, signed.body).await,
                     // A verified request names its session.
                     ("POST", "password", Some(_)) => self.password_key(out, signed.session.unwrap_or_default()),
                     ("PUT", "password", _) => {

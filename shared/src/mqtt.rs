@@ -1,14 +1,38 @@
-//! MQTT's settings (docs/mqtt.md, "Settings"), as a record of the settings store
-//! (`remodaq_shared::settings::Schema`): the broker, the session, the topics and what is
-//! published. The CA certificate and the credentials are records of their own (they do not fit
-//! this one, and are never shown back). Checked whole before a commit ([`Config::check`]); a
-//! stored field that is not valid reads as its default ([`Schema::decode`]).
+//! MQTT's settings (docs/mqtt.md, "Settings"), as a record of the settings store beside the
+//! module's (`settings::key::MQTT`, a [`Schema`] of its own): the broker, the session, the
+//! topics and what is published. Here, below the services, so that every service that sets
+//! them (the web console) and the MQTT service that uses them (services/mqtt) share one
+//! definition and one check. The CA certificate and the credentials are records of their own
+//! (they do not fit this one, and are never shown back). Checked whole before a commit
+//! ([`Config::check`]); a stored field that is not valid reads as its default
+//! ([`Schema::decode`]).
 
 use remodaq_protocol::m8318::CHANNELS;
-use remodaq_shared::settings::{RecordReader, RecordWriter, Schema};
 
-use crate::schedule::PERIOD_MS;
-use crate::topics;
+use crate::settings::{RecordReader, RecordWriter, Schema};
+
+/// Signalled when MQTT's settings were committed (`module::commit_service_record`): the MQTT
+/// service ends its session and starts again with them.
+pub static CHANGED: embassy_sync::signal::Signal<embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex, ()> =
+    embassy_sync::signal::Signal::new();
+
+/// The shortest and the longest publication period, ms (issue #40: 100 ms to 1 h).
+pub const PERIOD_MS: core::ops::RangeInclusive<u32> = 100..=3_600_000;
+
+/// The longest topic prefix, bytes.
+pub const MAX_PREFIX: usize = 64;
+
+/// Whether `prefix` can stand before the module's topics: 1 to [`MAX_PREFIX`] bytes of
+/// printable ASCII, no wildcard (`+`, `#`: a topic name may not hold one, MQTT 5 §4.7.1), not
+/// starting with `$` (the broker's own topics, §4.7.2) or `/`, no empty level and no `/` at the
+/// end (every topic adds `/` and its own levels).
+pub fn prefix_is_valid(prefix: &str) -> bool {
+    !prefix.is_empty()
+        && prefix.len() <= MAX_PREFIX
+        && prefix.bytes().all(|b| (b' '..=b'~').contains(&b) && b != b'+' && b != b'#')
+        && !prefix.starts_with('$')
+        && prefix.split('/').all(|level| !level.is_empty())
+}
 
 /// The longest broker host name (TLS checks the broker's certificate against it).
 pub const MAX_HOST: usize = 64;
@@ -31,7 +55,7 @@ pub struct Config {
     /// TLS to the broker.
     pub tls: bool,
     /// The topics' prefix; empty: `remodaq/<model>/<mac>`.
-    pub prefix: heapless::String<{ topics::MAX_PREFIX }>,
+    pub prefix: heapless::String<{ MAX_PREFIX }>,
     /// Each point at least once per this, ms.
     pub period_ms: u32,
     /// QoS 1 (else 0).
@@ -66,9 +90,9 @@ pub const TLS_PORT: u16 = 8883;
 
 impl Config {
     /// Whether every setting is valid: a port, a client id of 1-23 of `[0-9A-Za-z_-]` or none,
-    /// a prefix [`topics::prefix_is_valid`] or none, a period of 100 ms to 1 h, a host name of
+    /// a prefix [`prefix_is_valid`] or none, a period of 100 ms to 1 h, a host name of
     /// letters, digits, `-` and `.` (needed on with TLS, whose check names the broker), a broker
-    /// address when on.
+    /// address when on: not 0.0.0.0, multicast or broadcast (a loopback one serves a simulator).
     pub fn check(&self) -> Result<(), Invalid> {
         let id_ok = self.client_id.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_');
         let host_ok = self.host.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'.');
@@ -76,13 +100,13 @@ impl Config {
             Err(Invalid("port"))
         } else if !id_ok {
             Err(Invalid("client_id"))
-        } else if !self.prefix.is_empty() && !topics::prefix_is_valid(&self.prefix) {
+        } else if !self.prefix.is_empty() && !prefix_is_valid(&self.prefix) {
             Err(Invalid("prefix"))
         } else if !PERIOD_MS.contains(&self.period_ms) {
             Err(Invalid("period_ms"))
         } else if !host_ok || (self.on && self.tls && self.host.is_empty()) {
             Err(Invalid("host"))
-        } else if self.on && (self.broker == [0; 4] || self.broker[0] == 127 || self.broker[0] >= 224) {
+        } else if self.on && (self.broker == [0; 4] || self.broker[0] >= 224) {
             Err(Invalid("broker"))
         } else {
             Ok(())
@@ -181,7 +205,7 @@ impl Schema for Config {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use remodaq_shared::settings::{decode_record, encode_record, MAX_RECORD};
+    use crate::settings::{decode_record, encode_record, MAX_RECORD};
 
     fn on() -> Config {
         Config {
@@ -206,7 +230,7 @@ mod tests {
         let longest = Config {
             host: heapless::String::try_from("h".repeat(MAX_HOST).as_str()).unwrap(),
             client_id: heapless::String::try_from("c".repeat(MAX_CLIENT_ID).as_str()).unwrap(),
-            prefix: heapless::String::try_from("p".repeat(topics::MAX_PREFIX).as_str()).unwrap(),
+            prefix: heapless::String::try_from("p".repeat(MAX_PREFIX).as_str()).unwrap(),
             ..on()
         };
         for c in [d, on(), longest] {
