@@ -110,12 +110,13 @@ print(" ".join(str(x) for x in isns))
 """
 
 
-def sh(*args, check=True):
-    return subprocess.run(list(args), check=check, capture_output=True, text=True)
+sys.path.insert(0, HERE)
+import tap_qemu  # noqa: E402
+from tap_qemu import sh  # noqa: E402
 
 
 def in_ns(*args):
-    return ["ip", "netns", "exec", NS, *args]
+    return tap_qemu.in_ns(NS, *args)
 
 
 def modbus_once(source):
@@ -136,19 +137,7 @@ def main():
     predictor = os.path.join(os.path.dirname(IMAGE), "pcg32_predict")
     try:
         sh(CC, "-O2", "-o", predictor, os.path.join(HERE, "pcg32_predict.c"))
-        sh("ip", "netns", "add", NS)
-        sh(*in_ns("ip", "link", "set", "lo", "up"))
-        sh(*in_ns("ip", "tuntap", "add", "dev", TAP, "mode", "tap"))
-        sh(*in_ns("ip", "addr", "add", f"{ATTACKER}/24", "dev", TAP))
-        sh(*in_ns("ip", "addr", "add", f"{VICTIM}/24", "dev", TAP))
-        sh(*in_ns("ip", "link", "set", TAP, "up"))
-        bootloader = os.path.join(os.path.dirname(IMAGE), "remodaq-qemu-bootloader")
-        log = open(f"{IMAGE}.isn.qemu.log", "w")
-        qemu = subprocess.Popen(in_ns(
-            "qemu-system-arm", "-M", "mps2-an386", "-nographic", "-monitor", "none", "-serial", "null",
-            "-semihosting-config", "enable=on,target=native",
-            "-nic", f"tap,model=lan9118,ifname={TAP},script=no,downscript=no",
-            "-kernel", bootloader, "-device", f"loader,file={IMAGE}.bin,addr=0x300000"), stdout=log, stderr=log)
+        qemu = tap_qemu.start(IMAGE, NS, TAP, [ATTACKER, VICTIM], f"{IMAGE}.isn.qemu.log")
         deadline = time.time() + 90
         while not modbus_once(ATTACKER):
             if time.time() > deadline:
@@ -172,10 +161,7 @@ def main():
     except Exception as e:  # noqa: BLE001 - any failure of the harness is an error, reported
         detail = f"{type(e).__name__}: {e}"
     finally:
-        if qemu:
-            qemu.kill()
-            qemu.wait()
-        sh("ip", "netns", "del", NS, check=False)
+        tap_qemu.stop(qemu, NS)
     print(f"attack isn-prediction: {outcome} ({detail})")
     good = (outcome == "failed") if WANT == "refused" else (outcome == "succeeded")
     print(f"isn: {int(good)} passed, {int(not good)} failed")

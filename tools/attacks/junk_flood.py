@@ -37,12 +37,13 @@ MARGIN_MS = 10.0
 CHECKS = 1 if "--flood-only" in sys.argv else 2
 
 
-def sh(*args, check=True):
-    return subprocess.run(list(args), check=check, capture_output=True, text=True)
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import tap_qemu  # noqa: E402
+from tap_qemu import sh  # noqa: E402
 
 
 def in_ns(*args):
-    return ["ip", "netns", "exec", NS, *args]
+    return tap_qemu.in_ns(NS, *args)
 
 
 def checksum(data):
@@ -106,18 +107,7 @@ def main():
     passed = failed = 0
     qemu = writer = None
     try:
-        sh("ip", "netns", "add", NS)
-        sh(*in_ns("ip", "link", "set", "lo", "up"))
-        sh(*in_ns("ip", "tuntap", "add", "dev", TAP, "mode", "tap"))
-        sh(*in_ns("ip", "addr", "add", f"{HOST}/24", "dev", TAP))
-        sh(*in_ns("ip", "link", "set", TAP, "up"))
-        bootloader = os.path.join(os.path.dirname(IMAGE), "remodaq-qemu-bootloader")
-        log = open(f"{IMAGE}.flood.qemu.log", "w")
-        qemu = subprocess.Popen(in_ns(
-            "qemu-system-arm", "-M", "mps2-an386", "-nographic", "-monitor", "none", "-serial", "null",
-            "-semihosting-config", "enable=on,target=native",
-            "-nic", f"tap,model=lan9118,ifname={TAP},script=no,downscript=no",
-            "-kernel", bootloader, "-device", f"loader,file={IMAGE}.bin,addr=0x300000"), stdout=log, stderr=log)
+        qemu = tap_qemu.start(IMAGE, NS, TAP, [HOST], f"{IMAGE}.flood.qemu.log")
         deadline = time.time() + 90
         while time.time() < deadline:
             times, _ = connection_times(1)
@@ -288,10 +278,7 @@ print(polls, lost, len(others), open_others)
         if writer and writer.poll() is None:
             writer.kill()
             writer.wait()
-        if qemu:
-            qemu.kill()
-            qemu.wait()
-        sh("ip", "netns", "del", NS, check=False)
+        tap_qemu.stop(qemu, NS)
     print(f"junk-flood: {passed} passed, {failed} failed")
     sys.exit(1 if failed else 0)
 

@@ -19,7 +19,7 @@ use remodaq_protocol::net::parse_ipv4;
 use remodaq_shared::json::Object;
 use remodaq_shared::module::{commit_service_record, SettingsAccess};
 use remodaq_shared::mqtt::{Config, Invalid};
-use remodaq_shared::settings::{key, StoreError};
+use remodaq_shared::settings::key;
 
 use crate::service::api::{Answer, Api, Json};
 
@@ -109,16 +109,7 @@ impl<R: RawMutex, M: remodaq_shared::modbus::RegisterMap + SettingsAccess, F: No
     /// whole, stored, and in force at once.
     pub(super) async fn set_mqtt(&self, out: &mut Json, body: &[u8]) -> Answer {
         match config_of(body) {
-            Ok(config) => match commit_service_record(self.store, key::MQTT, &config).await {
-                Ok(()) => Answer::no_content(out),
-                Err(StoreError::Budget) => Answer::error(
-                    out,
-                    StatusCode::TOO_MANY_REQUESTS,
-                    "too many settings changes: the flash commit budget is spent, one more every 15 minutes",
-                    None,
-                ),
-                Err(_) => Answer::error(out, StatusCode::SERVICE_UNAVAILABLE, "the settings could not be stored", None),
-            },
+            Ok(config) => crate::settings::committed(out, commit_service_record(self.store, key::MQTT, &config).await),
             Err(MqttError::NotJson) => Answer::error(
                 out,
                 StatusCode::BAD_REQUEST,

@@ -246,16 +246,22 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
     }
 
     async fn commit(&self, out: &mut Json, change: impl FnOnce(&mut M::Settings)) -> Answer {
-        match commit_change(self.map, self.store, change).await {
-            Ok(()) => Answer::no_content(out),
-            Err(remodaq_shared::settings::StoreError::Budget) => Answer::error(
-                out,
-                StatusCode::TOO_MANY_REQUESTS,
-                "too many settings changes: the flash commit budget is spent, one more every 15 minutes",
-                None,
-            ),
-            Err(_) => Answer::error(out, StatusCode::SERVICE_UNAVAILABLE, "the settings could not be stored", None),
-        }
+        committed(out, commit_change(self.map, self.store, change).await)
+    }
+}
+
+/// The answer to a settings change once committed, or why not: 204, 429 when the commit budget
+/// is spent, 503 when the flash refused.
+pub(crate) fn committed(out: &mut Json, result: Result<(), remodaq_shared::settings::StoreError>) -> Answer {
+    match result {
+        Ok(()) => Answer::no_content(out),
+        Err(remodaq_shared::settings::StoreError::Budget) => Answer::error(
+            out,
+            StatusCode::TOO_MANY_REQUESTS,
+            "too many settings changes: the flash commit budget is spent, one more every 15 minutes",
+            None,
+        ),
+        Err(_) => Answer::error(out, StatusCode::SERVICE_UNAVAILABLE, "the settings could not be stored", None),
     }
 }
 
