@@ -9,5 +9,6 @@ pub mod modbus;
 pub mod reading;
 pub mod settings;
 pub mod update;
+pub mod web;
 
 pub use error::Error;

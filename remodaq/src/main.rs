@@ -3,6 +3,7 @@
 
 mod io;
 mod lan;
+mod mqtt;
 mod sign;
 mod update;
 
@@ -94,6 +95,12 @@ enum Command {
     Access {
         #[command(subcommand)]
         command: AccessCommand,
+    },
+    /// MQTT's settings (docs/mqtt.md), through the module's web console (a login with the
+    /// configuration password; it never crosses the network).
+    Mqtt {
+        #[command(subcommand)]
+        command: MqttCommand,
     },
     /// Update a module's firmware with a signed image file (remodaq sign), over the network:
     /// shows the progress and the version before and after.
@@ -200,6 +207,27 @@ enum AccessCommand {
         target: Target,
         #[command(flatten)]
         password: Auth,
+    },
+}
+
+#[derive(Subcommand)]
+enum MqttCommand {
+    /// Show MQTT's settings.
+    Show {
+        /// The module's web console: HOST (port 80) or HOST:PORT.
+        module: String,
+        #[command(flatten)]
+        password: Auth,
+    },
+    /// Change MQTT's settings: those given, the others kept. In force at once, and kept across
+    /// restarts. Not while the factory password is in force.
+    Set {
+        /// The module's web console: HOST (port 80) or HOST:PORT.
+        module: String,
+        #[command(flatten)]
+        password: Auth,
+        #[command(flatten)]
+        changes: mqtt::Changes,
     },
 }
 
@@ -339,6 +367,12 @@ async fn run(cli: Cli) -> Result<(), Error> {
             .await
         }
         Command::Read { module, discovery } => io::read(&module, discovery, timeout, json).await,
+        Command::Mqtt { command: MqttCommand::Show { module, password } } => {
+            mqtt::show(&module, &password.get()?, json).await
+        }
+        Command::Mqtt { command: MqttCommand::Set { module, password, changes } } => {
+            mqtt::set(&module, &password.get()?, &changes, json).await
+        }
         Command::Watch { module, discovery, interval, count } => {
             let interval = Duration::from_secs_f64(interval.max(0.05));
             io::watch(&module, discovery, timeout, interval, count, json).await

@@ -336,3 +336,43 @@ fn channel_status_and_open_value_through_the_tool() {
     assert_eq!(status[7], "disabled");
     assert_eq!(r["open_value"].as_str(), Some("downscale"));
 }
+
+/// MQTT's settings through the tool (`remodaq mqtt`, docs/mqtt.md), by the module's web console
+/// after a login: shown; not changed while the factory password is in force, nor with a wrong
+/// password; once a password is set, only the settings given change, and a value out of range
+/// is refused with the field named.
+#[test]
+fn mqtt_settings_through_the_tool() {
+    let flash = temp("mqtt.flash");
+    let module =
+        SimModule::start_with(&firmware("8350"), &flash, &["--listen", "127.0.0.1:0", "--http", "127.0.0.1:0"]);
+    let web = module.web.expect("the web console").to_string();
+    let shown = json(&["mqtt", "show", &web, "--password", "remodaq"]);
+    assert_eq!(
+        (shown["on"].as_bool(), shown["port"].as_u64(), shown["tls"].as_bool()),
+        (Some(false), Some(8883), Some(true)),
+        "{shown}"
+    );
+    let set =
+        ["mqtt", "set", &web, "--on", "--broker", "192.0.2.50", "--port", "1883", "--tls", "off", "--deadband", "7=50"];
+    let (code, _, err) = remodaq(&[&set[..], &["--password", "remodaq"]].concat());
+    assert_ne!(code, 0);
+    assert!(err.contains("set a password first"), "{err}");
+    let (code, _, err) = remodaq(&[&set[..], &["--password", "not the password"]].concat());
+    assert_eq!(code, 5, "{err}");
+    let mac = search(&module)["mac"].as_str().expect("the MAC").to_owned();
+    let to = module.discovery.to_string();
+    let changed = remodaq(&["password", "--mac", &mac, "--to", &to, "--password", "remodaq", "--new", "line 2 secret"]);
+    assert_eq!(changed.0, 0, "{}", changed.2);
+    let after = json(&[&set[..], &["--password", "line 2 secret"]].concat());
+    assert_eq!(
+        (after["on"].as_bool(), after["broker"].as_str(), after["port"].as_u64(), after["tls"].as_bool()),
+        (Some(true), Some("192.0.2.50"), Some(1883), Some(false)),
+        "{after}"
+    );
+    assert_eq!(after["deadbands"][7].as_u64(), Some(50), "{after}");
+    assert_eq!(after["period_ms"].as_u64(), Some(10_000), "not given: kept ({after})");
+    let (code, _, err) = remodaq(&["mqtt", "set", &web, "--qos", "2", "--password", "line 2 secret"]);
+    assert_eq!(code, 1);
+    assert!(err.contains("qos"), "{err}");
+}
