@@ -8,8 +8,8 @@
 use std::net::SocketAddr;
 use std::time::Duration;
 
-use remodaq_protocol::auth::{client_proof, derive, server_signature, KEY_LEN, NONCE_LEN};
-use remodaq_protocol::web::{hex, login_message, request_signature, session_key, unhex, SESSION_ID_LEN};
+use remodaq_protocol::auth::{KEY_LEN, NONCE_LEN};
+use remodaq_protocol::web::{hex, request_signature, unhex, Login, LOGIN_BODY_LEN, SESSION_ID_LEN};
 use serde::{Deserialize, Serialize};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
@@ -131,17 +131,9 @@ impl Session {
         let nonce: [u8; NONCE_LEN] = bytes(&challenge.nonce, "nonce")?;
         let mut page_nonce = [0u8; NONCE_LEN];
         getrandom::fill(&mut page_nonce).map_err(|e| Error::Other(format!("no random numbers: {e}")))?;
-        let (client_key, credential) = derive(password.as_bytes(), &salt, challenge.iterations);
-        let message = login_message(&mac, &nonce, &page_nonce);
-        let proof = client_proof(&client_key, &message);
-        let (mut n, mut pn, mut p) = ([0u8; 32], [0u8; 32], [0u8; 64]);
-        let body = format!(
-            "{{\"nonce\":\"{}\",\"page_nonce\":\"{}\",\"proof\":\"{}\"}}",
-            hex(&nonce, &mut n).unwrap_or(""),
-            hex(&page_nonce, &mut pn).unwrap_or(""),
-            hex(&proof, &mut p).unwrap_or("")
-        );
-        let answer = exchange(to, "POST", "/api/v1/session", &[], &body).await?;
+        let login = Login::new(password.as_bytes(), (&salt, challenge.iterations, nonce), mac, page_nonce);
+        let mut body = [0u8; LOGIN_BODY_LEN];
+        let answer = exchange(to, "POST", "/api/v1/session", &[], login.body(&mut body)).await?;
         match answer.status {
             200 => {}
             401 => return Err(Error::Refused("wrong password".into())),
@@ -150,11 +142,10 @@ impl Session {
         let logged_in: LoggedIn = json(&answer, "the login's answer")?;
         let id: [u8; SESSION_ID_LEN] = bytes(&logged_in.session, "session id")?;
         let signature: [u8; KEY_LEN] = bytes(&logged_in.signature, "signature")?;
-        let expected = server_signature(&credential.server_key, &[message[0], message[1], message[2], message[3], &id]);
-        if signature != expected {
+        let Some(key) = login.session_key(&id, &signature) else {
             return Err(Error::Refused("the answer is not signed with this password's keys: not the module".into()));
-        }
-        Ok(Self { to, id, key: session_key(&client_key, &nonce, &page_nonce), counter: 0 })
+        };
+        Ok(Self { to, id, key, counter: 0 })
     }
 
     /// A signed request; its answer.

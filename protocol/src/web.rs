@@ -98,6 +98,65 @@ pub fn request_signature(key: &[u8; KEY_LEN], method: &str, path: &str, counter:
     hmac(key, &[REQUEST_LABEL, method.as_bytes(), b"\n", path.as_bytes(), b"\n", counter, b"\n", body])
 }
 
+/// Bytes of [`Login::body`]: `{"nonce":"..","page_nonce":"..","proof":".."}`.
+pub const LOGIN_BODY_LEN: usize = 10 + 2 * NONCE_LEN + 16 + 2 * NONCE_LEN + 11 + 2 * KEY_LEN + 2;
+
+/// The page's side of a login (docs/web.md) as a PC program makes it: the proof for the
+/// module's challenge, then the session's key once the module's answer is signed with the
+/// password's ServerKey (a host without the password's keys cannot pose as the module).
+#[cfg(any(test, feature = "client"))]
+pub struct Login {
+    client_key: [u8; KEY_LEN],
+    server_key: [u8; KEY_LEN],
+    mac: [u8; 6],
+    nonce: [u8; NONCE_LEN],
+    page_nonce: [u8; NONCE_LEN],
+    proof: [u8; KEY_LEN],
+}
+
+#[cfg(any(test, feature = "client"))]
+impl Login {
+    /// The login with `password` to the module `mac` that sent the challenge (`salt`,
+    /// `iterations`, `nonce`); `page_nonce` random.
+    pub fn new(
+        password: &[u8],
+        challenge: (&[u8; 16], u32, [u8; NONCE_LEN]),
+        mac: [u8; 6],
+        page_nonce: [u8; NONCE_LEN],
+    ) -> Self {
+        let (salt, iterations, nonce) = challenge;
+        let (client_key, credential) = crate::auth::derive(password, salt, iterations);
+        let proof = crate::auth::client_proof(&client_key, &login_message(&mac, &nonce, &page_nonce));
+        Self { client_key, server_key: credential.server_key, mac, nonce, page_nonce, proof }
+    }
+
+    /// The body of `POST /api/v1/session`.
+    pub fn body<'a>(&self, out: &'a mut [u8; LOGIN_BODY_LEN]) -> &'a str {
+        let mut at = 0;
+        let mut put = |text: &[u8]| {
+            out[at..at + text.len()].copy_from_slice(text);
+            at += text.len();
+        };
+        let (mut n, mut pn, mut p) = ([0u8; 2 * NONCE_LEN], [0u8; 2 * NONCE_LEN], [0u8; 2 * KEY_LEN]);
+        put(b"{\"nonce\":\"");
+        put(hex(&self.nonce, &mut n).unwrap_or("").as_bytes());
+        put(b"\",\"page_nonce\":\"");
+        put(hex(&self.page_nonce, &mut pn).unwrap_or("").as_bytes());
+        put(b"\",\"proof\":\"");
+        put(hex(&self.proof, &mut p).unwrap_or("").as_bytes());
+        put(b"\"}");
+        core::str::from_utf8(&out[..]).unwrap_or("")
+    }
+
+    /// The session's key when `signature` is the module's of this login and session `id`;
+    /// `None` when it is not (not the module, or not this password).
+    pub fn session_key(&self, id: &[u8; SESSION_ID_LEN], signature: &[u8; KEY_LEN]) -> Option<[u8; KEY_LEN]> {
+        let message = login_message(&self.mac, &self.nonce, &self.page_nonce);
+        let expected = login_signature(&self.server_key, &message, id);
+        crate::auth::same(&expected, signature).then(|| session_key(&self.client_key, &self.nonce, &self.page_nonce))
+    }
+}
+
 /// `n` in decimal, in `buf`.
 fn decimal(mut n: u64, buf: &mut [u8; 20]) -> &[u8] {
     let mut at = buf.len();
@@ -188,6 +247,20 @@ mod tests {
             unhex::<32>("976a80013e4a26e292344d774f87d908cf31003920ed2039ff0f7070ec3e2564").unwrap_or([0; 32])
         );
         assert_eq!(signature, server_signature(&server, &[message[0], message[1], message[2], message[3], &session]));
+        // The PC's side (`Login`) makes the same proof and, from this signature, the same key.
+        let salt: [u8; 16] = core::array::from_fn(|i| i as u8);
+        let login = Login::new(b"correct horse battery", (&salt, 4096, module_nonce), mac, page_nonce);
+        let mut body = [0u8; LOGIN_BODY_LEN];
+        let body = login.body(&mut body);
+        assert!(
+            body.starts_with(r#"{"nonce":"a0a1a2"#)
+                && body.ends_with(r#"","proof":"7a3e1ebd5d67c927c6debfa2d27218b75556031993e96cc595fb7a3a600b14ab"}"#),
+            "{body}"
+        );
+        assert_eq!(login.session_key(&session, &signature), Some(session_key(&client_key, &module_nonce, &page_nonce)));
+        let mut forged = signature;
+        forged[0] ^= 1;
+        assert_eq!(login.session_key(&session, &forged), None, "not signed with this password's keys");
     }
 
     /// A page's seal of a new credential and the proof of the module's key, computed

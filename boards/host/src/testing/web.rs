@@ -5,11 +5,9 @@ use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpStream};
 use std::time::Duration;
 
-use remodaq_protocol::auth::{
-    client_proof, derive, seal, server_signature, x25519, BASE_POINT, CREDENTIAL_LEN, KEY_LEN, NONCE_LEN,
-};
+use remodaq_protocol::auth::{derive, seal, x25519, BASE_POINT, CREDENTIAL_LEN, KEY_LEN, NONCE_LEN};
 use remodaq_protocol::web::{
-    agreement_proof, hex, login_message, request_signature, session_key, unhex, PASSWORD_SEAL_LABEL, SESSION_ID_LEN,
+    agreement_proof, hex, request_signature, unhex, Login, LOGIN_BODY_LEN, PASSWORD_SEAL_LABEL, SESSION_ID_LEN,
 };
 
 /// An HTTP answer: status, headers, body.
@@ -164,27 +162,15 @@ pub fn log_in(web: SocketAddr, password: &str) -> Result<Page, Answer> {
         .expect("iterations");
     let identity = request(web, "GET", "/api/v1/identity", &[], "");
     let mac: [u8; 6] = unhex(field(&identity.body, "mac")).expect("mac");
-    let page_nonce = [0x42; NONCE_LEN];
-    let (client_key, credential) = derive(password.as_bytes(), &salt, iterations);
-    let message = login_message(&mac, &nonce, &page_nonce);
-    let proof = client_proof(&client_key, &message);
-    let (mut n, mut pn, mut p) = ([0u8; 32], [0u8; 32], [0u8; 64]);
-    let body = format!(
-        "{{\"nonce\":\"{}\",\"page_nonce\":\"{}\",\"proof\":\"{}\"}}",
-        hex(&nonce, &mut n).unwrap_or(""),
-        hex(&page_nonce, &mut pn).unwrap_or(""),
-        hex(&proof, &mut p).unwrap_or("")
-    );
-    let answer = request(web, "POST", "/api/v1/session", &[], &body);
+    let login = Login::new(password.as_bytes(), (&salt, iterations, nonce), mac, [0x42; NONCE_LEN]);
+    let mut body = [0u8; LOGIN_BODY_LEN];
+    let answer = request(web, "POST", "/api/v1/session", &[], login.body(&mut body));
     if answer.status != 200 {
         return Err(answer);
     }
     let session: [u8; SESSION_ID_LEN] = unhex(field(&answer.body, "session")).expect("session id");
     let signature: [u8; KEY_LEN] = unhex(field(&answer.body, "signature")).expect("signature");
-    assert_eq!(
-        signature,
-        server_signature(&credential.server_key, &[message[0], message[1], message[2], message[3], &session]),
-        "the module signed its answer with this password's ServerKey"
-    );
-    Ok(Page { session, key: session_key(&client_key, &nonce, &page_nonce), counter: 0 })
+    let key =
+        login.session_key(&session, &signature).expect("the module signed its answer with this password's ServerKey");
+    Ok(Page { session, key, counter: 0 })
 }
