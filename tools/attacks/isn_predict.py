@@ -40,21 +40,15 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 # of each SYN-ACK read off the TAP device. Prints the four ISNs.
 INSIDE = r"""
 import os, random, socket, struct, sys, time
-TAP, MODULE, ATTACKER, VICTIM, MODULE_MAC = sys.argv[1:6]
+TAP, MODULE, ATTACKER, VICTIM, MODULE_MAC, HERE = sys.argv[1:7]
+sys.path.insert(0, HERE)
+from tap_qemu import checksum
 module_mac = bytes.fromhex(MODULE_MAC.replace(":", ""))
 raw = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(0x0003))
 raw.bind((TAP, 0))
 raw.settimeout(0.2)
 own_mac = open(f"/sys/class/net/{TAP}/address").read().strip()
 own_mac = bytes.fromhex(own_mac.replace(":", ""))
-
-def checksum(data):
-    if len(data) % 2:
-        data += b"\0"
-    s = sum(struct.unpack(f"!{len(data) // 2}H", data))
-    while s >> 16:
-        s = (s & 0xFFFF) + (s >> 16)
-    return (~s) & 0xFFFF
 
 def syn(port):
     src, dst = socket.inet_aton(ATTACKER), socket.inet_aton(MODULE)
@@ -145,7 +139,7 @@ def main():
             time.sleep(1)
         neigh = sh(*in_ns("ip", "neigh", "show", MODULE, "dev", TAP)).stdout.split()
         module_mac = neigh[neigh.index("lladdr") + 1]
-        r = subprocess.run(in_ns("python3", "-c", INSIDE, TAP, MODULE, ATTACKER, VICTIM, module_mac),
+        r = subprocess.run(in_ns("python3", "-c", INSIDE, TAP, MODULE, ATTACKER, VICTIM, module_mac, HERE),
                            capture_output=True, text=True, timeout=60)
         words = r.stdout.split()
         if r.returncode != 0 or len(words) != 4:

@@ -39,20 +39,11 @@ CHECKS = 1 if "--flood-only" in sys.argv else 2
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import tap_qemu  # noqa: E402
-from tap_qemu import sh  # noqa: E402
+from tap_qemu import checksum, sh  # noqa: E402
 
 
 def in_ns(*args):
     return tap_qemu.in_ns(NS, *args)
-
-
-def checksum(data):
-    if len(data) % 2:
-        data += b"\0"
-    s = sum(struct.unpack(f"!{len(data) // 2}H", data))
-    while s >> 16:
-        s = (s & 0xFFFF) + (s >> 16)
-    return (~s) & 0xFFFF
 
 
 def syn_frame(dst_mac, src_mac, src_ip, dst_ip, damage_tcp):

@@ -4,6 +4,7 @@ addresses, and QEMU booting the image through its bootloader (as tools/qemu-e2e 
 module is the QEMU board's fixed 10.0.2.15 there."""
 
 import os
+import struct
 import subprocess
 
 MODULE = "10.0.2.15"
@@ -42,3 +43,13 @@ def stop(qemu, ns):
         qemu.kill()
         qemu.wait()
     sh("ip", "netns", "del", ns, check=False)
+
+
+def checksum(data):
+    """The RFC 1071 checksum of `data` (an IPv4 header, or a TCP segment with its pseudo-header)."""
+    if len(data) % 2:
+        data += b"\0"
+    s = sum(struct.unpack(f"!{len(data) // 2}H", data))
+    while s >> 16:
+        s = (s & 0xFFFF) + (s >> 16)
+    return (~s) & 0xFFFF
