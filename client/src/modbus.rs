@@ -38,8 +38,12 @@ pub struct Module {
 }
 
 pub fn resolve(module: &str) -> Result<SocketAddr, Error> {
-    let with_port =
-        if module.contains(':') { module.to_string() } else { format!("{module}:{}", remodaq_protocol::MODBUS_PORT) };
+    resolve_on(module, remodaq_protocol::MODBUS_PORT)
+}
+
+/// `module` as `HOST` (on `port`) or `HOST:PORT`.
+pub fn resolve_on(module: &str, port: u16) -> Result<SocketAddr, Error> {
+    let with_port = if module.contains(':') { module.to_string() } else { format!("{module}:{port}") };
     with_port
         .to_socket_addrs()
         .map_err(|e| Error::Other(format!("`{module}`: {e}")))?

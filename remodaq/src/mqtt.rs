@@ -2,7 +2,7 @@
 //! (`remodaq_client::web`, docs/mqtt.md), after a login with the configuration password (no
 //! password on the wire). `set` changes only the settings given, the others kept as stored.
 
-use std::net::{SocketAddr, ToSocketAddrs};
+use std::net::SocketAddr;
 
 use remodaq_client::web::{MqttSettings, Session};
 use remodaq_client::Error;
@@ -100,12 +100,7 @@ impl Changes {
 
 /// The console's address: MODULE as `HOST` (port 80) or `HOST:PORT`.
 fn console(module: &str) -> Result<SocketAddr, Error> {
-    let with_port = if module.contains(':') { module.to_owned() } else { format!("{module}:80") };
-    with_port
-        .to_socket_addrs()
-        .ok()
-        .and_then(|mut a| a.find(SocketAddr::is_ipv4))
-        .ok_or_else(|| Error::Other(format!("`{module}`: not an address (HOST or HOST:PORT of the web console)")))
+    remodaq_client::modbus::resolve_on(module, 80)
 }
 
 fn print(settings: &MqttSettings, json: bool) -> Result<(), Error> {

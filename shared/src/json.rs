@@ -176,6 +176,11 @@ impl<'a> Cursor<'a> {
     }
 }
 
+/// A JSON number that is a plain integer from 0 to 2^32 - 1 (no sign, fraction or exponent).
+fn plain_u32(number: &str) -> Option<u32> {
+    number.bytes().all(|b| b.is_ascii_digit()).then(|| number.parse().ok()).flatten()
+}
+
 impl<'a> Object<'a> {
     /// `body` when it is one flat JSON object as the module reads them (above).
     pub fn parse(body: &'a [u8]) -> Option<Self> {
@@ -248,7 +253,7 @@ impl<'a> Object<'a> {
 
     /// Member `name` as an integer from 0 to 2^32 - 1 (no sign, fraction or exponent).
     pub fn u32(&self, name: &str) -> Option<u32> {
-        self.number(name).filter(|n| n.bytes().all(|b| b.is_ascii_digit()))?.parse().ok()
+        plain_u32(self.number(name)?)
     }
 
     /// Member `name` as an array of integers from 0 to 2^32 - 1: each in turn (`None` for an
@@ -259,8 +264,7 @@ impl<'a> Object<'a> {
         Some(core::iter::from_fn(move || {
             c.eat(b',');
             c.space();
-            let n = c.number()?;
-            Some(n.bytes().all(|b| b.is_ascii_digit()).then(|| n.parse().ok()).flatten())
+            Some(plain_u32(c.number()?))
         }))
     }
 

@@ -113,11 +113,7 @@ where
     if settings != *store.get() {
         // A change that changes nothing never reaches the flash; a write beyond the budget
         // neither.
-        if !store.take(draw, embassy_time::Instant::now().as_millis()) {
-            crate::warn!("settings: commit budget spent, change refused");
-            crate::diagnostics::DIAGNOSTICS.security(crate::diagnostics::Security::WriteBudgetRefusal, [0; 4]);
-            return Err(UpdateError::Store(StoreError::Budget));
-        }
+        take_budget(&mut store, draw).map_err(UpdateError::Store)?;
         // From the flash write to the map's update, a connection's deadline waits (finding 15c:
         // a request dropped in between left the flash with the change and RAM without it).
         let _under_way = CommitUnderWay::begin();
@@ -129,6 +125,17 @@ where
         }
     }
     Ok(out)
+}
+
+/// One commit from `draw`'s budget, or [`StoreError::Budget`] when it is spent (logged and
+/// counted in the security events).
+fn take_budget<F: NorFlash, S: Schema>(store: &mut SettingsStore<F, S>, draw: Draw) -> Result<(), StoreError> {
+    if store.take(draw, embassy_time::Instant::now().as_millis()) {
+        return Ok(());
+    }
+    crate::warn!("settings: commit budget spent, change refused");
+    crate::diagnostics::DIAGNOSTICS.security(crate::diagnostics::Security::WriteBudgetRefusal, [0; 4]);
+    Err(StoreError::Budget)
 }
 
 /// Commits a service's record (`settings::key::*`: MQTT's settings) as [`commit_change`] commits
@@ -145,11 +152,7 @@ where
     if store.service_record::<T>(key).await == *value {
         return Ok(());
     }
-    if !store.take(Draw::Admin, embassy_time::Instant::now().as_millis()) {
-        crate::warn!("settings: commit budget spent, change refused");
-        crate::diagnostics::DIAGNOSTICS.security(crate::diagnostics::Security::WriteBudgetRefusal, [0; 4]);
-        return Err(StoreError::Budget);
-    }
+    take_budget(&mut store, Draw::Admin)?;
     let _under_way = CommitUnderWay::begin();
     store.commit_service_record(key, value).await?;
     if key == crate::settings::key::MQTT {

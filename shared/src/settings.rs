@@ -402,11 +402,15 @@ impl<F: NorFlash, S: Schema> SettingsStore<F, S> {
     async fn store(&mut self, value: S) -> Result<(), StoreError> {
         let mut record = [0u8; MAX_RECORD];
         let len = encode_record(&value, &mut record).ok_or(StoreError::TooLarge)?;
-        match self.map.store_item::<&[u8]>(&mut self.buf.0, &RECORD_KEY, &&record[..len]).await {
-            Ok(()) => {
-                self.current = value;
-                Ok(())
-            }
+        self.store_record(RECORD_KEY, &record[..len]).await?;
+        self.current = value;
+        Ok(())
+    }
+
+    /// Stores `record` under `key`, durable on return; the store's error in its class.
+    async fn store_record(&mut self, key: u8, record: &[u8]) -> Result<(), StoreError> {
+        match self.map.store_item::<&[u8]>(&mut self.buf.0, &key, &record).await {
+            Ok(()) => Ok(()),
             Err(sequential_storage::Error::Corrupted { .. }) => {
                 crate::error!("settings: store corrupted during commit");
                 Err(StoreError::Corrupted)
@@ -446,14 +450,7 @@ impl<F: NorFlash, S: Schema> SettingsStore<F, S> {
         }
         let mut record = [0u8; MAX_RECORD];
         let len = encode_record(value, &mut record).ok_or(StoreError::TooLarge)?;
-        let result = match self.map.store_item::<&[u8]>(&mut self.buf.0, &key, &&record[..len]).await {
-            Ok(()) => Ok(()),
-            Err(sequential_storage::Error::Corrupted { .. }) => Err(StoreError::Corrupted),
-            Err(sequential_storage::Error::ItemTooBig | sequential_storage::Error::BufferTooSmall(_)) => {
-                Err(StoreError::TooLarge)
-            }
-            Err(_) => Err(StoreError::Flash),
-        };
+        let result = self.store_record(key, &record[..len]).await;
         crate::diagnostics::DIAGNOSTICS.committed(&result);
         result
     }
@@ -463,10 +460,7 @@ impl<F: NorFlash, S: Schema> SettingsStore<F, S> {
     /// (Removing the items would need a flash that takes a second write to a word.)
     pub async fn reset_service_records(&mut self) -> Result<(), StoreError> {
         for key in key::SERVICES {
-            let empty: &[u8] = &[MAGIC, 0];
-            if self.map.store_item::<&[u8]>(&mut self.buf.0, &key, &empty).await.is_err() {
-                return Err(StoreError::Flash);
-            }
+            self.store_record(key, &[MAGIC, 0]).await?;
         }
         Ok(())
     }

@@ -53,16 +53,7 @@ const SACK: u8 = 5;
 /// Where the TCP header of an Ethernet II frame starts, and its length (data offset): the frame
 /// must carry a whole IPv4 TCP segment, not a fragment.
 fn tcp_header(frame: &[u8]) -> Option<(usize, usize)> {
-    if frame.get(12..14)? != [0x08, 0x00] {
-        return None;
-    }
-    let version_ihl = *frame.get(14)?;
-    let ihl = usize::from(version_ihl & 0x0F) * 4;
-    let flags_offset = u16::from_be_bytes([*frame.get(20)?, *frame.get(21)?]);
-    if version_ihl >> 4 != 4 || ihl < 20 || *frame.get(23)? != 6 || flags_offset & 0x3FFF != 0 {
-        return None;
-    }
-    let at = 14 + ihl;
+    let at = crate::backlog::frame::tcp_at(frame)?;
     let length = usize::from(*frame.get(at + 12)? >> 4) * 4;
     (length >= 20 && frame.len() >= at + length).then_some((at, length))
 }

@@ -37,9 +37,10 @@ pub fn destination_port(frame: &[u8]) -> Option<u16> {
     segment(frame).map(|(_, port, _)| port)
 }
 
-/// The client, destination port and TCP flags of `frame` if it is an Ethernet II frame carrying
-/// a whole IPv4 TCP segment.
-fn segment(frame: &[u8]) -> Option<(Peer, u16, u8)> {
+/// Where the TCP header of `frame` starts if it is an Ethernet II frame carrying an IPv4 TCP
+/// segment, not a fragment (the frame checks of the backlog and of the keyed ISNs,
+/// `crate::isn`).
+pub(crate) fn tcp_at(frame: &[u8]) -> Option<usize> {
     // Ethernet II: destination (6), source (6), EtherType (2) = 0x0800 IPv4.
     let ip = frame.get(14..).filter(|_| frame.get(12..14) == Some(&[0x08, 0x00]))?;
     // IPv4 (RFC 791): version 4, IHL in 32-bit words (at least 5), protocol 6 = TCP, and not
@@ -51,12 +52,16 @@ fn segment(frame: &[u8]) -> Option<(Peer, u16, u8)> {
         return None;
     }
     let flags_offset = u16::from_be_bytes([*ip.get(6)?, *ip.get(7)?]);
-    if flags_offset & 0x3FFF != 0 {
-        return None;
-    }
-    let source = [*ip.get(12)?, *ip.get(13)?, *ip.get(14)?, *ip.get(15)?];
+    (flags_offset & 0x3FFF == 0).then_some(14 + ihl)
+}
+
+/// The client, destination port and TCP flags of `frame` if it is an Ethernet II frame carrying
+/// a whole IPv4 TCP segment.
+fn segment(frame: &[u8]) -> Option<(Peer, u16, u8)> {
+    let at = tcp_at(frame)?;
+    let source = [*frame.get(26)?, *frame.get(27)?, *frame.get(28)?, *frame.get(29)?];
     // TCP (RFC 9293 §3.1): source port, destination port, ..., flags at byte 13.
-    let tcp = ip.get(ihl..)?;
+    let tcp = frame.get(at..)?;
     let source_port = u16::from_be_bytes([*tcp.first()?, *tcp.get(1)?]);
     let destination_port = u16::from_be_bytes([*tcp.get(2)?, *tcp.get(3)?]);
     let flags = *tcp.get(13)?;

@@ -28,7 +28,7 @@
 //! would reset the client when its ACK reached the first.
 
 mod driver;
-mod frame;
+pub(crate) mod frame;
 mod gate;
 mod queue;
 #[cfg(test)]
