@@ -87,6 +87,8 @@ mod transport {
     pub use remodaq_update::embassy::serve as update;
     #[cfg(feature = "web")]
     pub use remodaq_web::embassy::serve as web;
+    #[cfg(feature = "mqtt")]
+    pub use remodaq_mqtt::embassy::serve as mqtt;
 }
 #[cfg(not(target_os = "none"))]
 use remodaq_board_host::services as transport;
@@ -133,17 +135,17 @@ async fn web(app: &'static Running) -> ! {
     core::pin::pin!(transport::web(app.net(), app.map(), app.store(), app.identity())).await
 }
 
-/// MQTT (docs/mqtt.md): on the host board, with the stored settings or `--mqtt`; the
-/// embassy-net boards' session is not built yet.
-#[cfg(not(target_os = "none"))]
+/// MQTT (docs/mqtt.md), with the stored settings: on the host board (or `--mqtt`'s) and in an
+/// image built with the feature `mqtt` (the QEMU board's).
+#[cfg(any(not(target_os = "none"), feature = "mqtt"))]
 #[embassy_executor::task]
 async fn mqtt(app: &'static Running) -> ! {
     transport::mqtt(app.net(), app.map(), app.store(), app.identity()).await
 }
 
 /// Brings the module up, then starts its tasks: a Modbus connection task per slot, discovery,
-/// updates (target boards), the module's application (main or realtime executor, by the image
-/// crate), and the web console's connection tasks. A task that cannot be spawned is logged, not
+/// MQTT (where built), updates (target boards), the module's application (main or realtime
+/// executor, by the image crate), and the web console's connection tasks. A task that cannot be spawned is logged, not
 /// a panic.
 async fn start(spawner: Spawner) {
     use remodaq_shared::app::spawn;
@@ -153,7 +155,7 @@ async fn start(spawner: Spawner) {
         spawn(spawner, modbus(app, slot), "modbus");
     }
     spawn(spawner, discovery(app), "discovery");
-    #[cfg(not(target_os = "none"))]
+    #[cfg(any(not(target_os = "none"), feature = "mqtt"))]
     spawn(spawner, mqtt(app), "mqtt");
     #[cfg(target_os = "none")]
     spawn(spawner, update(app), "update");

@@ -414,6 +414,14 @@ fn counters_run_bits_and_flags_are_not_persisted() {
     assert_eq!(m.ask("01 01 00 10 00 06"), "01 01 01 02", "outputs at their power-on levels");
 }
 
+/// Point `i` as MQTT publishes it: read, then its payload written.
+fn read(m: &Module, i: usize, payload: &mut remodaq_mqtt::session::Payload) {
+    use remodaq_mqtt::session::Module as _;
+    let mut module = mqtt(m);
+    block_on(module.read(i));
+    module.payload(payload);
+}
+
 /// MQTT's module over this map (issue #40, docs/mqtt.md).
 fn mqtt(m: &Module) -> remodaq_mqtt::points::MapModule<'_, NoopRawMutex, Map8350<'static, Flash, NoopRawMutex>> {
     remodaq_mqtt::points::MapModule {
@@ -425,6 +433,7 @@ fn mqtt(m: &Module) -> remodaq_mqtt::points::MapModule<'_, NoopRawMutex, Map8350
         time_ms: || None,
         options: remodaq_mqtt::points::Options { deadbands: [0; 8], on_change: true, broker: [127, 0, 0, 1] },
         refusals: [0; 3],
+        last: Default::default(),
     }
 }
 
@@ -432,13 +441,13 @@ fn mqtt(m: &Module) -> remodaq_mqtt::points::MapModule<'_, NoopRawMutex, Map8350
 /// state at bit n; §3.2: its counter at registers 2n, 2n+1, low word first).
 #[test]
 fn mqtt_publishes_what_a_modbus_read_gives() {
-    use remodaq_mqtt::session::{Module as _, Payload};
+    use remodaq_mqtt::session::Payload;
     let mut m = Module::new();
     assert_eq!(m.ask("01 06 01 03 00 01"), "01 06 01 03 00 01", "DI3 a counter");
     m.inputs(&[0, 0b1000, 0, 0b1000, 0, 0b1001]);
     let mut payload = Payload::new();
     for n in 0..12u16 {
-        block_on(mqtt(&m).read(usize::from(n), &mut payload));
+        read(&m, usize::from(n), &mut payload);
         let o = remodaq_shared::json::Object::parse(payload.as_bytes()).expect("a flat JSON object");
         let state = m.ask(&format!("01 02 00 {n:02X} 00 01"));
         let counter = m.ask(&format!("01 03 00 {:02X} 00 02", 2 * n));
@@ -448,9 +457,9 @@ fn mqtt_publishes_what_a_modbus_read_gives() {
         assert_eq!(o.bool("state"), Some(state.ends_with("01")), "DI{n} {payload}");
         assert_eq!(o.u32("counter"), Some(modbus_counter), "DI{n} {payload}");
     }
-    block_on(mqtt(&m).read(3, &mut payload));
+    read(&m, 3, &mut payload);
     assert!(payload.contains("\"counter\":3") && payload.contains("\"state\":true"), "{payload}");
-    block_on(mqtt(&m).read(12 + 2, &mut payload));
+    read(&m, 12 + 2, &mut payload);
     assert!(payload.starts_with("{\"state\":false,\"mode\":\"normal\""), "DO2: {payload}");
 }
 

@@ -7,6 +7,7 @@ use core::fmt::Write as _;
 
 use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::mutex::Mutex;
+use embassy_time::Duration;
 use remodaq_protocol::m8318::{self, InputType};
 use remodaq_protocol::resources::{self, Format, Resource};
 use remodaq_protocol::Table;
@@ -55,6 +56,37 @@ pub struct MapModule<'a, R: RawMutex, M: RegisterMap> {
     pub options: Options,
     /// Commands refused, by why (for the diagnostics).
     pub refusals: [u32; 3],
+    /// What [`Module::read`] read last, for [`Module::payload`].
+    pub last: Last,
+}
+
+/// The registers a point's reading was taken from, kept until its payload is written (a point
+/// that is not due is read, never formatted).
+#[derive(Clone, Debug, Default)]
+pub enum Last {
+    /// Nothing read yet.
+    #[default]
+    None,
+    /// The 8318's cold junction, hundredths of a °C.
+    Cjc(i16),
+    /// An 8318 channel: its code, status and input type.
+    Ai {
+        /// The channel's resource.
+        r: &'static Resource,
+        /// Its raw code.
+        raw: u16,
+        /// Its status code.
+        status: u16,
+        /// The input type in force.
+        input: Option<InputType>,
+    },
+    /// An 8350 item: its shown fields as read.
+    Item {
+        /// The item's resource.
+        r: &'static Resource,
+        /// Each shown field's value.
+        values: heapless::Vec<Seen, 8>,
+    },
 }
 
 /// Which point `i` is: a resource's item, or the 8318's cold junction.
@@ -95,20 +127,17 @@ impl<R: RawMutex, M: RegisterMap> Module for MapModule<'_, R, M> {
         usize::from(if self.model == 0x8318 { count("channels") + 1 } else { count("di") + count("do") })
     }
 
-    async fn read(&mut self, i: usize, payload: &mut Payload) -> Reading {
-        payload.clear();
+    fn tick(&self) -> Duration {
+        // The 8318 acquires every 100 ms: a change reaches MQTT within one cycle. The 8350's
+        // inputs change at any moment: within 20 ms (issue #40).
+        Duration::from_millis(if self.model == 0x8318 { 50 } else { 10 })
+    }
+
+    async fn read(&mut self, i: usize) -> Reading {
         match self.which(i) {
             Which::Cjc => {
                 let h = self.map.lock().await.observe(Table::Registers, m8318::REG_CJC) as i16;
-                let sign = if h < 0 { "-" } else { "" };
-                let _ = write!(
-                    payload,
-                    "{{\"value\":{sign}{}.{:02},\"unit\":\"°C\",",
-                    h.unsigned_abs() / 100,
-                    h.unsigned_abs() % 100
-                );
-                self.time(payload);
-                let _ = payload.push('}');
+                self.last = Last::Cjc(h);
                 Reading { topic: PointTopic::Leaf("cjc"), value: i64::from(h) * 10, status: 0, deadband: CJC_DEADBAND }
             }
             Which::Item(r, Kind::Ai, n) => {
@@ -120,15 +149,7 @@ impl<R: RawMutex, M: RegisterMap> Module for MapModule<'_, R, M> {
                     (raw, status, input)
                 };
                 let value = input.as_ref().map(|t| engineering_thousandths(t, raw));
-                let _ = payload.push_str("{\"value\":");
-                if let Some(f) = r.fields.iter().find(|f| f.format == Format::Engineering) {
-                    json_value(payload, f, u32::from(raw), input.as_ref());
-                }
-                let unit = input.as_ref().map_or("", resources::unit);
-                let name = STATUS.get(usize::from(status)).copied().unwrap_or("fault");
-                let _ = write!(payload, ",\"unit\":\"{unit}\",\"status\":\"{name}\",\"raw\":{raw},");
-                self.time(payload);
-                let _ = payload.push('}');
+                self.last = Last::Ai { r, raw, status, input };
                 let deadband = u64::from(self.options.deadbands.get(usize::from(n)).copied().unwrap_or(0));
                 Reading {
                     topic: PointTopic::Numbered(Kind::Ai, n as u8),
@@ -148,29 +169,62 @@ impl<R: RawMutex, M: RegisterMap> Module for MapModule<'_, R, M> {
                     }
                 }
                 let mut fingerprint: u64 = 0xcbf2_9ce4_8422_2325;
-                let _ = payload.push('{');
-                for (f, v) in r.fields.iter().filter(|f| f.shown).zip(&values) {
+                for v in &values {
                     let word = match *v {
                         Seen::Unmapped => continue,
+                        Seen::Null => u64::MAX,
+                        Seen::Value(v) => u64::from(v),
+                    };
+                    fingerprint = (fingerprint ^ word).wrapping_mul(0x0000_0100_0000_01b3);
+                }
+                self.last = Last::Item { r, values };
+                let deadband = if self.options.on_change { 0 } else { u64::MAX };
+                Reading { topic: PointTopic::Numbered(kind, n as u8), value: fingerprint as i64, status: 0, deadband }
+            }
+        }
+    }
+
+    fn payload(&self, payload: &mut Payload) {
+        payload.clear();
+        match &self.last {
+            Last::None => return,
+            Last::Cjc(h) => {
+                let sign = if *h < 0 { "-" } else { "" };
+                let _ = write!(
+                    payload,
+                    "{{\"value\":{sign}{}.{:02},\"unit\":\"°C\",",
+                    h.unsigned_abs() / 100,
+                    h.unsigned_abs() % 100
+                );
+            }
+            Last::Ai { r, raw, status, input } => {
+                let _ = payload.push_str("{\"value\":");
+                if let Some(f) = r.fields.iter().find(|f| f.format == Format::Engineering) {
+                    json_value(payload, f, u32::from(*raw), input.as_ref());
+                }
+                let unit = input.as_ref().map_or("", resources::unit);
+                let name = STATUS.get(usize::from(*status)).copied().unwrap_or("fault");
+                let _ = write!(payload, ",\"unit\":\"{unit}\",\"status\":\"{name}\",\"raw\":{raw},");
+            }
+            Last::Item { r, values } => {
+                let _ = payload.push('{');
+                for (f, v) in r.fields.iter().filter(|f| f.shown).zip(values) {
+                    match *v {
+                        Seen::Unmapped => {}
                         Seen::Null => {
                             let _ = write!(payload, "\"{}\":null,", f.name);
-                            u64::MAX
                         }
                         Seen::Value(v) => {
                             let _ = write!(payload, "\"{}\":", f.name);
                             json_value(payload, f, v, None);
                             let _ = payload.push(',');
-                            u64::from(v)
                         }
-                    };
-                    fingerprint = (fingerprint ^ word).wrapping_mul(0x0000_0100_0000_01b3);
+                    }
                 }
-                self.time(payload);
-                let _ = payload.push('}');
-                let deadband = if self.options.on_change { 0 } else { u64::MAX };
-                Reading { topic: PointTopic::Numbered(kind, n as u8), value: fingerprint as i64, status: 0, deadband }
             }
         }
+        self.time(payload);
+        let _ = payload.push('}');
     }
 
     fn online(&self, payload: &mut Payload) {

@@ -2,19 +2,18 @@
 //! over it), the session connects (resumed when the broker kept it: QoS 1 publications in flight
 //! go again), says `online` on `<prefix>/status` (retained; the will says `offline`), subscribes
 //! to the 8350's commands when they are on, then publishes every point that is due
-//! ([`Point::due`]) every [`TICK`] and carries out the commands that arrive, until the link
+//! ([`Point::due`]) every [`Module::tick`] and carries out the commands that arrive, until the link
 //! breaks. Reconnecting, with its back-off, is the caller's.
 
 use embassy_futures::select::{select, Either};
-use embassy_time::{Duration, Instant, Timer};
+use embassy_futures::yield_now;
+use embassy_time::{Duration, Instant, Ticker};
 use minimq::{Connection, Io, Publication, QoS, Session, TopicFilter};
 
 use crate::command::{Command, Refusal};
 use crate::schedule::Point;
 use crate::topics::{self, Kind, Topic};
 
-/// How often the points are looked at.
-pub const TICK: Duration = Duration::from_millis(100);
 /// The longest payload of a point.
 pub const MAX_PAYLOAD: usize = 256;
 /// A point's payload, JSON.
@@ -60,8 +59,14 @@ pub enum PointTopic {
 pub trait Module {
     /// How many points there are.
     fn points(&self) -> usize;
-    /// Point `i` as it stands, its payload written into `payload` (emptied first).
-    async fn read(&mut self, i: usize, payload: &mut Payload) -> Reading;
+    /// How often the points are looked at: a change is published within this (and the
+    /// publication's time).
+    fn tick(&self) -> Duration;
+    /// Point `i` as it stands (kept for [`payload`](Self::payload)).
+    async fn read(&mut self, i: usize) -> Reading;
+    /// The payload of the point [`read`](Self::read) read last, written into `payload`
+    /// (emptied first): only a point that is due is formatted.
+    fn payload(&self, payload: &mut Payload);
     /// The `online` status payload (`{"state": "online", ...}`).
     fn online(&self, payload: &mut Payload);
     /// The outputs commands may name (6 on the 8350, 0 on the 8318).
@@ -91,6 +96,16 @@ pub enum Ended {
     Connect,
     /// The link broke or the broker went away.
     Link,
+}
+
+impl Ended {
+    /// Why, in words (the log's).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Ended::Connect => "the MQTT session could not be established",
+            Ended::Link => "the link broke",
+        }
+    }
 }
 
 /// The will: `{"state":"offline"}`, retained, on `<prefix>/status`.
@@ -123,24 +138,30 @@ pub async fn serve<IO: Io, M: Module>(
         s.forget();
     }
     let qos = if settings.at_least_once { QoS::AtLeastOnce } else { QoS::AtMostOnce };
+    // At a fixed rate: the publications' own time does not stretch the period.
+    let mut ticker = Ticker::every(module.tick());
     loop {
         if publish_due(&mut conn, settings, module, schedules, qos).await.is_err() {
             return Ended::Link;
         }
-        let command = match select(conn.poll(), Timer::after(TICK)).await {
-            Either::First(Ok(Some(inbound))) => {
-                Some(take(settings, module.outputs(), inbound.topic(), inbound.payload()))
+        // Until the next look: the broker's acknowledgments (each frees an in-flight slot of
+        // QoS 1) and the commands, as they come.
+        loop {
+            let command = match select(conn.poll(), ticker.next()).await {
+                Either::First(Ok(Some(inbound))) => {
+                    take(settings, module.outputs(), inbound.topic(), inbound.payload())
+                }
+                Either::First(Ok(None)) => continue,
+                Either::First(Err(_)) => return Ended::Link,
+                Either::Second(()) => break,
+            };
+            let refused = match command {
+                Ok((n, command)) => module.command(n, command).await.err().map(|()| Refused::Module),
+                Err(why) => Some(why),
+            };
+            if let Some(why) = refused {
+                module.refused(why);
             }
-            Either::First(Ok(None)) | Either::Second(()) => None,
-            Either::First(Err(_)) => return Ended::Link,
-        };
-        let refused = match command {
-            Some(Ok((n, command))) => module.command(n, command).await.err().map(|()| Refused::Module),
-            Some(Err(why)) => Some(why),
-            None => None,
-        };
-        if let Some(why) = refused {
-            module.refused(why);
         }
     }
 }
@@ -155,13 +176,19 @@ async fn publish_due<IO: Io, M: Module>(
     qos: QoS,
 ) -> Result<(), ()> {
     let mut payload = Payload::new();
+    let tick = module.tick().as_millis();
     for (i, schedule) in schedules.iter_mut().enumerate().take(module.points()) {
-        payload.clear();
-        let r = module.read(i, &mut payload).await;
+        // One point a poll: the tasks that share the executor (Modbus) wait at most one point's
+        // reading and publication, never the whole look.
+        yield_now().await;
+        let r = module.read(i).await;
         let now = Instant::now().as_millis();
-        if !schedule.due(r.value, r.status, now, r.deadband, settings.period_ms) || !conn.can_publish(qos) {
+        // Due by its period if the next look would come after the period ran out: at least once
+        // per period.
+        if !schedule.due(r.value, r.status, now + tick, r.deadband, settings.period_ms) || !conn.can_publish(qos) {
             continue;
         }
+        module.payload(&mut payload);
         let topic: Topic = match r.topic {
             PointTopic::Numbered(kind, n) => topics::point(settings.prefix, kind, n),
             PointTopic::Leaf(leaf) => topics::leaf(settings.prefix, leaf),

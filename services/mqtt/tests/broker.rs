@@ -24,6 +24,7 @@ use remodaq_mqtt::topics::Kind;
 struct Shared {
     /// Three analog points' values, thousandths.
     values: [i64; 3],
+    last: i64,
     commands: Vec<(u8, Command)>,
     refused: Vec<Refused>,
 }
@@ -34,11 +35,18 @@ impl Module for Fake {
     fn points(&self) -> usize {
         3
     }
-    async fn read(&mut self, i: usize, payload: &mut Payload) -> Reading {
+    fn tick(&self) -> embassy_time::Duration {
+        embassy_time::Duration::from_millis(100)
+    }
+    async fn read(&mut self, i: usize) -> Reading {
         let value = self.0.lock().expect("lock").values[i];
-        use core::fmt::Write as _;
-        let _ = write!(payload, "{{\"value\":{value}}}");
+        self.0.lock().expect("lock").last = value;
         Reading { topic: PointTopic::Numbered(Kind::Ai, i as u8), value, status: 0, deadband: 50 }
+    }
+    fn payload(&self, payload: &mut Payload) {
+        use core::fmt::Write as _;
+        payload.clear();
+        let _ = write!(payload, "{{\"value\":{}}}", self.0.lock().expect("lock").last);
     }
     fn online(&self, payload: &mut Payload) {
         let _ = payload.push_str("{\"state\":\"online\"}");

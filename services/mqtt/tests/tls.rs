@@ -185,9 +185,15 @@ impl Module for One {
     fn points(&self) -> usize {
         1
     }
-    async fn read(&mut self, _: usize, payload: &mut Payload) -> Reading {
-        let _ = payload.push_str("{\"value\":7}");
+    fn tick(&self) -> embassy_time::Duration {
+        embassy_time::Duration::from_millis(100)
+    }
+    async fn read(&mut self, _: usize) -> Reading {
         Reading { topic: PointTopic::Numbered(Kind::Di, 0), value: 7, status: 0, deadband: 0 }
+    }
+    fn payload(&self, payload: &mut Payload) {
+        payload.clear();
+        let _ = payload.push_str("{\"value\":7}");
     }
     fn online(&self, payload: &mut Payload) {
         let _ = payload.push_str("{\"state\":\"online\"}");

@@ -29,9 +29,14 @@ use crate::backlog::{Gate, Peer, HANDSHAKE_TIMEOUT_MS};
 /// How long a connection the peer closed may take to finish closing before it is reset.
 const CLOSE_WAIT: Duration = Duration::from_millis(100);
 
-/// The stack's sockets: the Modbus connection tasks, discovery's, update, one of slack, and the
-/// web console's connections in an image that has it.
-pub const STACK_SOCKETS: usize = MODBUS_SOCKETS + remodaq_shared::sockets::DISCOVERY_SOCKETS + 2 + WEB_SOCKETS;
+/// The stack's sockets: the Modbus connection tasks, discovery's, update, one of slack, the
+/// web console's connections and MQTT's, in an image that has them.
+pub const STACK_SOCKETS: usize =
+    MODBUS_SOCKETS + remodaq_shared::sockets::DISCOVERY_SOCKETS + 2 + WEB_SOCKETS + MQTT_SOCKETS;
+#[cfg(feature = "mqtt")]
+const MQTT_SOCKETS: usize = 1;
+#[cfg(not(feature = "mqtt"))]
+const MQTT_SOCKETS: usize = 0;
 #[cfg(feature = "web")]
 const WEB_SOCKETS: usize = remodaq_shared::sockets::WEB_CONNECTIONS;
 #[cfg(not(feature = "web"))]

@@ -9,37 +9,36 @@ use tokio::time::sleep;
 
 use crate::client::{connect, regs_until, uptime, wait_ready};
 use crate::discovery::{set_password, PASSWORD};
-use crate::qemu::{start_qemu_with, Ports, FRONT_END_FAULT};
+use crate::qemu::{start_qemu_with, Ports, FRONT_END_FAULT, TRIAL_S};
 use crate::report::Report;
 use crate::session::{reverted, session};
 
 /// How long the 8318 with a broken front end is watched after the revert (issue #21): three
 /// trial windows, and a little more. What the watch must show is that the reverted image does
 /// not run a trial of its own (the endless trial of issue #21: on trial, its self-test failing
-/// as the front end does, it would restart 20 s after each start, and the bootloader would
+/// as the front end does, it would restart a trial after each start, and the bootloader would
 /// start it again). Such a loop restarts once every trial window, whenever it began: its first
 /// restart falls within the first window after the revert, and the uptime goes back. Three
 /// windows see that restart three times over, and a loop that restarted only every second or
 /// third start (a trial that passed by chance some times) at least once; longer adds nothing
-/// a 20 s timer could do. The watch was 180 s before (issue #36).
+/// a trial's timer could do. The watch was 180 s before (issue #36).
 const NO_RESTART_FOR: Duration = Duration::from_secs(3 * TRIAL_WINDOW_S + 2);
-/// A trial window under QEMU, s: an image on trial restarts 20 s after its start when its
-/// self-test has not passed (`remodaq_update::TRIAL`), and starts again within about 1 s
-/// (docs/update.md: "reverted 21 s after its start").
-const TRIAL_WINDOW_S: u64 = 21;
+/// A trial window under QEMU, s: an image on trial restarts a trial after its start when its
+/// self-test has not passed, and starts again within about 1 s.
+const TRIAL_WINDOW_S: u64 = TRIAL_S + 1;
 /// The watch polls the uptime this often.
-const WATCH_POLL: Duration = Duration::from_secs(5);
+const WATCH_POLL: Duration = Duration::from_secs(3);
 
 /// Issue #21 (the endless trial): an 8318 whose front end fails on every channel (the board's
 /// test switch, which every image started on this machine sees, as a broken AD7124-8 would)
 /// takes an update (A101) that never confirms, because its self-test fails the same way. After
-/// its 20 s trial the module restarts and the bootloader reverts to A100, which it started in
+/// its trial the module restarts and the bootloader reverts to A100, which it started in
 /// the Revert state: A100 is confirmed without a trial, so it does not restart again. Watched
 /// for three trial windows ([`NO_RESTART_FOR`]: uptime never goes back, restarts counted, 0
 /// wanted); then a further update is accepted (the answer to a whole session is "verified and
 /// marked").
 pub(crate) async fn broken_front_end(report: &mut Report, image: &str) {
-    const REVERTED: &str = "update: an 8318 whose front end fails takes an update that never confirms; after the revert, no restart through 3 trial windows (65 s)";
+    const REVERTED: &str = "update: an 8318 whose front end fails takes an update that never confirms; after the revert, no restart through 3 trial windows (35 s)";
     const FURTHER: &str = "update: after that revert a further update is accepted";
     let v2 = match std::fs::read(format!("{image}-v2.rdq")) {
         Ok(file) => file,
@@ -104,8 +103,8 @@ pub(crate) async fn broken_front_end(report: &mut Report, image: &str) {
             }
             sleep(WATCH_POLL).await;
         }
-        // Polled every 5 s: answers all along (at most two polls missed), and the last came at
-        // least the watch less two polls (55 s, over two and a half trial windows) after the
+        // Polled every 3 s: answers all along (at most two polls missed), and the last came at
+        // least the watch less two polls (29 s, over two and a half trial windows) after the
         // first on the module's clock too (the QEMU board's follows the wall clock).
         let first = first.unwrap_or(u32::MAX);
         let least_polls = (NO_RESTART_FOR.as_secs() / WATCH_POLL.as_secs()) as u32 - 2;

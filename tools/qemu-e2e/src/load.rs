@@ -257,29 +257,29 @@ impl std::fmt::Display for WebLoad {
 
 /// Request latencies, each less the time the machine stalled during it; and how many were so.
 #[derive(Default)]
-struct Latencies {
+pub(crate) struct Latencies {
     took: Vec<Duration>,
-    stalled: usize,
+    pub(crate) stalled: usize,
 }
 
 impl Latencies {
-    fn add(&mut self, took: Duration, lost: Duration) {
+    pub(crate) fn add(&mut self, took: Duration, lost: Duration) {
         if !lost.is_zero() {
             self.stalled += 1;
         }
         self.took.push(took.saturating_sub(lost));
     }
 
-    fn worst(&self) -> Duration {
+    pub(crate) fn worst(&self) -> Duration {
         self.took.iter().copied().max().unwrap_or_default()
     }
 
-    fn median(&self) -> Duration {
+    pub(crate) fn median(&self) -> Duration {
         self.quantile(50)
     }
 
     /// The `percent` quantile (the lower one where it falls between two).
-    fn quantile(&self, percent: usize) -> Duration {
+    pub(crate) fn quantile(&self, percent: usize) -> Duration {
         let mut took = self.took.clone();
         took.sort();
         took.get((took.len() * percent / 100).min(took.len().saturating_sub(1))).copied().unwrap_or_default()
@@ -287,13 +287,13 @@ impl Latencies {
 }
 
 /// Watches QEMU's log for the QEMU board's "machine stalled" lines.
-struct StallWatch<'a> {
+pub(crate) struct StallWatch<'a> {
     log: &'a str,
     read: u64,
 }
 
 impl<'a> StallWatch<'a> {
-    fn new(log: &'a str) -> Self {
+    pub(crate) fn new(log: &'a str) -> Self {
         let read = std::fs::metadata(log).map_or(0, |m| m.len());
         Self { log, read }
     }
@@ -301,7 +301,7 @@ impl<'a> StallWatch<'a> {
     /// The time this PC took from the machine in the stalls the log said since the last call:
     /// each gap between two SysTicks less the 1 ms period and the firmware's critical sections
     /// ([`Stall::lost`]).
-    fn since(&mut self) -> Duration {
+    pub(crate) fn since(&mut self) -> Duration {
         use std::io::{Read, Seek, SeekFrom};
         let Ok(mut file) = std::fs::File::open(self.log) else { return Duration::ZERO };
         let mut added = Vec::new();

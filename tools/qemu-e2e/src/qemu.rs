@@ -104,6 +104,11 @@ pub(crate) fn start_qemu(image: &str, ports: &Ports) -> Result<Qemu, String> {
     start_qemu_with(image, ports, None)
 }
 
+/// The trial of a new image on the QEMU board, s (`remodaq_update::TRIAL` with the feature
+/// `short-trial` that the QEMU images have: docs/update.md): one that has not passed its
+/// self-test by then restarts, and the bootloader reverts.
+pub(crate) const TRIAL_S: u64 = 10;
+
 /// The QEMU board's test switches word (boards/qemu/layout.x) and its front-end fault value
 /// (boards/qemu/src/lib.rs, `test_switches`): "FEND".
 const TEST_SWITCHES_ADDR: u32 = 0x003F_F000;

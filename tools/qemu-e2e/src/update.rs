@@ -13,6 +13,7 @@ use tokio_modbus::client::{Context, Writer as _};
 
 use crate::client::{connect, diag_reg, regs, uptime, write, STEP};
 use crate::discovery::{discover, set_password, PASSWORD};
+use crate::qemu::TRIAL_S;
 use crate::report::Report;
 use crate::session::{paced_session, reverted, session, version};
 use crate::stalls::{longest_critical_section, stalls_and_underruns, unexplained_underruns, Stall};
@@ -197,17 +198,17 @@ pub(crate) async fn updates(
             }
             sleep(Duration::from_millis(500)).await;
         }
-        // v2 again: it started at least the trial's 20 s after v5 was marked (v5 ran its trial
-        // and was reverted), after a software restart.
+        // v2 again: it started at least a trial after v5 was marked (v5 ran its trial and was
+        // reverted), after a software restart.
         let mut ctx = connect(addr).await?;
         let (up, cause) = (uptime(&mut ctx).await?, diag_reg(&mut ctx, diag::Diag::ResetCause).await?);
         let before_v2 = marked.elapsed().as_secs_f64() - f64::from(up);
         println!(
             "qemu-8350: v5 (link down) reverted to v2: v2 started {before_v2:.1} s after v5 was marked (versions seen {seen:04X?})"
         );
-        if before_v2 < 19.0 || cause != diag::reset_cause::SOFTWARE {
+        if before_v2 < TRIAL_S as f64 - 1.0 || cause != diag::reset_cause::SOFTWARE {
             return Err(format!(
-                "v2 started {before_v2:.1} s after v5 was marked, reset cause {cause}: expected after the 20 s trial, a software restart"
+                "v2 started {before_v2:.1} s after v5 was marked, reset cause {cause}: expected after the {TRIAL_S} s trial, a software restart"
             ));
         }
         setting_intact("after the link-down revert").await

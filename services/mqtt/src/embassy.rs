@@ -1,0 +1,67 @@
+//! MQTT's connection to the broker on embassy-net (the STM32 and QEMU boards): a TCP socket of
+//! the stack's socket plan (`remodaq_net::STACK_SOCKETS` counts it with the feature `mqtt`),
+//! over buffers the service's task holds, and [`serve`], the service on it.
+
+use embassy_net::tcp::TcpSocket;
+use embassy_net::{IpEndpoint, Ipv4Address};
+use embassy_time::Duration;
+use embedded_storage_async::nor_flash::NorFlash;
+use remodaq_net::{close, reset, EmbassyNet};
+use remodaq_shared::board::{Effects, Shared};
+use remodaq_shared::identity::Identity;
+use remodaq_shared::modbus::RegisterMap;
+use remodaq_shared::module::{SettingsAccess, Store};
+use remodaq_shared::warn;
+
+use crate::service::{run, Board, Connector, KEEP_ALIVE_S};
+
+/// The socket's buffers: a publication is at most about 400 bytes, a command at most 128.
+const SOCKET_RX: usize = 1024;
+const SOCKET_TX: usize = 1024;
+
+/// Opens connections to the broker on an embassy-net stack, one at a time through one socket,
+/// which it keeps: the session's end (the settings changed) does not drop it unclosed, so the
+/// broker learns at once that the module left and gives the will.
+struct EmbassyConnector<'b> {
+    socket: TcpSocket<'b>,
+}
+
+impl<'b> Connector for EmbassyConnector<'b> {
+    type Io<'a>
+        = &'a mut TcpSocket<'b>
+    where
+        Self: 'a;
+
+    async fn connect(&mut self, broker: [u8; 4], port: u16) -> Option<&mut TcpSocket<'b>> {
+        // The last connection, if the link broke without the socket knowing.
+        reset(&mut self.socket).await;
+        // A broker that stops acknowledging ends the connection (the session starts again):
+        // twice the keep-alive, as the broker's own 1.5 and a margin.
+        self.socket.set_timeout(Some(Duration::from_secs(2 * u64::from(KEEP_ALIVE_S))));
+        let [a, b, c, d] = broker;
+        match self.socket.connect(IpEndpoint::new(Ipv4Address::new(a, b, c, d).into(), port)).await {
+            Ok(()) => Some(&mut self.socket),
+            Err(e) => {
+                warn!("mqtt: connect: {:?}", e);
+                None
+            }
+        }
+    }
+
+    async fn close(&mut self) {
+        close(&mut self.socket).await;
+    }
+}
+
+/// Serves MQTT on `net` with the stored settings, forever. These boards have no time of day yet
+/// (SNTP is not built): payloads say `"time": null`.
+pub async fn serve<E: Effects, A: RegisterMap + SettingsAccess, F: NorFlash>(
+    net: &'static EmbassyNet<E>,
+    map: &'static Shared<A>,
+    store: &'static Store<F, A::Settings>,
+    identity: Identity,
+) -> ! {
+    let (mut rx, mut tx) = ([0u8; SOCKET_RX], [0u8; SOCKET_TX]);
+    let mut connector = EmbassyConnector { socket: TcpSocket::new(net.stack, &mut rx, &mut tx) };
+    run(Board { time_ms: || None, imposed: None }, &mut connector, map, store, identity).await
+}

@@ -1,0 +1,164 @@
+//! MQTT's service on every board (docs/mqtt.md): with the stored settings (`settings::key::MQTT`,
+//! set through the web console's `PUT /api/v1/mqtt` and `remodaq mqtt set`), or with settings a
+//! board imposes (the simulator's `--mqtt ADDR:PORT`), the [`session`](crate::session) over a
+//! connection the board opens ([`Connector`]: std sockets on the host, an embassy-net socket on
+//! the STM32 and QEMU boards), reconnecting after 1 s, doubling to 30 s, and started again
+//! whenever the settings change (`mqtt::CHANGED`). Off, it opens no socket. TLS needs the CA
+//! certificate, which is not stored yet: settings with TLS on connect nowhere, and say so.
+
+use core::fmt::Write as _;
+
+use embassy_futures::select::{select, Either};
+use embassy_time::{Duration, Instant, Timer};
+use embedded_storage_async::nor_flash::NorFlash;
+use minimq::{Buffers, ConfigBuilder, Io, QoS, Session, Will};
+use remodaq_shared::board::Shared;
+use remodaq_shared::identity::Identity;
+use remodaq_shared::modbus::RegisterMap;
+use remodaq_shared::module::{SettingsAccess, Store};
+use remodaq_shared::mqtt::{Config, CHANGED};
+use remodaq_shared::settings::key;
+use remodaq_shared::{error, info, warn};
+
+use crate::points::{MapModule, Options};
+use crate::schedule::Point;
+use crate::session::{serve, Settings, OFFLINE};
+use crate::topics;
+
+/// The first wait before connecting again.
+const BACK_OFF_MIN: Duration = Duration::from_secs(1);
+/// The longest wait between two attempts.
+const BACK_OFF_MAX: Duration = Duration::from_secs(30);
+/// The keep-alive the module asks for, s: the broker gives the will after 1.5 of these without
+/// a word from the module.
+pub const KEEP_ALIVE_S: u16 = 10;
+/// How long the broker keeps the session (and the QoS 1 publications in flight) after the link
+/// breaks, s.
+const SESSION_EXPIRY_S: u32 = 300;
+/// The session's receive buffer (a command is at most [`crate::command::MAX_COMMAND`] bytes).
+pub const RX_BUFFER: usize = 1024;
+/// The session's transmit buffer: the packets being written and the QoS 1 publications in
+/// flight, until the broker acknowledges them.
+pub const TX_BUFFER: usize = 4096;
+/// A schedule per point: the most a module has (the 8350's 12 DIs and 6 DOs).
+const POINTS: usize = 18;
+
+/// How a board reaches the broker.
+#[allow(async_fn_in_trait)]
+pub trait Connector {
+    /// An open connection.
+    type Io<'a>: Io
+    where
+        Self: 'a;
+    /// Opens a TCP connection to `broker`:`port`; `None` (logged by the board) if it could not.
+    async fn connect(&mut self, broker: [u8; 4], port: u16) -> Option<Self::Io<'_>>;
+    /// Closes the connection the last [`connect`](Self::connect) opened, if it is still open
+    /// (the session was dropped: the settings changed), so that the broker gives the will at
+    /// once. A connection that closes itself when dropped has nothing to do.
+    async fn close(&mut self) {}
+}
+
+/// The board's side of the service beyond the connection.
+pub struct Board {
+    /// Milliseconds since 1970, or `None` before the module has a time (`time` in payloads).
+    pub time_ms: fn() -> Option<u64>,
+    /// Settings that override the stored ones (the simulator's `--mqtt`).
+    pub imposed: Option<Config>,
+}
+
+/// Serves MQTT for ever (see the module's documentation).
+pub async fn run<A: RegisterMap + SettingsAccess, F: NorFlash, C: Connector>(
+    board: Board,
+    connector: &mut C,
+    map: &'static Shared<A>,
+    store: &'static Store<F, A::Settings>,
+    identity: Identity,
+) -> ! {
+    loop {
+        let config = match &board.imposed {
+            Some(config) => config.clone(),
+            None => store.lock().await.service_record::<Config>(key::MQTT).await,
+        };
+        if !config.on {
+            info!("mqtt: off");
+        } else if config.tls {
+            warn!("mqtt: TLS needs the broker's CA certificate, which cannot be stored yet: not connected");
+        } else {
+            match select(sessions(&config, board.time_ms, connector, map, identity), CHANGED.wait()).await {
+                Either::First(never) => match never {},
+                Either::Second(()) => info!("mqtt: the settings changed: starting again"),
+            }
+            connector.close().await;
+            continue;
+        }
+        CHANGED.wait().await;
+    }
+}
+
+/// One configuration's sessions, reconnecting for ever.
+async fn sessions<A: RegisterMap, C: Connector>(
+    config: &Config,
+    time_ms: fn() -> Option<u64>,
+    connector: &mut C,
+    map: &'static Shared<A>,
+    identity: Identity,
+) -> core::convert::Infallible {
+    let prefix = if config.prefix.is_empty() {
+        topics::default_prefix(identity.model, identity.mac)
+    } else {
+        config.prefix.clone()
+    };
+    let status = topics::leaf(&prefix, "status");
+    let mut client_id = config.client_id.clone();
+    if client_id.is_empty() {
+        let mut digits = [0u8; 12];
+        let mac = remodaq_protocol::web::hex(&identity.mac, &mut digits).unwrap_or("");
+        // 8 + 12 characters: within MAX_CLIENT_ID.
+        let _ = write!(client_id, "remodaq-{mac}");
+    }
+    let (mut rx, mut tx) = ([0u8; RX_BUFFER], [0u8; TX_BUFFER]);
+    let qos = if config.at_least_once { QoS::AtLeastOnce } else { QoS::AtMostOnce };
+    let will = Will::new(&status, OFFLINE.as_bytes(), &[]).map(|w| w.retained().qos(qos));
+    let built = ConfigBuilder::new(Buffers::new(&mut rx, &mut tx))
+        .client_id(&client_id)
+        .map(|c| c.keepalive_interval(KEEP_ALIVE_S).session_expiry_interval(SESSION_EXPIRY_S));
+    let Some(built) = built.ok().and_then(|c| will.ok().and_then(|w| c.will(w).ok())) else {
+        error!("mqtt: the session's configuration was refused");
+        return core::future::pending().await;
+    };
+    let mut session = Session::new(built);
+    let settings = Settings {
+        prefix: &prefix,
+        period_ms: config.period_ms,
+        at_least_once: config.at_least_once,
+        commands: config.commands,
+    };
+    let options = Options { deadbands: config.deadbands, on_change: config.on_change, broker: config.broker };
+    let mut module = MapModule {
+        map,
+        model: identity.model,
+        firmware: identity.version,
+        mac: identity.mac,
+        uptime_s: || Instant::now().as_secs(),
+        time_ms,
+        options,
+        refusals: [0; 3],
+        last: Default::default(),
+    };
+    let mut schedules = [Point::new(); POINTS];
+    let mut back_off = BACK_OFF_MIN;
+    let [a, b, c, d] = config.broker;
+    info!("mqtt: publishing to {}.{}.{}.{}:{} under {}", a, b, c, d, config.port, prefix.as_str());
+    loop {
+        match connector.connect(config.broker, config.port).await {
+            Some(io) => {
+                let ended = serve(&mut session, io, &settings, &mut module, &mut schedules).await;
+                warn!("mqtt: the connection to the broker ended ({})", ended.as_str());
+                back_off = BACK_OFF_MIN;
+            }
+            None => warn!("mqtt: the broker could not be reached"),
+        }
+        Timer::after(back_off).await;
+        back_off = (back_off * 2).min(BACK_OFF_MAX);
+    }
+}

@@ -1,0 +1,64 @@
+#!/usr/bin/env python3
+"""MQTT's part of an STM32 image (issue #40, docs/mqtt.md "Sizes").
+
+Usage: mqtt_part.py LABEL WITH_ELF WITHOUT_ELF
+
+The part is the difference between the image as shipped (feature `mqtt`, the default) and the
+same image built without it (`--no-default-features --features board-stm32,web`), counted as
+scripts/size-report counts an image (web_part.py's `totals`). Then what each piece takes, in
+the image with MQTT: code by the source file each instruction came from (web_part.py's
+`code_by_file`): the client (minimq), TLS (embedded-tls and its cryptography: none while the
+embassy-net boards connect in plain TCP), the service (services/mqtt/src, the settings' record
+in shared/src/mqtt.rs); RAM: the MQTT task's pool (the static named `mqtt::POOL`: its socket
+and session buffers), and the rest (the stack's socket for it).
+
+Prints one line per piece, then `mqtt-part: LABEL FLASH RAM SERVICE_CODE` for
+scripts/size-report.
+"""
+
+import re
+import subprocess
+import sys
+
+from web_part import code_by_file, totals
+
+TLS_CRATES = ("embedded-tls", "p256", "elliptic-curve", "primeorder", "aes-gcm", "aes", "ghash", "sha2",
+              "hkdf", "hmac", "der", "x509", "rustpki", "signature", "ecdsa")
+
+
+def piece_of(path):
+    if re.search(r"/minimq-[0-9][^/]*/", path):
+        return "client"
+    if any(re.search(rf"/{c}-[0-9][^/]*/", path) for c in TLS_CRATES) or path.endswith("services/mqtt/src/tls.rs"):
+        return "tls"
+    if "services/mqtt/src/" in path or path.endswith("shared/src/mqtt.rs"):
+        return "service"
+    return None
+
+
+def pool(elf):
+    """Bytes of the MQTT task's pool (its mangled name holds `4mqtt4POOL`)."""
+    out = subprocess.run(["nm", "-S", elf], capture_output=True, text=True, check=True).stdout
+    return sum(int(p[1], 16) for p in (line.split() for line in out.splitlines()) if len(p) == 4 and "4mqtt4POOL" in p[3])
+
+
+def main():
+    label, with_mqtt, without = sys.argv[1:4]
+    (f1, r1), (f0, r0) = totals(with_mqtt), totals(without)
+    flash, ram = f1 - f0, r1 - r0
+    code = {"client": 0, "tls": 0, "service": 0}
+    for path, n in code_by_file(with_mqtt).items():
+        piece = piece_of(path)
+        if piece:
+            code[piece] += n
+    tasks = pool(with_mqtt)
+    print(f"MQTT part of {label}: flash {flash} B, RAM {ram} B (the image with MQTT less the image without)")
+    print(f"  code: client (minimq) {code['client']} B; TLS {code['tls']} B; the service (services/mqtt, "
+          f"its settings' record) {code['service']} B; the rest of the flash (library code inlined, strings, "
+          f"the web console's MQTT resource) {flash - sum(code.values())} B")
+    print(f"  RAM: the MQTT task's pool {tasks} B (socket and session buffers); the rest {ram - tasks} B")
+    print(f"mqtt-part: {label} {flash} {ram} {code['service']}")
+
+
+if __name__ == "__main__":
+    main()
