@@ -113,6 +113,40 @@ fn published_values_are_modbus_reads_and_commands_apply() {
         assert!(Instant::now() < deadline, "DO3's state never published on: {payload}");
     }
 
+    // The diagnostics (docs/diagnostics.md, 40328-40333): connected, one session; then a
+    // malformed command, an oversized one (refused, counted, DO2 unchanged) and one for an
+    // output the module has not (ignored, counted).
+    assert_eq!(
+        mqtt_diagnostics(modbus_port),
+        [2, 1, 0, 0, 0, 0],
+        "state, sessions, failures, malformed, refused, ignored"
+    );
+    let oversized = format!(r#"{{"level": true, "pad": "{}"}}"#, "x".repeat(200));
+    for (topic, payload) in
+        [("do/2/set", r#"{"level": 1}"#), ("do/2/set", oversized.as_str()), ("do/9/set", r#"{"level": true}"#)]
+    {
+        let ok = Command::new("mosquitto_pub")
+            .args([
+                "-h",
+                "127.0.0.1",
+                "-p",
+                &broker.port.to_string(),
+                "-t",
+                &format!("{PREFIX}/{topic}"),
+                "-m",
+                payload,
+            ])
+            .status()
+            .expect("mosquitto_pub");
+        assert!(ok.success());
+    }
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while mqtt_diagnostics(modbus_port)[3..] != [2, 0, 1] {
+        assert!(Instant::now() < deadline, "the refusals counted: {:?}", mqtt_diagnostics(modbus_port));
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert_eq!(modbus(modbus_port, &[0x01, 0x00, 0x12, 0x00, 0x01]), [0x01, 0x01, 0x00], "DO2 unchanged");
+
     // The broker restarted (down 2 s, nothing kept): the module connects again after its
     // back-off, says online again, and publishes its current values (DI5 in frequency mode,
     // DO3 on) to the new subscriber.
@@ -128,7 +162,17 @@ fn published_values_are_modbus_reads_and_commands_apply() {
     let do3 = sub.next_on(&format!("{PREFIX}/do/3"), Duration::from_secs(3)).expect("DO3 again").1;
     assert_eq!(field(&do3, "state"), Some("true"), "{do3}");
     eprintln!("online again {:?} after the broker came back", back.elapsed());
+    // A second session; the broken one (and any attempt while the broker was down) counted.
+    let d = mqtt_diagnostics(modbus_port);
+    assert!(d[0] == 2 && d[1] == 2 && d[2] >= 1, "state, sessions, failures: {d:?}");
     drop(module);
+}
+
+/// MQTT's diagnostics registers, 40328-40333 (PDU 0147h-014Ch, docs/diagnostics.md).
+fn mqtt_diagnostics(port: u16) -> [u16; 6] {
+    let answer = modbus(port, &[0x03, 0x01, 0x47, 0x00, 0x06]);
+    assert_eq!(answer[..2], [0x03, 12], "{answer:02x?}");
+    core::array::from_fn(|i| u16::from_be_bytes([answer[2 + 2 * i], answer[3 + 2 * i]]))
 }
 
 /// MQTT's settings set through the web console (`PUT /api/v1/mqtt`, docs/mqtt.md): refused

@@ -40,6 +40,40 @@ pub const REG_PATTERN_UNDERRUNS: u16 = 0x0144;
 pub const REG_OUTPUT_LATENCY: u16 = 0x0145;
 /// 40327: the longest such latency since start, µs (65535 or more reads 65535).
 pub const REG_OUTPUT_LATENCY_WORST: u16 = 0x0146;
+/// 40328-40333: MQTT (docs/mqtt.md): its state ([`mqtt`]), then counters since start, 16 bits,
+/// wrapping: sessions established, connections that failed or broke, commands refused as
+/// malformed or oversized, commands refused by the module's checks, commands ignored (commands
+/// off, or the topic names no output).
+pub const REG_MQTT: u16 = 0x0147;
+
+/// MQTT's registers, from [`REG_MQTT`]: which is which, and the state's values.
+pub mod mqtt {
+    /// The state (40328).
+    pub const STATE: u8 = 0;
+    /// Sessions established (40329).
+    pub const SESSIONS: u8 = 1;
+    /// Connections that failed (the broker not reached, the session refused) or broke (40330).
+    pub const FAILURES: u8 = 2;
+    /// Commands refused: malformed or oversized (40331).
+    pub const MALFORMED: u8 = 3;
+    /// Commands refused by the module's checks: the register map's, the tripped host watchdog
+    /// (40332).
+    pub const REFUSED: u8 = 4;
+    /// Commands ignored: commands off, or the topic names no output (40333).
+    pub const IGNORED: u8 = 5;
+    /// How many registers.
+    pub const REGISTERS: u16 = 6;
+
+    /// State: off (no socket for it).
+    pub const OFF: u16 = 0;
+    /// State: connecting, or waiting to try again.
+    pub const CONNECTING: u16 = 1;
+    /// State: connected, publishing.
+    pub const CONNECTED: u16 = 2;
+    /// State: on, but its settings cannot be used (TLS without a CA certificate stored): not
+    /// connecting.
+    pub const UNUSABLE: u16 = 3;
+}
 
 /// Security flag bits (register 40249).
 pub mod security {
@@ -139,6 +173,8 @@ pub enum Diag {
     OutputLatency,
     /// The longest output command latency, µs.
     OutputLatencyWorst,
+    /// MQTT's register `n` ([`mqtt`]).
+    Mqtt(u8),
 }
 
 /// The diagnostics register at `addr` (4X table), if it is one.
@@ -163,6 +199,7 @@ pub fn decode(addr: u16) -> Option<Diag> {
         REG_PATTERN_UNDERRUNS => Diag::PatternUnderruns,
         REG_OUTPUT_LATENCY => Diag::OutputLatency,
         REG_OUTPUT_LATENCY_WORST => Diag::OutputLatencyWorst,
+        a if (REG_MQTT..REG_MQTT + mqtt::REGISTERS).contains(&a) => Diag::Mqtt((a - REG_MQTT) as u8),
         _ => return None,
     })
 }
@@ -188,6 +225,7 @@ impl Diag {
             Diag::PatternUnderruns => REG_PATTERN_UNDERRUNS,
             Diag::OutputLatency => REG_OUTPUT_LATENCY,
             Diag::OutputLatencyWorst => REG_OUTPUT_LATENCY_WORST,
+            Diag::Mqtt(n) => REG_MQTT + u16::from(n),
         }
     }
 }
@@ -199,8 +237,8 @@ mod tests {
     #[test]
     fn the_registers_of_extensions_1_and_the_security_events() {
         let mapped: std::vec::Vec<u16> = (0..=u16::MAX).filter(|a| decode(*a).is_some()).collect();
-        // 40241-40248 (extensions §1), 40249-40256 and 40321-40327 (docs/diagnostics.md).
-        let expected = (40241..=40256).chain(40321..=40327).map(|r| r - 40001);
+        // 40241-40248 (extensions §1), 40249-40256 and 40321-40333 (docs/diagnostics.md).
+        let expected = (40241..=40256).chain(40321..=40333).map(|r| r - 40001);
         assert_eq!(mapped, expected.collect::<std::vec::Vec<_>>());
         for a in mapped {
             assert_eq!(decode(a).map(Diag::addr), Some(a));

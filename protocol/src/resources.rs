@@ -131,6 +131,12 @@ pub const DIAGNOSTICS: Resource = Resource {
         shown("pattern_underruns", diag::REG_PATTERN_UNDERRUNS, Format::Word),
         shown("output_latency_us", diag::REG_OUTPUT_LATENCY, Format::Word),
         shown("output_latency_worst_us", diag::REG_OUTPUT_LATENCY_WORST, Format::Word),
+        shown("mqtt_state", diag::REG_MQTT, Format::Word),
+        shown("mqtt_sessions", diag::REG_MQTT + 1, Format::Word),
+        shown("mqtt_failures", diag::REG_MQTT + 2, Format::Word),
+        shown("mqtt_commands_malformed", diag::REG_MQTT + 3, Format::Word),
+        shown("mqtt_commands_refused", diag::REG_MQTT + 4, Format::Word),
+        shown("mqtt_commands_ignored", diag::REG_MQTT + 5, Format::Word),
     ],
 };
 

@@ -6,7 +6,7 @@
 use core::sync::atomic::{AtomicU16, AtomicU32, Ordering};
 
 use embassy_time::Instant;
-pub use remodaq_protocol::diag::{reset_cause, security, status, Diag};
+pub use remodaq_protocol::diag::{mqtt, reset_cause, security, status, Diag};
 use remodaq_protocol::Word;
 
 /// Why this run started (register 40244).
@@ -61,6 +61,7 @@ pub struct Diagnostics {
     pattern_underruns: AtomicU16,
     output_latency: AtomicU16,
     output_latency_worst: AtomicU16,
+    mqtt: [AtomicU16; mqtt::REGISTERS as usize],
 }
 
 /// Two 32-bit atomics (the update key's fingerprint: no 64-bit atomics on the Cortex-M4).
@@ -89,6 +90,7 @@ impl Diagnostics {
             pattern_underruns: AtomicU16::new(0),
             output_latency: AtomicU16::new(0),
             output_latency_worst: AtomicU16::new(0),
+            mqtt: [const { AtomicU16::new(0) }; mqtt::REGISTERS as usize],
         }
     }
 
@@ -163,6 +165,18 @@ impl Diagnostics {
         self.output_latency_worst.fetch_max(us, Ordering::Relaxed);
     }
 
+    /// MQTT's state (register 40328, [`mqtt::OFF`] ...).
+    pub fn mqtt_state(&self, state: u16) {
+        self.mqtt[usize::from(mqtt::STATE)].store(state, Ordering::Relaxed);
+    }
+
+    /// One more of MQTT's events `n` ([`mqtt::SESSIONS`] ..., registers 40329-40333).
+    pub fn mqtt_event(&self, n: u8) {
+        if let Some(counter) = self.mqtt.get(usize::from(n)).filter(|_| n != mqtt::STATE) {
+            counter.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
     /// A request was answered (`exception`: with an exception response).
     pub fn answered(&self, exception: bool) {
         self.requests.fetch_add(1, Ordering::Relaxed);
@@ -215,6 +229,7 @@ impl Diagnostics {
             Diag::PatternUnderruns => self.pattern_underruns.load(Ordering::Relaxed),
             Diag::OutputLatency => self.output_latency.load(Ordering::Relaxed),
             Diag::OutputLatencyWorst => self.output_latency_worst.load(Ordering::Relaxed),
+            Diag::Mqtt(n) => self.mqtt.get(usize::from(n)).map_or(0, |r| r.load(Ordering::Relaxed)),
             Diag::UpdateKey(i) => {
                 let half = self.update_key.0[usize::from(i / 2) % 2].load(Ordering::Relaxed);
                 if i % 2 == 0 {

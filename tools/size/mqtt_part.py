@@ -5,9 +5,9 @@ Usage: mqtt_part.py LABEL WITH_ELF WITHOUT_ELF
 
 The part is the difference between the image as shipped (feature `mqtt`, the default) and the
 same image built without it (`--no-default-features --features board-stm32,web`), counted as
-scripts/size-report counts an image (web_part.py's `totals`). Then what each piece takes, in
-the image with MQTT: code by the source file each instruction came from (web_part.py's
-`code_by_file`): the client (minimq), TLS (embedded-tls and its cryptography: none while the
+scripts/size-report counts an image (web_part.py's `totals`). Then what each piece adds: code by
+the source file each instruction came from (web_part.py's `code_by_file`), in the image with
+MQTT less the same files' in the image without: the client (minimq), TLS (embedded-tls and its cryptography: none while the
 embassy-net boards connect in plain TCP), the service (services/mqtt/src, the settings' record
 in shared/src/mqtt.rs); RAM: the MQTT task's pool (the static named `mqtt::POOL`: its socket
 and session buffers), and the rest (the stack's socket for it).
@@ -46,11 +46,14 @@ def main():
     label, with_mqtt, without = sys.argv[1:4]
     (f1, r1), (f0, r0) = totals(with_mqtt), totals(without)
     flash, ram = f1 - f0, r1 - r0
+    # Each piece's code in the image with MQTT less the same files' in the image without (the
+    # cryptography TLS shares with the other services is in both).
     code = {"client": 0, "tls": 0, "service": 0}
-    for path, n in code_by_file(with_mqtt).items():
-        piece = piece_of(path)
-        if piece:
-            code[piece] += n
+    for elf, sign in ((with_mqtt, 1), (without, -1)):
+        for path, n in code_by_file(elf).items():
+            piece = piece_of(path)
+            if piece:
+                code[piece] += sign * n
     tasks = pool(with_mqtt)
     print(f"MQTT part of {label}: flash {flash} B, RAM {ram} B (the image with MQTT less the image without)")
     print(f"  code: client (minimq) {code['client']} B; TLS {code['tls']} B; the service (services/mqtt, "

@@ -432,7 +432,6 @@ fn mqtt(m: &Module) -> remodaq_mqtt::points::MapModule<'_, NoopRawMutex, Map8350
         uptime_s: || 0,
         time_ms: || None,
         options: remodaq_mqtt::points::Options { deadbands: [0; 8], on_change: true, broker: [127, 0, 0, 1] },
-        refusals: [0; 3],
         last: Default::default(),
     }
 }

@@ -15,8 +15,9 @@ use remodaq_shared::warn;
 
 use crate::service::{run, Board, Connector, KEEP_ALIVE_S};
 
-/// The socket's buffers: a publication is at most about 400 bytes, a command at most 128.
-const SOCKET_RX: usize = 1024;
+/// The socket's buffers: what the module sends (publications of at most about 350 bytes) is
+/// most; what it receives is acknowledgments and the odd command.
+const SOCKET_RX: usize = 512;
 const SOCKET_TX: usize = 1024;
 
 /// Opens connections to the broker on an embassy-net stack, one at a time through one socket,

@@ -54,8 +54,6 @@ pub struct MapModule<'a, R: RawMutex, M: RegisterMap> {
     pub time_ms: fn() -> Option<u64>,
     /// The publication's options.
     pub options: Options,
-    /// Commands refused, by why (for the diagnostics).
-    pub refusals: [u32; 3],
     /// What [`Module::read`] read last, for [`Module::payload`].
     pub last: Last,
 }
@@ -263,11 +261,11 @@ impl<R: RawMutex, M: RegisterMap> Module for MapModule<'_, R, M> {
     }
 
     fn refused(&mut self, why: Refused) {
-        let i = match why {
-            Refused::Payload(_) => 0,
-            Refused::Module => 1,
-            Refused::NotTaken => 2,
-        };
-        self.refusals[i] = self.refusals[i].saturating_add(1);
+        use remodaq_shared::diagnostics::{mqtt, DIAGNOSTICS};
+        DIAGNOSTICS.mqtt_event(match why {
+            Refused::Payload(_) => mqtt::MALFORMED,
+            Refused::Module => mqtt::REFUSED,
+            Refused::NotTaken => mqtt::IGNORED,
+        });
     }
 }

@@ -13,6 +13,7 @@ use embassy_time::{Duration, Instant, Timer};
 use embedded_storage_async::nor_flash::NorFlash;
 use minimq::{Buffers, ConfigBuilder, Io, QoS, Session, Will};
 use remodaq_shared::board::Shared;
+use remodaq_shared::diagnostics::{mqtt, DIAGNOSTICS};
 use remodaq_shared::identity::Identity;
 use remodaq_shared::modbus::RegisterMap;
 use remodaq_shared::module::{SettingsAccess, Store};
@@ -35,11 +36,13 @@ pub const KEEP_ALIVE_S: u16 = 10;
 /// How long the broker keeps the session (and the QoS 1 publications in flight) after the link
 /// breaks, s.
 const SESSION_EXPIRY_S: u32 = 300;
-/// The session's receive buffer (a command is at most [`crate::command::MAX_COMMAND`] bytes).
-pub const RX_BUFFER: usize = 1024;
+/// The session's receive buffer: a command is at most [`crate::command::MAX_COMMAND`] bytes and
+/// its topic at most 76; a larger one, up to this, is read and refused (counted).
+pub const RX_BUFFER: usize = 768;
 /// The session's transmit buffer: the packets being written and the QoS 1 publications in
-/// flight, until the broker acknowledges them.
-pub const TX_BUFFER: usize = 4096;
+/// flight (minimq keeps at most 8, each at most about 350 bytes), until the broker acknowledges
+/// them.
+pub const TX_BUFFER: usize = 2048;
 /// A schedule per point: the most a module has (the 8350's 12 DIs and 6 DOs).
 const POINTS: usize = 18;
 
@@ -80,10 +83,13 @@ pub async fn run<A: RegisterMap + SettingsAccess, F: NorFlash, C: Connector>(
             None => store.lock().await.service_record::<Config>(key::MQTT).await,
         };
         if !config.on {
+            DIAGNOSTICS.mqtt_state(mqtt::OFF);
             info!("mqtt: off");
         } else if config.tls {
+            DIAGNOSTICS.mqtt_state(mqtt::UNUSABLE);
             warn!("mqtt: TLS needs the broker's CA certificate, which cannot be stored yet: not connected");
         } else {
+            DIAGNOSTICS.mqtt_state(mqtt::CONNECTING);
             match select(sessions(&config, board.time_ms, connector, map, identity), CHANGED.wait()).await {
                 Either::First(never) => match never {},
                 Either::Second(()) => info!("mqtt: the settings changed: starting again"),
@@ -142,7 +148,6 @@ async fn sessions<A: RegisterMap, C: Connector>(
         uptime_s: || Instant::now().as_secs(),
         time_ms,
         options,
-        refusals: [0; 3],
         last: Default::default(),
     };
     let mut schedules = [Point::new(); POINTS];
@@ -158,6 +163,8 @@ async fn sessions<A: RegisterMap, C: Connector>(
             }
             None => warn!("mqtt: the broker could not be reached"),
         }
+        DIAGNOSTICS.mqtt_state(mqtt::CONNECTING);
+        DIAGNOSTICS.mqtt_event(mqtt::FAILURES);
         Timer::after(back_off).await;
         back_off = (back_off * 2).min(BACK_OFF_MAX);
     }

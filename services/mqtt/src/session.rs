@@ -9,6 +9,7 @@ use embassy_futures::select::{select, Either};
 use embassy_futures::yield_now;
 use embassy_time::{Duration, Instant, Ticker};
 use minimq::{Connection, Io, Publication, QoS, Session, TopicFilter};
+use remodaq_shared::diagnostics::{mqtt, DIAGNOSTICS};
 
 use crate::command::{Command, Refusal};
 use crate::schedule::Point;
@@ -121,6 +122,8 @@ pub async fn serve<IO: Io, M: Module>(
     schedules: &mut [Point],
 ) -> Ended {
     let Ok(mut conn) = session.connect(io).await else { return Ended::Connect };
+    DIAGNOSTICS.mqtt_state(mqtt::CONNECTED);
+    DIAGNOSTICS.mqtt_event(mqtt::SESSIONS);
     let mut payload = Payload::new();
     module.online(&mut payload);
     let status = topics::leaf(settings.prefix, "status");
