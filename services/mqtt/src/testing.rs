@@ -131,7 +131,7 @@ impl Subscriber {
 
     /// The topics of the messages that arrived and were not read yet (all are taken).
     pub fn pending_topics(&self) -> Vec<String> {
-        self.lines.try_iter().filter_map(|line| line.splitn(3, ' ').nth(1).map(ToString::to_string)).collect()
+        self.lines.try_iter().filter_map(|line| line.split(' ').nth(1).map(ToString::to_string)).collect()
     }
 
     /// Every message on `topic` within `within`.
