@@ -117,7 +117,7 @@ fn published_values_are_modbus_reads_and_commands_apply() {
     // malformed command, an oversized one (refused, counted, DO2 unchanged) and one for an
     // output the module has not (ignored, counted).
     assert_eq!(
-        mqtt_diagnostics(modbus_port),
+        mqtt_diagnostics(modbus_port)[..6],
         [2, 1, 0, 0, 0, 0],
         "state, sessions, failures, malformed, refused, ignored"
     );
@@ -141,7 +141,7 @@ fn published_values_are_modbus_reads_and_commands_apply() {
         assert!(ok.success());
     }
     let deadline = Instant::now() + Duration::from_secs(5);
-    while mqtt_diagnostics(modbus_port)[3..] != [2, 0, 1] {
+    while mqtt_diagnostics(modbus_port)[3..6] != [2, 0, 1] {
         assert!(Instant::now() < deadline, "the refusals counted: {:?}", mqtt_diagnostics(modbus_port));
         std::thread::sleep(Duration::from_millis(50));
     }
@@ -168,10 +168,12 @@ fn published_values_are_modbus_reads_and_commands_apply() {
     drop(module);
 }
 
-/// MQTT's diagnostics registers, 40328-40333 (PDU 0147h-014Ch, docs/diagnostics.md).
-fn mqtt_diagnostics(port: u16) -> [u16; 6] {
-    let answer = modbus(port, &[0x03, 0x01, 0x47, 0x00, 0x06]);
-    assert_eq!(answer[..2], [0x03, 12], "{answer:02x?}");
+/// MQTT's diagnostics registers, 40328-40337 (PDU 0147h-0150h, docs/diagnostics.md): state,
+/// sessions, failures, commands malformed, refused, ignored, TLS without a time, certificates
+/// refused, handshakes failed, credentials refused without TLS.
+fn mqtt_diagnostics(port: u16) -> [u16; 10] {
+    let answer = modbus(port, &[0x03, 0x01, 0x47, 0x00, 0x0A]);
+    assert_eq!(answer[..2], [0x03, 20], "{answer:02x?}");
     core::array::from_fn(|i| u16::from_be_bytes([answer[2 + 2 * i], answer[3 + 2 * i]]))
 }
 
@@ -239,5 +241,164 @@ fn settings_set_through_the_web_console_are_stored_and_in_force_at_once() {
             break;
         }
         assert!(Instant::now() < deadline, "still online after MQTT was switched off");
+    }
+}
+
+/// MQTT over TLS with the settings stored through the web console (issue #40): a broker with
+/// only a TLS listener, a password file and an ACL (its certificates made here by openssl). TLS
+/// without a CA stored: not connecting (40328 = 3). Another CA, then another host name: refused,
+/// counted (40335). The right CA and name without credentials: the broker refuses the session
+/// (40330). With the credentials (sealed on the wire): online, values published over TLS. TLS off
+/// with the credentials stored: not connecting, counted (40337). The whole link captured by
+/// tcpdump (where it runs): TLS records, and neither the password nor a topic in clear.
+#[test]
+fn over_tls_with_stored_settings() {
+    use remodaq_board_host::testing::web::{log_in, request, Page};
+    use remodaq_board_host::testing::SimModule;
+    use remodaq_mqtt::testing::{make_pki, HOST, PASSWORD, USER};
+
+    let broker = Broker::with(|port, dir| {
+        make_pki(dir);
+        std::fs::write(dir.join("acl"), format!("user {USER}\ntopic readwrite test/tls/#\n")).expect("acl");
+        let d = dir.display();
+        format!(
+            "listener {port} 127.0.0.1\ncafile {d}/ca.pem\ncertfile {d}/server.pem\nkeyfile {d}/server.key\n\
+             allow_anonymous false\npassword_file {d}/passwords\nacl_file {d}/acl\n"
+        )
+    });
+    let capture = Capture::start(broker.port, &broker.dir.join("link.pcap"));
+    let flash = broker.dir.join("module.flash");
+    let module = SimModule::start_with(BIN, &flash, &["--listen", "127.0.0.1:0", "--http", "127.0.0.1:0"]);
+    let (web, modbus_port) = (module.web.expect("the web console"), module.addr.port());
+    let mut page = log_in(web, "remodaq").unwrap_or_else(|a| panic!("login: {} {}", a.status, a.body));
+    assert_eq!(page.change_password(web, "plant password", [9; 16]).status, 204);
+    let mut page = log_in(web, "plant password").unwrap_or_else(|a| panic!("login: {} {}", a.status, a.body));
+    let put = |page: &mut Page, target: &str, body: &str| {
+        let answer = request(web, "PUT", target, &page.sign("PUT", target, body), body);
+        assert_eq!(answer.status, 204, "{target}: {}", answer.body);
+    };
+    let settings = |tls: bool, host: &str| {
+        format!(
+            r#"{{"on":true,"broker":"127.0.0.1","host":"{host}","port":{},"client_id":"","tls":{tls},"prefix":"test/tls",
+            "period_ms":1000,"qos":1,"deadbands":[0,0,0,0,0,0,0,0],"on_change":true,"commands":false}}"#,
+            broker.port
+        )
+    };
+    let pem = |name: &str| {
+        let text = std::fs::read_to_string(broker.dir.join(name)).expect("a PEM");
+        format!(r#"{{"pem":"{}"}}"#, text.trim().replace('\n', " "))
+    };
+    let until = |what: &str, ok: &dyn Fn(&[u16; 10]) -> bool| {
+        let deadline = Instant::now() + Duration::from_secs(20);
+        loop {
+            let d = mqtt_diagnostics(modbus_port);
+            if ok(&d) {
+                return d;
+            }
+            assert!(Instant::now() < deadline, "{what}: diagnostics {d:?}");
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    };
+
+    put(&mut page, "/api/v1/mqtt", &settings(true, HOST));
+    until("TLS without a CA: not usable", &|d| d[0] == 3);
+    let not_json = request(
+        web,
+        "PUT",
+        "/api/v1/mqtt/ca",
+        &page.sign("PUT", "/api/v1/mqtt/ca", r#"{"pem":"x"}"#),
+        r#"{"pem":"x"}"#,
+    );
+    assert_eq!(not_json.status, 422, "{}", not_json.body);
+    put(&mut page, "/api/v1/mqtt/ca", &pem("other.pem"));
+    until("another CA: the certificate refused", &|d| d[7] >= 1);
+    put(&mut page, "/api/v1/mqtt/ca", &pem("ca.pem"));
+    put(&mut page, "/api/v1/mqtt", &settings(true, "other.test"));
+    let before = mqtt_diagnostics(modbus_port)[7];
+    until("another host name: the certificate refused", &|d| d[7] > before);
+    put(&mut page, "/api/v1/mqtt", &settings(true, HOST));
+    let before = mqtt_diagnostics(modbus_port)[2];
+    until("no credentials: the broker refuses the session", &|d| d[2] > before && d[1] == 0);
+    let shown = request(web, "GET", "/api/v1/mqtt", &page.sign("GET", "/api/v1/mqtt", ""), "");
+    assert!(shown.body.contains(r#""ca":true,"credentials":false"#), "{}", shown.body);
+
+    let sub = Subscriber::with_args(
+        broker.port,
+        &[
+            "--cafile",
+            &broker.dir.join("ca.pem").display().to_string(),
+            "--insecure",
+            "-u",
+            USER,
+            "-P",
+            PASSWORD,
+            "-t",
+            "test/tls/#",
+        ],
+    );
+    let sealed = page.put_mqtt_credentials(web, USER, PASSWORD);
+    assert_eq!(sealed.status, 204, "{}", sealed.body);
+    let online = sub.next_on("test/tls/status", Duration::from_secs(20)).expect("online over TLS");
+    assert!(online.1.contains(r#""state":"online""#), "{online:?}");
+    assert!(sub.next_on("test/tls/di/0", Duration::from_secs(5)).is_some(), "a value over TLS");
+    assert_eq!(mqtt_diagnostics(modbus_port)[..2], [2, 1], "connected, one session");
+    let shown = request(web, "GET", "/api/v1/mqtt", &page.sign("GET", "/api/v1/mqtt", ""), "");
+    assert!(shown.body.contains(r#""credentials":true"#) && !shown.body.contains(PASSWORD), "{}", shown.body);
+
+    put(&mut page, "/api/v1/mqtt", &settings(false, HOST));
+    until("credentials without TLS: refused, counted", &|d| d[0] == 3 && d[9] == 1);
+    drop(module);
+    drop(sub);
+
+    match capture.finish() {
+        Some(link) => {
+            let tls_records = link.windows(3).filter(|w| *w == [0x17, 0x03, 0x03]).count();
+            eprintln!("capture: {} bytes of the broker's port, {tls_records} TLS application records", link.len());
+            assert!(tls_records > 10, "TLS application data in the capture");
+            for secret in [PASSWORD.as_bytes(), b"test/tls/status", b"online"] {
+                assert!(
+                    !link.windows(secret.len()).any(|w| w == secret),
+                    "{:?} in clear in the capture",
+                    String::from_utf8_lossy(secret)
+                );
+            }
+        }
+        None => eprintln!("capture: not applicable here (tcpdump could not capture on lo)"),
+    }
+}
+
+/// tcpdump on the loopback interface, the broker's port only, into `file`.
+struct Capture {
+    child: Option<Child>,
+    file: std::path::PathBuf,
+}
+
+impl Capture {
+    fn start(port: u16, file: &std::path::Path) -> Self {
+        let child = Command::new("tcpdump")
+            .args(["-i", "lo", "-U", "-s", "0", "-w"])
+            .arg(file)
+            .args(["tcp", "port", &port.to_string()])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .ok();
+        // tcpdump listens once it has opened the interface.
+        std::thread::sleep(Duration::from_millis(700));
+        Self { child, file: file.to_path_buf() }
+    }
+
+    /// The capture file's bytes, or `None` if tcpdump did not run (no permission).
+    fn finish(mut self) -> Option<Vec<u8>> {
+        let mut child = self.child.take()?;
+        std::thread::sleep(Duration::from_millis(300));
+        // SIGINT: tcpdump writes what it holds and exits.
+        let _ = Command::new("kill").args(["-INT", &child.id().to_string()]).status();
+        let _ = child.wait();
+        let bytes = std::fs::read(&self.file).ok().filter(|b| b.len() > 24)?;
+        let kept = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("mqtt-tls-link.pcap");
+        let _ = std::fs::copy(&self.file, &kept);
+        eprintln!("capture: kept in {}", kept.display());
+        Some(bytes)
     }
 }

@@ -40,10 +40,11 @@ pub const REG_PATTERN_UNDERRUNS: u16 = 0x0144;
 pub const REG_OUTPUT_LATENCY: u16 = 0x0145;
 /// 40327: the longest such latency since start, µs (65535 or more reads 65535).
 pub const REG_OUTPUT_LATENCY_WORST: u16 = 0x0146;
-/// 40328-40333: MQTT (docs/mqtt.md): its state ([`mqtt`]), then counters since start, 16 bits,
+/// 40328-40337: MQTT (docs/mqtt.md): its state ([`mqtt`]), then counters since start, 16 bits,
 /// wrapping: sessions established, connections that failed or broke, commands refused as
 /// malformed or oversized, commands refused by the module's checks, commands ignored (commands
-/// off, or the topic names no output).
+/// off, or the topic names no output), TLS not tried for want of a time, the broker's
+/// certificate refused, TLS handshakes failed otherwise, credentials refused with TLS off.
 pub const REG_MQTT: u16 = 0x0147;
 
 /// MQTT's registers, from [`REG_MQTT`]: which is which, and the state's values.
@@ -61,8 +62,17 @@ pub mod mqtt {
     pub const REFUSED: u8 = 4;
     /// Commands ignored: commands off, or the topic names no output (40333).
     pub const IGNORED: u8 = 5;
+    /// TLS connections not tried: the module has no time yet (40334).
+    pub const NO_TIME: u8 = 6;
+    /// TLS connections refused: the broker's certificate (another CA, another host name, not
+    /// valid now) (40335).
+    pub const CERTIFICATE: u8 = 7;
+    /// TLS handshakes that failed otherwise (40336).
+    pub const HANDSHAKE: u8 = 8;
+    /// Settings refused: credentials set with TLS off (they would cross in clear) (40337).
+    pub const PLAIN_CREDENTIALS: u8 = 9;
     /// How many registers.
-    pub const REGISTERS: u16 = 6;
+    pub const REGISTERS: u16 = 10;
 
     /// State: off (no socket for it).
     pub const OFF: u16 = 0;
@@ -70,8 +80,8 @@ pub mod mqtt {
     pub const CONNECTING: u16 = 1;
     /// State: connected, publishing.
     pub const CONNECTED: u16 = 2;
-    /// State: on, but its settings cannot be used (TLS without a CA certificate stored): not
-    /// connecting.
+    /// State: on, but its settings cannot be used (TLS without a CA certificate stored, or in an
+    /// image without TLS; credentials with TLS off): not connecting.
     pub const UNUSABLE: u16 = 3;
 }
 
@@ -237,8 +247,8 @@ mod tests {
     #[test]
     fn the_registers_of_extensions_1_and_the_security_events() {
         let mapped: std::vec::Vec<u16> = (0..=u16::MAX).filter(|a| decode(*a).is_some()).collect();
-        // 40241-40248 (extensions §1), 40249-40256 and 40321-40333 (docs/diagnostics.md).
-        let expected = (40241..=40256).chain(40321..=40333).map(|r| r - 40001);
+        // 40241-40248 (extensions §1), 40249-40256 and 40321-40337 (docs/diagnostics.md).
+        let expected = (40241..=40256).chain(40321..=40337).map(|r| r - 40001);
         assert_eq!(mapped, expected.collect::<std::vec::Vec<_>>());
         for a in mapped {
             assert_eq!(decode(a).map(Diag::addr), Some(a));

@@ -137,6 +137,10 @@ pub const DIAGNOSTICS: Resource = Resource {
         shown("mqtt_commands_malformed", diag::REG_MQTT + 3, Format::Word),
         shown("mqtt_commands_refused", diag::REG_MQTT + 4, Format::Word),
         shown("mqtt_commands_ignored", diag::REG_MQTT + 5, Format::Word),
+        shown("mqtt_tls_no_time", diag::REG_MQTT + 6, Format::Word),
+        shown("mqtt_tls_certificate", diag::REG_MQTT + 7, Format::Word),
+        shown("mqtt_tls_handshake", diag::REG_MQTT + 8, Format::Word),
+        shown("mqtt_plain_credentials", diag::REG_MQTT + 9, Format::Word),
     ],
 };
 

@@ -29,6 +29,36 @@ use crate::auth::{hmac, KEY_LEN, NONCE_LEN};
 /// docs/web.md writes it tag("...").
 pub const PASSWORD_SEAL_LABEL: &[u8] = crate::domain_tag!(b"RDAQ web new credential");
 
+/// The context's domain tag of MQTT's credentials sealed by a client (the module's public key
+/// follows), as a new password is sealed ([`PASSWORD_SEAL_LABEL`]).
+pub const MQTT_CREDENTIALS_LABEL: &[u8] = crate::domain_tag!(b"RDAQ web mqtt credentials");
+/// The longest MQTT user name and password, bytes.
+pub const MQTT_USER_MAX: usize = 32;
+/// See [`MQTT_USER_MAX`].
+pub const MQTT_PASSWORD_MAX: usize = 64;
+/// Bytes of MQTT's credentials as sealed: the user name's length, the name padded with zeros to
+/// [`MQTT_USER_MAX`], the password's length, the password padded to [`MQTT_PASSWORD_MAX`].
+pub const MQTT_CREDENTIALS_LEN: usize = 2 + MQTT_USER_MAX + MQTT_PASSWORD_MAX;
+
+/// MQTT's credentials as sealed ([`MQTT_CREDENTIALS_LEN`]); `None` if one is too long.
+pub fn mqtt_credentials(user: &str, password: &str) -> Option<[u8; MQTT_CREDENTIALS_LEN]> {
+    let mut out = [0u8; MQTT_CREDENTIALS_LEN];
+    let (u, p) = out.split_at_mut(1 + MQTT_USER_MAX);
+    u[0] = user.len() as u8;
+    u.get_mut(1..1 + user.len())?.copy_from_slice(user.as_bytes());
+    p[0] = password.len() as u8;
+    p.get_mut(1..1 + password.len())?.copy_from_slice(password.as_bytes());
+    Some(out)
+}
+
+/// The user name and password of [`mqtt_credentials`]; `None` if they are not such bytes.
+pub fn mqtt_credentials_of(bytes: &[u8; MQTT_CREDENTIALS_LEN]) -> Option<(&str, &str)> {
+    let (u, p) = bytes.split_at(1 + MQTT_USER_MAX);
+    let user = u.get(1..1 + usize::from(u[0]))?;
+    let password = p.get(1..1 + usize::from(p[0]))?;
+    Some((core::str::from_utf8(user).ok()?, core::str::from_utf8(password).ok()?))
+}
+
 /// HMAC(session key, tag("RDAQ web agreement") || the module's ephemeral public key): signs the
 /// key the module offers a session for a password change.
 pub fn agreement_proof(session_key: &[u8; KEY_LEN], public: &[u8; KEY_LEN]) -> [u8; KEY_LEN] {

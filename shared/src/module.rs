@@ -155,10 +155,39 @@ where
     take_budget(&mut store, Draw::Admin)?;
     let _under_way = CommitUnderWay::begin();
     store.commit_service_record(key, value).await?;
-    if key == crate::settings::key::MQTT {
+    changed(key);
+    Ok(())
+}
+
+/// Commits a service's raw record (`settings::key::MQTT_CA`) as [`commit_service_record`]
+/// commits a record: `fill` writes its bytes (`SettingsStore::fill_raw_record`; `None`: not
+/// usable, [`StoreError::TooLarge`] and nothing drawn), drawn from the administration's budget,
+/// and the service told.
+pub async fn commit_raw_record<F, S>(
+    store: &Store<F, S>,
+    key: u8,
+    version: u8,
+    fill: impl FnOnce(&mut [u8]) -> Option<usize>,
+) -> Result<(), StoreError>
+where
+    F: NorFlash,
+    S: Schema,
+{
+    let mut store = store.lock().await;
+    let len = store.fill_raw_record(version, fill).ok_or(StoreError::TooLarge)?;
+    take_budget(&mut store, Draw::Admin)?;
+    let _under_way = CommitUnderWay::begin();
+    store.commit_raw_record(key, len).await?;
+    changed(key);
+    Ok(())
+}
+
+/// Tells the service whose record `key` was committed.
+fn changed(key: u8) {
+    use crate::settings::key;
+    if [key::MQTT, key::MQTT_CA, key::MQTT_CREDENTIALS].contains(&key) {
         crate::mqtt::CHANGED.signal(());
     }
-    Ok(())
 }
 
 /// The settings a physical factory reset stores: every one back to its factory default but the

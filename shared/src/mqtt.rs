@@ -202,6 +202,91 @@ impl Schema for Config {
     }
 }
 
+/// The longest CA certificate, DER bytes (a raw record, `settings::key::MQTT_CA`).
+pub const MAX_CA: usize = crate::settings::MAX_RAW;
+/// The CA certificate record's version.
+pub const CA_VERSION: u8 = 1;
+
+/// The DER of the first certificate in `pem` (`-----BEGIN CERTIFICATE-----`, base64, `-----END`),
+/// written into `out`; how many bytes, or `None` when there is none or it does not fit. The
+/// base64 may be broken by whitespace: the file's lines, or spaces where they were joined (the
+/// web console's JSON strings have no escapes).
+pub fn der_of_pem(pem: &[u8], out: &mut [u8]) -> Option<usize> {
+    const BEGIN: &[u8] = b"-----BEGIN CERTIFICATE-----";
+    let start = pem.windows(BEGIN.len()).position(|w| w == BEGIN)? + BEGIN.len();
+    let body = &pem[start..];
+    let end = body.windows(5).position(|w| w == b"-----")?;
+    let (mut acc, mut bits, mut n, mut padded) = (0u32, 0u32, 0usize, false);
+    for &c in &body[..end] {
+        let v = match c {
+            b'A'..=b'Z' => c - b'A',
+            b'a'..=b'z' => c - b'a' + 26,
+            b'0'..=b'9' => c - b'0' + 52,
+            b'+' => 62,
+            b'/' => 63,
+            b'=' => {
+                padded = true;
+                continue;
+            }
+            b' ' | b'\n' | b'\r' | b'\t' => continue,
+            _ => return None,
+        };
+        if padded {
+            return None;
+        }
+        acc = (acc << 6) | u32::from(v);
+        bits += 6;
+        if bits >= 8 {
+            bits -= 8;
+            *out.get_mut(n)? = (acc >> bits) as u8;
+            n += 1;
+        }
+    }
+    // A certificate is a DER SEQUENCE.
+    (n > 0 && out[0] == 0x30).then_some(n)
+}
+
+/// The longest user name and password for the broker, bytes.
+pub const MAX_USER: usize = remodaq_protocol::web::MQTT_USER_MAX;
+/// See [`MAX_USER`].
+pub const MAX_PASSWORD: usize = remodaq_protocol::web::MQTT_PASSWORD_MAX;
+
+/// The broker's user name and password (`settings::key::MQTT_CREDENTIALS`): sent only inside
+/// TLS, never shown back. An empty user name: none (anonymous).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Credentials {
+    /// The user name.
+    pub user: heapless::String<MAX_USER>,
+    /// The password.
+    pub password: heapless::String<MAX_PASSWORD>,
+}
+
+const TAG_USER: u8 = 1;
+const TAG_PASSWORD: u8 = 2;
+
+impl Schema for Credentials {
+    const VERSION: u8 = 1;
+
+    fn defaults() -> Self {
+        Self::default()
+    }
+
+    /// None: a module whose credentials cannot be read connects with none (and a broker that
+    /// wants them refuses it).
+    fn unreadable() -> Self {
+        Self::default()
+    }
+
+    fn encode(&self, w: &mut RecordWriter<'_>) {
+        w.put(TAG_USER, self.user.as_bytes());
+        w.put(TAG_PASSWORD, self.password.as_bytes());
+    }
+
+    fn decode(_version: u8, r: &RecordReader<'_>) -> Self {
+        Self { user: string(r, TAG_USER).unwrap_or_default(), password: string(r, TAG_PASSWORD).unwrap_or_default() }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -237,6 +322,41 @@ mod tests {
             let n = encode_record(&c, &mut record).expect("fits a record");
             assert_eq!(decode_record::<Config>(&record[..n]), Some(c));
         }
+    }
+
+    /// A PEM's DER, as a file has it and with its lines joined by spaces; what is not one.
+    #[test]
+    fn a_certificate_from_pem() {
+        // 30 03 02 01 01: SEQUENCE { INTEGER 1 }, base64 "MAMCAQE=".
+        let mut out = [0u8; 8];
+        for pem in [
+            &b"-----BEGIN CERTIFICATE-----\nMAMC\nAQE=\n-----END CERTIFICATE-----\n"[..],
+            b"-----BEGIN CERTIFICATE----- MAMCAQE= -----END CERTIFICATE-----",
+        ] {
+            assert_eq!(der_of_pem(pem, &mut out), Some(5), "{}", std::string::String::from_utf8_lossy(pem));
+            assert_eq!(out[..5], [0x30, 3, 2, 1, 1]);
+        }
+        for junk in [
+            &b"MAMCAQE="[..],
+            b"-----BEGIN CERTIFICATE-----\nMA*CAQE=\n-----END CERTIFICATE-----",
+            b"-----BEGIN CERTIFICATE-----\nAgMCAQE=\n-----END CERTIFICATE-----",
+            b"-----BEGIN CERTIFICATE-----\nMAMCAQEAAAAAAAAA\n-----END CERTIFICATE-----",
+        ] {
+            assert_eq!(der_of_pem(junk, &mut out), None, "{}", std::string::String::from_utf8_lossy(junk));
+        }
+    }
+
+    /// The credentials' round trip; empty when nothing was stored.
+    #[test]
+    fn credentials_round_trip() {
+        let mut record = [0u8; MAX_RECORD];
+        let c = Credentials {
+            user: heapless::String::try_from("u".repeat(MAX_USER).as_str()).unwrap(),
+            password: heapless::String::try_from("p".repeat(MAX_PASSWORD).as_str()).unwrap(),
+        };
+        let n = encode_record(&c, &mut record).expect("fits a record");
+        assert_eq!(decode_record::<Credentials>(&record[..n]), Some(c));
+        assert_eq!(decode_record::<Credentials>(&[0x5D, 0]), Some(Credentials::default()));
     }
 
     /// Docs/mqtt.md's ranges.

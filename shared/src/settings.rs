@@ -26,13 +26,19 @@ const RECORD_KEY: u8 = 1;
 pub mod key {
     /// MQTT's settings (services/mqtt, docs/mqtt.md).
     pub const MQTT: u8 = 2;
+    /// The CA certificate MQTT's TLS checks the broker against (a raw record: DER).
+    pub const MQTT_CA: u8 = 3;
+    /// The MQTT broker's user name and password (never shown back).
+    pub const MQTT_CREDENTIALS: u8 = 4;
     /// Every service record: what a factory reset removes.
-    pub const SERVICES: [u8; 1] = [MQTT];
+    pub const SERVICES: [u8; 3] = [MQTT, MQTT_CA, MQTT_CREDENTIALS];
 }
 /// Largest encoded record.
 pub const MAX_RECORD: usize = 448;
-/// Work buffer: key + record, rounded up to flash words.
-const BUF_LEN: usize = MAX_RECORD + 64;
+/// Largest raw record's bytes ([`SettingsStore::commit_raw_record`]: a CA certificate).
+pub const MAX_RAW: usize = 768;
+/// Work buffer: key + the largest record, rounded up to flash words.
+const BUF_LEN: usize = MAX_RAW + 2 + 64;
 
 /// Builds a record's fields.
 pub struct RecordWriter<'a> {
@@ -244,6 +250,9 @@ impl Retained {
 pub struct SettingsStore<F: NorFlash, S: Schema> {
     map: MapStorage<u8, F, Cache<Uncached, Uncached, Uncached, u8>>,
     buf: Buffer,
+    /// A raw record being written (here rather than in the caller's future: a web connection's
+    /// task would otherwise hold it).
+    raw: [u8; MAX_RAW + 2],
     current: S,
     /// The commit budget of Modbus writes.
     writes: crate::budget::Budget,
@@ -262,6 +271,7 @@ impl<F: NorFlash, S: Schema> SettingsStore<F, S> {
         let mut store = Self {
             map: MapStorage::new(flash, config, Cache::new_uncached()),
             buf: Buffer([0; BUF_LEN]),
+            raw: [0; MAX_RAW + 2],
             current: S::defaults(),
             // Full, as after a power-on; the start-up sets them for its reset cause (`resume`).
             writes: crate::budget::Budget::new(COMMIT_BURST, COMMIT_REFILL_MS),
@@ -409,7 +419,16 @@ impl<F: NorFlash, S: Schema> SettingsStore<F, S> {
 
     /// Stores `record` under `key`, durable on return; the store's error in its class.
     async fn store_record(&mut self, key: u8, record: &[u8]) -> Result<(), StoreError> {
-        match self.map.store_item::<&[u8]>(&mut self.buf.0, &key, &record).await {
+        Self::store_in(&mut self.map, &mut self.buf, key, record).await
+    }
+
+    async fn store_in(
+        map: &mut MapStorage<u8, F, Cache<Uncached, Uncached, Uncached, u8>>,
+        buf: &mut Buffer,
+        key: u8,
+        record: &[u8],
+    ) -> Result<(), StoreError> {
+        match map.store_item::<&[u8]>(&mut buf.0, &key, &record).await {
             Ok(()) => Ok(()),
             Err(sequential_storage::Error::Corrupted { .. }) => {
                 crate::error!("settings: store corrupted during commit");
@@ -451,6 +470,37 @@ impl<F: NorFlash, S: Schema> SettingsStore<F, S> {
         let mut record = [0u8; MAX_RECORD];
         let len = encode_record(value, &mut record).ok_or(StoreError::TooLarge)?;
         let result = self.store_record(key, &record[..len]).await;
+        crate::diagnostics::DIAGNOSTICS.committed(&result);
+        result
+    }
+
+    /// A service's raw record (`key::*`: bytes of its own format, such as a certificate's DER)
+    /// given to `read`: the bytes stored with `version`, or none (nothing stored, another
+    /// version, a store that cannot be read).
+    pub async fn raw_record<R>(&mut self, key: u8, version: u8, read: impl FnOnce(&[u8]) -> R) -> R {
+        match self.map.fetch_item::<&[u8]>(&mut self.buf.0, &key).await {
+            Ok(Some([MAGIC, v, bytes @ ..])) if *v == version && key != RECORD_KEY => read(bytes),
+            _ => read(&[]),
+        }
+    }
+
+    /// Prepares a service's raw record: `fill` writes its bytes (at most [`MAX_RAW`]) and says
+    /// how many, or `None` when its input was not usable; then [`Self::commit_raw_record`]
+    /// commits it, read back by [`Self::raw_record`] with `version`.
+    pub fn fill_raw_record(&mut self, version: u8, fill: impl FnOnce(&mut [u8]) -> Option<usize>) -> Option<usize> {
+        let (head, body) = self.raw.split_at_mut(2);
+        let len = fill(body).filter(|n| *n <= MAX_RAW)?;
+        head.copy_from_slice(&[MAGIC, version]);
+        Some(len)
+    }
+
+    /// Commits under `key` (`key::*`) the raw record [`Self::fill_raw_record`] prepared with
+    /// `len` bytes, durable on return.
+    pub async fn commit_raw_record(&mut self, key: u8, len: usize) -> Result<(), StoreError> {
+        if key == RECORD_KEY || len > MAX_RAW {
+            return Err(StoreError::TooLarge);
+        }
+        let result = Self::store_in(&mut self.map, &mut self.buf, key, &self.raw[..2 + len]).await;
         crate::diagnostics::DIAGNOSTICS.committed(&result);
         result
     }

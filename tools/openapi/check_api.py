@@ -282,8 +282,15 @@ class Client:
             want = [n if "/" in n else n + "/32" for n in body["networks"]]  # a bare address is /32
             return None if shown == want else f"wrote {body['networks']}, shown {shown}"
         if parts == ["mqtt"]:
-            shown = self.get("/api/v1/mqtt", signed=True)
-            return None if shown == body else f"wrote {body}, shown {shown}"
+            shown = self.get("/api/v1/mqtt", signed=True) or {}
+            # Whether a CA and credentials are stored is shown beside the settings, read-only.
+            settings = {k: v for k, v in shown.items() if k not in ("ca", "credentials")}
+            return None if settings == body else f"wrote {body}, shown {shown}"
+        if parts == ["mqtt", "ca"]:
+            stored = (self.get("/api/v1/mqtt", signed=True) or {}).get("ca")
+            return None if stored == bool(body["pem"]) else f"wrote a PEM of {len(body['pem'])} characters, ca {stored}"
+        if parts == ["mqtt", "credentials"]:
+            return None  # sealed: read back by put_mqtt_credentials's callers (GET /mqtt's flag)
         if parts == ["password"]:
             return None  # read back by logging in with the new password (change_password's callers)
         resource, item, field = (parts[0], None, parts[1]) if len(parts) == 2 else parts
@@ -442,12 +449,7 @@ def seal(shared, context, data):
 
 def change_password(c, new):
     """docs/web.md: the module's key (its proof checked), the credential sealed, stored."""
-    status, offer = c.signed("POST", "/api/v1/password/key", expect=200)
-    offer = json.loads(offer)
-    module = bytes.fromhex(offer["public"])
-    proof = hmac.new(c.session[1], tag(b"RDAQ web agreement") + module, hashlib.sha256).hexdigest()
-    if proof != offer["proof"]:
-        raise RuntimeError("the module's key is not signed by the session")
+    module = module_key(c)
     salt, iterations, secret = os.urandom(16), 4096, os.urandom(32)
     salted = hashlib.pbkdf2_hmac("sha256", new.encode(), salt, iterations, 32)
     client_key = hmac.new(salted, b"Client Key", hashlib.sha256).digest()
@@ -457,6 +459,45 @@ def change_password(c, new):
     public = x25519(secret, (9).to_bytes(32, "little"))
     body = json.dumps({"module": module.hex(), "public": public.hex(), "sealed": sealed.hex()}).encode()
     c.signed("PUT", "/api/v1/password", raw=body)
+
+
+def module_key(c):
+    """The module's ephemeral key for a sealed secret (`POST /api/v1/password/key`), its proof
+    checked against the session's key."""
+    status, offer = c.signed("POST", "/api/v1/password/key", expect=200)
+    offer = json.loads(offer)
+    module = bytes.fromhex(offer["public"])
+    proof = hmac.new(c.session[1], tag(b"RDAQ web agreement") + module, hashlib.sha256).hexdigest()
+    if proof != offer["proof"]:
+        raise RuntimeError("the module's key is not signed by the session")
+    return module
+
+
+def put_mqtt_credentials(c, user, password, expect=204):
+    """docs/openapi.yaml MqttCredentials: the name and password laid out and sealed here, as
+    a client does."""
+    module, secret = module_key(c), os.urandom(32)
+    plain = (bytes([len(user)]) + user.encode().ljust(32, b"\0") + bytes([len(password)])
+             + password.encode().ljust(64, b"\0"))
+    sealed = seal(x25519(secret, module), tag(b"RDAQ web mqtt credentials") + module, plain)
+    public = x25519(secret, (9).to_bytes(32, "little"))
+    body = json.dumps({"module": module.hex(), "public": public.hex(), "sealed": sealed.hex()}).encode()
+    c.signed("PUT", "/api/v1/mqtt/credentials", raw=body, expect=expect)
+
+
+# A CA certificate (P-256, made once by openssl for these checks, 393 bytes as DER; any will do:
+# the module only stores it here), its PEM lines joined by spaces as the API takes them.
+CA_PEM = ("-----BEGIN CERTIFICATE----- "
+          "MIIBhTCCASugAwIBAgIUBAAIK0QRcGZtAk4TOpwds6gwuEgwCgYIKoZIzj0EAwIw "
+          "GDEWMBQGA1UEAwwNcmRhcSBhcGkgdGVzdDAeFw0yNjEyMDUxOTExMzZaFw0zNjEy "
+          "MDIxOTExMzZaMBgxFjAUBgNVBAMMDXJkYXEgYXBpIHRlc3QwWTATBgcqhkjOPQIB "
+          "BggqhkjOPQMBBwNCAAQGknrPv05okRuxq86Vn+PFlf/OHbUgc2596Wzaeg0WitjX "
+          "23V/sQ9le/kD8UgsWMufTcvwaQDXXX4t2ZcZ72FKo1MwUTAdBgNVHQ4EFgQUxu4d "
+          "iTmod3WoxOO5eR8N/EWImq0wHwYDVR0jBBgwFoAUxu4diTmod3WoxOO5eR8N/EWI "
+          "mq0wDwYDVR0TAQH/BAUwAwEB/zAKBggqhkjOPQQDAgNIADBFAiEA4nCLcAQn48SV "
+          "PUwZqSKwHwxx7be/xFLh11tL4bIiAbYCIGyuGLhw9hmypsrEbJ3C64T+8s/5F6RI "
+          "2U8BRfaUcGSA "
+          "-----END CERTIFICATE-----")
 
 
 # MQTT settings a test sets (docs/mqtt.md): on, plain, a documentation-only broker address
@@ -486,6 +527,7 @@ def exercise_settings(c):
     c.call("GET", "/api/v1/mqtt", expect=401)
     c.signed("GET", "/api/v1/mqtt", expect=200)
     c.signed("PUT", "/api/v1/mqtt", raw=json.dumps(MQTT).encode(), expect=403)
+    c.signed("PUT", "/api/v1/mqtt/ca", raw=json.dumps({"pem": CA_PEM}).encode(), expect=403)
     # The password: no key asked for (409), junk, a credential that does not unseal (422).
     junk = {"module": "00" * 32, "public": "11" * 32, "sealed": "22" * 84}
     c.signed("PUT", "/api/v1/password", raw=json.dumps(junk).encode(), expect=409)
@@ -512,6 +554,17 @@ def exercise_settings(c):
     c.signed("PUT", "/api/v1/mqtt", raw=b'{"on":true}', expect=400)
     c.signed("PUT", "/api/v1/mqtt", raw=json.dumps(MQTT).encode())
     c.signed("PUT", "/api/v1/mqtt", raw=json.dumps(dict(MQTT, on=False)).encode())
+    c.signed("PUT", "/api/v1/mqtt/ca", raw=b'{"pem":"not a certificate"}', expect=422)
+    c.signed("PUT", "/api/v1/mqtt/ca", raw=b'{"der":"30"}', expect=400)
+    c.signed("PUT", "/api/v1/mqtt/ca", raw=json.dumps({"pem": CA_PEM}).encode())
+    junk = {"module": "00" * 32, "public": "11" * 32, "sealed": "22" * 98}
+    c.signed("PUT", "/api/v1/mqtt/credentials", raw=json.dumps(junk).encode(), expect=409)
+    put_mqtt_credentials(c, "plant-daq", "broker password")
+    shown = json.loads(c.signed("GET", "/api/v1/mqtt", expect=200)[1])
+    if not (shown.get("ca") and shown.get("credentials")) or "broker password" in json.dumps(shown):
+        raise RuntimeError(f"the CA and credentials stored, never shown: {shown}")
+    put_mqtt_credentials(c, "", "")
+    c.signed("PUT", "/api/v1/mqtt/ca", raw=b'{"pem":""}')
     exercise_firmware(c)
     c.call("POST", "/api/v1/restart", expect=401)
 

@@ -1,8 +1,9 @@
 //! MQTT on the simulated module (docs/mqtt.md): the service of `remodaq_mqtt` over std TCP
-//! connections, with MQTT's stored settings; or, with the simulator's `--mqtt ADDR:PORT`, to
-//! that broker whatever is stored (plain and anonymous, the default prefix, a 1 s period, QoS 1,
-//! the 8350's points on change and its commands on), as `--listen` and `--http` override the
-//! stored ports.
+//! connections, with MQTT's stored settings (over TLS with the stored CA certificate and
+//! credentials, the PC's clock as the module's time); or, with the simulator's `--mqtt
+//! ADDR:PORT`, to that broker whatever is stored (plain and anonymous, the default prefix, a 1 s
+//! period, QoS 1, the 8350's points on change and its commands on), as `--listen` and `--http`
+//! override the stored ports.
 
 use std::net::{SocketAddr, SocketAddrV4, TcpStream};
 

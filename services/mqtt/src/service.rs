@@ -3,8 +3,10 @@
 //! board imposes (the simulator's `--mqtt ADDR:PORT`), the [`session`](crate::session) over a
 //! connection the board opens ([`Connector`]: std sockets on the host, an embassy-net socket on
 //! the STM32 and QEMU boards), reconnecting after 1 s, doubling to 30 s, and started again
-//! whenever the settings change (`mqtt::CHANGED`). Off, it opens no socket. TLS needs the CA
-//! certificate, which is not stored yet: settings with TLS on connect nowhere, and say so.
+//! whenever the settings change (`mqtt::CHANGED`). Off, it opens no socket. Over TLS (feature
+//! `tls`) with the CA certificate and the credentials stored beside the settings
+//! (`settings::key::MQTT_CA`, `MQTT_CREDENTIALS`); TLS without a CA, or credentials without TLS,
+//! connect nowhere and say so in the diagnostics.
 
 use core::fmt::Write as _;
 
@@ -17,7 +19,7 @@ use remodaq_shared::diagnostics::{mqtt, DIAGNOSTICS};
 use remodaq_shared::identity::Identity;
 use remodaq_shared::modbus::RegisterMap;
 use remodaq_shared::module::{SettingsAccess, Store};
-use remodaq_shared::mqtt::{Config, CHANGED};
+use remodaq_shared::mqtt::{Config, Credentials, CA_VERSION, CHANGED};
 use remodaq_shared::settings::key;
 use remodaq_shared::{error, info, warn};
 
@@ -69,6 +71,20 @@ pub struct Board {
     pub imposed: Option<Config>,
 }
 
+/// The CA certificate as the service holds it: up to `MAX_CA` bytes where TLS is built, none
+/// in an image without it (whose TLS settings are then not usable).
+#[cfg(feature = "tls")]
+type Ca = heapless::Vec<u8, { remodaq_shared::mqtt::MAX_CA }>;
+#[cfg(not(feature = "tls"))]
+type Ca = heapless::Vec<u8, 0>;
+
+/// TLS's record buffers: 16 KiB + 256 B for reading (TLS's largest record, with its overhead),
+/// 4 KiB for writing (the module's records are small).
+#[cfg(feature = "tls")]
+const TLS_READ: usize = 16_640;
+#[cfg(feature = "tls")]
+const TLS_WRITE: usize = 4_096;
+
 /// Serves MQTT for ever (see the module's documentation).
 pub async fn run<A: RegisterMap + SettingsAccess, F: NorFlash, C: Connector>(
     board: Board,
@@ -77,20 +93,33 @@ pub async fn run<A: RegisterMap + SettingsAccess, F: NorFlash, C: Connector>(
     store: &'static Store<F, A::Settings>,
     identity: Identity,
 ) -> ! {
+    #[cfg(feature = "tls")]
+    crate::tls::BoardClock::set(board.time_ms);
     loop {
-        let config = match &board.imposed {
-            Some(config) => config.clone(),
-            None => store.lock().await.service_record::<Config>(key::MQTT).await,
+        let mut ca = Ca::new();
+        let (config, credentials) = match &board.imposed {
+            Some(config) => (config.clone(), Credentials::default()),
+            None => {
+                let mut store = store.lock().await;
+                let config: Config = store.service_record(key::MQTT).await;
+                store.raw_record(key::MQTT_CA, CA_VERSION, |der| ca.extend_from_slice(der)).await.unwrap_or(());
+                (config, store.service_record::<Credentials>(key::MQTT_CREDENTIALS).await)
+            }
         };
         if !config.on {
             DIAGNOSTICS.mqtt_state(mqtt::OFF);
             info!("mqtt: off");
-        } else if config.tls {
+        } else if config.tls && ca.is_empty() {
             DIAGNOSTICS.mqtt_state(mqtt::UNUSABLE);
-            warn!("mqtt: TLS needs the broker's CA certificate, which cannot be stored yet: not connected");
+            warn!("mqtt: TLS without a CA certificate stored (or in an image without TLS): not connected");
+        } else if !config.tls && !credentials.user.is_empty() {
+            DIAGNOSTICS.mqtt_state(mqtt::UNUSABLE);
+            DIAGNOSTICS.mqtt_event(mqtt::PLAIN_CREDENTIALS);
+            warn!("mqtt: credentials are sent only inside TLS, and TLS is off: not connected");
         } else {
             DIAGNOSTICS.mqtt_state(mqtt::CONNECTING);
-            match select(sessions(&config, board.time_ms, connector, map, identity), CHANGED.wait()).await {
+            let configured = Configured { config: &config, credentials: &credentials, ca: &ca, time_ms: board.time_ms };
+            match select(sessions(&configured, connector, map, identity), CHANGED.wait()).await {
                 Either::First(never) => match never {},
                 Either::Second(()) => info!("mqtt: the settings changed: starting again"),
             }
@@ -101,14 +130,22 @@ pub async fn run<A: RegisterMap + SettingsAccess, F: NorFlash, C: Connector>(
     }
 }
 
+/// What one configuration's sessions use.
+struct Configured<'a> {
+    config: &'a Config,
+    credentials: &'a Credentials,
+    ca: &'a [u8],
+    time_ms: fn() -> Option<u64>,
+}
+
 /// One configuration's sessions, reconnecting for ever.
 async fn sessions<A: RegisterMap, C: Connector>(
-    config: &Config,
-    time_ms: fn() -> Option<u64>,
+    configured: &Configured<'_>,
     connector: &mut C,
     map: &'static Shared<A>,
     identity: Identity,
 ) -> core::convert::Infallible {
+    let Configured { config, credentials, ca, time_ms } = *configured;
     let prefix = if config.prefix.is_empty() {
         topics::default_prefix(identity.model, identity.mac)
     } else {
@@ -127,7 +164,12 @@ async fn sessions<A: RegisterMap, C: Connector>(
     let will = Will::new(&status, OFFLINE.as_bytes(), &[]).map(|w| w.retained().qos(qos));
     let built = ConfigBuilder::new(Buffers::new(&mut rx, &mut tx))
         .client_id(&client_id)
-        .map(|c| c.keepalive_interval(KEEP_ALIVE_S).session_expiry_interval(SESSION_EXPIRY_S));
+        .map(|c| c.keepalive_interval(KEEP_ALIVE_S).session_expiry_interval(SESSION_EXPIRY_S))
+        .and_then(|c| match credentials.user.is_empty() {
+            true => Ok(c),
+            // Only ever inside TLS (`run` refuses credentials with TLS off).
+            false => c.auth(&credentials.user, credentials.password.as_bytes()),
+        });
     let Some(built) = built.ok().and_then(|c| will.ok().and_then(|w| c.will(w).ok())) else {
         error!("mqtt: the session's configuration was refused");
         return core::future::pending().await;
@@ -154,8 +196,41 @@ async fn sessions<A: RegisterMap, C: Connector>(
     let mut back_off = BACK_OFF_MIN;
     let [a, b, c, d] = config.broker;
     info!("mqtt: publishing to {}.{}.{}.{}:{} under {}", a, b, c, d, config.port, prefix.as_str());
+    #[cfg(feature = "tls")]
+    let (mut read, mut write) = ([0u8; TLS_READ], [0u8; TLS_WRITE]);
     loop {
         match connector.connect(config.broker, config.port).await {
+            Some(io) if config.tls => {
+                #[cfg(feature = "tls")]
+                match crate::tls::open::<_, _, crate::tls::BoardClock>(
+                    io,
+                    &mut read,
+                    &mut write,
+                    ca,
+                    &config.host,
+                    crate::tls::ModuleRng,
+                )
+                .await
+                {
+                    Ok(tls) => {
+                        let ended = serve(&mut session, tls, &settings, &mut module, &mut schedules).await;
+                        warn!("mqtt: the TLS connection to the broker ended ({})", ended.as_str());
+                        back_off = BACK_OFF_MIN;
+                    }
+                    Err(why) => {
+                        use crate::tls::Refused;
+                        let (n, text) = match why {
+                            Refused::NoTime => (mqtt::NO_TIME, "no time yet: a certificate cannot be checked"),
+                            Refused::Certificate => (mqtt::CERTIFICATE, "the broker's certificate was refused"),
+                            Refused::Handshake => (mqtt::HANDSHAKE, "the TLS handshake failed"),
+                        };
+                        DIAGNOSTICS.mqtt_event(n);
+                        warn!("mqtt: TLS: {}", text);
+                    }
+                }
+                #[cfg(not(feature = "tls"))]
+                let _ = (io, ca);
+            }
             Some(io) => {
                 let ended = serve(&mut session, io, &settings, &mut module, &mut schedules).await;
                 warn!("mqtt: the connection to the broker ended ({})", ended.as_str());

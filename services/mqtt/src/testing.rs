@@ -4,6 +4,7 @@
 use std::format;
 use std::io::{BufRead, BufReader};
 use std::net::{TcpListener, TcpStream};
+use std::path::Path;
 use std::process::{Child, Command as Process, Stdio};
 use std::string::{String, ToString};
 use std::sync::mpsc::{channel, Receiver};
@@ -159,4 +160,82 @@ impl Drop for Subscriber {
         let _ = self.child.kill();
         let _ = self.child.wait();
     }
+}
+
+/// The TLS broker's user name (in its password file).
+pub const USER: &str = "module";
+/// Its password.
+pub const PASSWORD: &str = "s3cret-Pass-9f2";
+/// The name the broker's certificate is made for.
+pub const HOST: &str = "broker.test";
+
+fn openssl(dir: &Path, args: &[&str]) {
+    let ok = Process::new("openssl").current_dir(dir).args(args).status().expect("openssl").success();
+    assert!(ok, "openssl {args:?}");
+}
+
+/// A CA, a second CA, and a certificate for `broker.test` valid one day signed by the first, in
+/// `dir`; the broker's files readable by the broker's user (mosquitto drops root).
+pub fn make_pki(dir: &Path) {
+    for ca in ["ca", "other"] {
+        openssl(dir, &["ecparam", "-name", "prime256v1", "-genkey", "-noout", "-out", &format!("{ca}.key")]);
+        openssl(
+            dir,
+            &[
+                "req",
+                "-x509",
+                "-new",
+                "-key",
+                &format!("{ca}.key"),
+                "-subj",
+                &format!("/CN=rdaq test {ca}"),
+                "-days",
+                "2",
+                "-out",
+                &format!("{ca}.pem"),
+            ],
+        );
+        openssl(dir, &["x509", "-in", &format!("{ca}.pem"), "-outform", "DER", "-out", &format!("{ca}.der")]);
+    }
+    openssl(dir, &["ecparam", "-name", "prime256v1", "-genkey", "-noout", "-out", "server.key"]);
+    openssl(dir, &["req", "-new", "-key", "server.key", "-subj", &format!("/CN={HOST}"), "-out", "server.csr"]);
+    std::fs::write(dir.join("san.ext"), format!("subjectAltName=DNS:{HOST}\n")).expect("san");
+    openssl(
+        dir,
+        &[
+            "x509",
+            "-req",
+            "-in",
+            "server.csr",
+            "-CA",
+            "ca.pem",
+            "-CAkey",
+            "ca.key",
+            "-CAcreateserial",
+            "-days",
+            "1",
+            "-extfile",
+            "san.ext",
+            "-out",
+            "server.pem",
+        ],
+    );
+    let ok = Process::new("mosquitto_passwd").current_dir(dir).args(["-b", "-c", "passwords", USER, PASSWORD]).status();
+    assert!(ok.expect("mosquitto_passwd").success());
+    for f in ["server.key", "server.pem", "ca.pem", "passwords"] {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(dir.join(f), std::fs::Permissions::from_mode(0o644)).expect("chmod");
+    }
+}
+
+/// A broker with only a TLS listener and a password file.
+pub fn tls_broker() -> Broker {
+    Broker::with(|port, dir| {
+        make_pki(dir);
+        let d = dir.display();
+        format!(
+            "listener {port} 127.0.0.1\ncafile {d}/ca.pem\ncertfile {d}/server.pem\nkeyfile {d}/server.key\n\
+             allow_anonymous false\npassword_file {d}/passwords\n"
+        )
+    })
 }

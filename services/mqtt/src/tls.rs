@@ -21,6 +21,54 @@ pub trait Clock {
     fn now() -> Option<u64>;
 }
 
+/// The board's time of day, for [`BoardClock`]: set by the service before it opens TLS.
+static BOARD_TIME: embassy_sync::blocking_mutex::Mutex<
+    embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex,
+    core::cell::Cell<Option<fn() -> Option<u64>>>,
+> = embassy_sync::blocking_mutex::Mutex::new(core::cell::Cell::new(None));
+
+/// The board's time of day (ms since 1970, or `None`) as the certificates' [`Clock`].
+pub struct BoardClock;
+
+impl BoardClock {
+    /// Takes the board's time of day from `time_ms`.
+    pub fn set(time_ms: fn() -> Option<u64>) {
+        BOARD_TIME.lock(|t| t.set(Some(time_ms)));
+    }
+}
+
+impl Clock for BoardClock {
+    fn now() -> Option<u64> {
+        BOARD_TIME.lock(|t| t.get()).and_then(|f| f()).map(|ms| ms / 1000)
+    }
+}
+
+/// The TLS randomness: the module's random numbers (`remodaq_shared::password::AUTH`, seeded by
+/// the board's entropy: the STM32's RNG; the QEMU board has none, docs/security.md).
+pub struct ModuleRng;
+
+impl rand_core::RngCore for ModuleRng {
+    fn next_u32(&mut self) -> u32 {
+        let mut b = [0u8; 4];
+        self.fill_bytes(&mut b);
+        u32::from_le_bytes(b)
+    }
+    fn next_u64(&mut self) -> u64 {
+        let mut b = [0u8; 8];
+        self.fill_bytes(&mut b);
+        u64::from_le_bytes(b)
+    }
+    fn fill_bytes(&mut self, dest: &mut [u8]) {
+        remodaq_shared::password::AUTH.random(b"mqtt tls", dest);
+    }
+    fn try_fill_bytes(&mut self, dest: &mut [u8]) -> Result<(), rand_core::Error> {
+        self.fill_bytes(dest);
+        Ok(())
+    }
+}
+
+impl embedded_tls::CryptoRng for ModuleRng {}
+
 /// embedded-tls's view of a [`Clock`].
 struct Validity<C>(core::marker::PhantomData<C>);
 

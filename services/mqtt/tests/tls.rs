@@ -5,8 +5,6 @@
 //! clear (every byte the TCP connection carried is kept and searched).
 
 use std::net::{SocketAddr, TcpStream};
-use std::path::Path;
-use std::process::Command as Process;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
@@ -17,84 +15,9 @@ use minimq::{Buffers, ConfigBuilder, Session};
 use remodaq_mqtt::command::Command;
 use remodaq_mqtt::schedule::Point;
 use remodaq_mqtt::session::{serve, Module, Payload, PointTopic, Reading, Refused, Settings};
-use remodaq_mqtt::testing::{Broker, Subscriber};
+use remodaq_mqtt::testing::{tls_broker, Broker, Subscriber, HOST, PASSWORD, USER};
 use remodaq_mqtt::tls::{open, Clock, Refused as TlsRefused};
 use remodaq_mqtt::topics::Kind;
-
-const USER: &str = "module";
-const PASSWORD: &str = "s3cret-Pass-9f2";
-const HOST: &str = "broker.test";
-
-fn openssl(dir: &Path, args: &[&str]) {
-    let ok = Process::new("openssl").current_dir(dir).args(args).status().expect("openssl").success();
-    assert!(ok, "openssl {args:?}");
-}
-
-/// A CA, a second CA, and a certificate for `broker.test` valid one day signed by the first, in
-/// `dir`; the broker's files readable by the broker's user (mosquitto drops root).
-fn make_pki(dir: &Path) {
-    for ca in ["ca", "other"] {
-        openssl(dir, &["ecparam", "-name", "prime256v1", "-genkey", "-noout", "-out", &format!("{ca}.key")]);
-        openssl(
-            dir,
-            &[
-                "req",
-                "-x509",
-                "-new",
-                "-key",
-                &format!("{ca}.key"),
-                "-subj",
-                &format!("/CN=rdaq test {ca}"),
-                "-days",
-                "2",
-                "-out",
-                &format!("{ca}.pem"),
-            ],
-        );
-        openssl(dir, &["x509", "-in", &format!("{ca}.pem"), "-outform", "DER", "-out", &format!("{ca}.der")]);
-    }
-    openssl(dir, &["ecparam", "-name", "prime256v1", "-genkey", "-noout", "-out", "server.key"]);
-    openssl(dir, &["req", "-new", "-key", "server.key", "-subj", &format!("/CN={HOST}"), "-out", "server.csr"]);
-    std::fs::write(dir.join("san.ext"), format!("subjectAltName=DNS:{HOST}\n")).expect("san");
-    openssl(
-        dir,
-        &[
-            "x509",
-            "-req",
-            "-in",
-            "server.csr",
-            "-CA",
-            "ca.pem",
-            "-CAkey",
-            "ca.key",
-            "-CAcreateserial",
-            "-days",
-            "1",
-            "-extfile",
-            "san.ext",
-            "-out",
-            "server.pem",
-        ],
-    );
-    let ok = Process::new("mosquitto_passwd").current_dir(dir).args(["-b", "-c", "passwords", USER, PASSWORD]).status();
-    assert!(ok.expect("mosquitto_passwd").success());
-    for f in ["server.key", "server.pem", "ca.pem", "passwords"] {
-        use std::os::unix::fs::PermissionsExt;
-        std::fs::set_permissions(dir.join(f), std::fs::Permissions::from_mode(0o644)).expect("chmod");
-    }
-}
-
-/// A broker with only a TLS listener and a password file.
-fn tls_broker() -> Broker {
-    Broker::with(|port, dir| {
-        make_pki(dir);
-        let d = dir.display();
-        format!(
-            "listener {port} 127.0.0.1\ncafile {d}/ca.pem\ncertfile {d}/server.pem\nkeyfile {d}/server.key\n\
-             allow_anonymous false\npassword_file {d}/passwords\n"
-        )
-    })
-}
 
 /// The module's time, as the test sets it (seconds since 1970; 0: none yet).
 static NOW: AtomicU64 = AtomicU64::new(0);

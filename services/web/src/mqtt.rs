@@ -16,12 +16,14 @@ use embedded_storage_async::nor_flash::NorFlash;
 use picoserve::response::StatusCode;
 use remodaq_protocol::m8318::CHANNELS;
 use remodaq_protocol::net::parse_ipv4;
+use remodaq_protocol::web::{mqtt_credentials_of, MQTT_CREDENTIALS_LABEL, MQTT_CREDENTIALS_LEN, SESSION_ID_LEN};
 use remodaq_shared::json::Object;
-use remodaq_shared::module::{commit_service_record, SettingsAccess};
-use remodaq_shared::mqtt::{Config, Invalid};
+use remodaq_shared::module::{commit_raw_record, commit_service_record, SettingsAccess};
+use remodaq_shared::mqtt::{der_of_pem, Config, Credentials, Invalid, CA_VERSION};
 use remodaq_shared::settings::key;
 
 use crate::service::api::{Answer, Api, Json};
+use crate::settings::unsealed;
 
 /// Why a `PUT /api/v1/mqtt` body is refused.
 #[derive(Debug, PartialEq, Eq)]
@@ -97,12 +99,76 @@ fn write_config(out: &mut Json, c: &Config) {
 }
 
 impl<R: RawMutex, M: remodaq_shared::modbus::RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F> {
-    /// `GET /api/v1/mqtt` (signed): MQTT's settings as stored (and in force).
+    /// `GET /api/v1/mqtt` (signed): MQTT's settings as stored (and in force), and whether a CA
+    /// certificate and credentials are stored (never what they are).
     pub(super) async fn mqtt(&self, out: &mut Json) -> Answer {
-        let config: Config = self.store.lock().await.service_record(key::MQTT).await;
+        let (config, ca, credentials) = {
+            let mut store = self.store.lock().await;
+            let config: Config = store.service_record(key::MQTT).await;
+            let ca = store.raw_record(key::MQTT_CA, CA_VERSION, |der| !der.is_empty()).await;
+            let credentials: Credentials = store.service_record(key::MQTT_CREDENTIALS).await;
+            (config, ca, !credentials.user.is_empty())
+        };
         let a = Answer::new(out, StatusCode::OK);
         write_config(out, &config);
+        // Into the object just written: its closing brace goes after these.
+        out.text.pop();
+        let _ = write!(out, ",\"ca\":{ca},\"credentials\":{credentials}}}");
         a
+    }
+
+    /// `PUT /api/v1/mqtt/ca` (signed, not with the factory password): `{"pem": "..."}`, the CA
+    /// certificate the broker's chain must lead to (PEM, at most `MAX_CA` bytes as DER; an empty
+    /// string removes it), decoded straight into the store's record and committed.
+    pub(super) async fn set_mqtt_ca(&self, out: &mut Json, body: &[u8]) -> Answer {
+        let Some(pem) = Object::parse(body).and_then(|o| o.str("pem")) else {
+            return Answer::error(out, StatusCode::BAD_REQUEST, "expected {pem}", None);
+        };
+        let mut usable = true;
+        let fill = |der: &mut [u8]| {
+            let n = if pem.is_empty() { Some(0) } else { der_of_pem(pem.as_bytes(), der) };
+            usable = n.is_some();
+            n
+        };
+        let result = commit_raw_record(self.store, key::MQTT_CA, CA_VERSION, fill).await;
+        if !usable {
+            return Answer::error(
+                out,
+                StatusCode::UNPROCESSABLE_ENTITY,
+                "not a PEM certificate of at most 768 bytes",
+                Some("pem"),
+            );
+        }
+        crate::settings::committed(out, result)
+    }
+
+    /// `PUT /api/v1/mqtt/credentials` (signed, not with the factory password): the broker's user
+    /// name and password sealed as a new password is (`{module, public, sealed}`, under the key
+    /// `POST /api/v1/password/key` offered this session, `MQTT_CREDENTIALS_LABEL`): never in
+    /// clear on the wire. An empty user name removes them.
+    pub(super) async fn set_mqtt_credentials(
+        &self,
+        out: &mut Json,
+        session: [u8; SESSION_ID_LEN],
+        body: &[u8],
+    ) -> Answer {
+        let bytes = match unsealed::<MQTT_CREDENTIALS_LEN>(session, body, MQTT_CREDENTIALS_LABEL) {
+            Ok(bytes) => bytes,
+            Err(why) => return why.answer(out, "the keys are 64 hex digits, the credentials 196"),
+        };
+        let Some((user, password)) = mqtt_credentials_of(&bytes) else {
+            return Answer::error(
+                out,
+                StatusCode::UNPROCESSABLE_ENTITY,
+                "not a user name and password",
+                Some("sealed"),
+            );
+        };
+        let credentials = Credentials {
+            user: heapless::String::try_from(user).unwrap_or_default(),
+            password: heapless::String::try_from(password).unwrap_or_default(),
+        };
+        crate::settings::committed(out, commit_service_record(self.store, key::MQTT_CREDENTIALS, &credentials).await)
     }
 
     /// `PUT /api/v1/mqtt` (signed, not with the factory password): new MQTT settings, checked

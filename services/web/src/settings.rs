@@ -202,30 +202,10 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
     /// `PUT /api/v1/password` (signed): the new credential, sealed under the key agreed with
     /// this session's ephemeral key (used once). Every session ends with the old password.
     pub(super) async fn set_password(&self, out: &mut Json, session: [u8; SESSION_ID_LEN], body: &[u8]) -> Answer {
-        let fields = Object::parse(body).and_then(|o| Some((o.str("module")?, o.str("public")?, o.str("sealed")?)));
-        let Some((module, public, sealed)) = fields else {
-            return Answer::error(out, StatusCode::BAD_REQUEST, "expected {module, public, sealed}", None);
+        let bytes = match unsealed::<CREDENTIAL_LEN>(session, body, PASSWORD_SEAL_LABEL) {
+            Ok(bytes) => bytes,
+            Err(why) => return why.answer(out, "the keys are 64 hex digits, the credential 168"),
         };
-        let (Some(sealed_for), Some(public), Some(mut bytes)) =
-            (unhex::<KEY_LEN>(module), unhex::<KEY_LEN>(public), unhex::<CREDENTIAL_LEN>(sealed))
-        else {
-            return Answer::error(out, StatusCode::BAD_REQUEST, "the keys are 64 hex digits, the credential 168", None);
-        };
-        // Only the key offered to this session, and only for a credential sealed for that very
-        // key: one sealed for an earlier key would open to random bytes, a password nobody
-        // knows. Another session's request leaves the key in place.
-        let offered = AGREEMENT.lock(|a| match a.get() {
-            Some((secret, module_public, offered_to)) if offered_to == session && module_public == sealed_for => {
-                a.set(None);
-                Some((secret, module_public))
-            }
-            _ => None,
-        });
-        let Some((secret, module_public)) = offered else {
-            return Answer::error(out, StatusCode::CONFLICT, "ask for the module's key first", Some("module"));
-        };
-        let shared = x25519(&secret, &public);
-        seal(&shared, &[PASSWORD_SEAL_LABEL, &module_public], &mut bytes);
         let new = Credential::decode(&bytes);
         if !new.is_acceptable() || new.is_factory() {
             return Answer::error(out, StatusCode::UNPROCESSABLE_ENTITY, "not a usable password", Some("sealed"));
@@ -248,6 +228,60 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
     async fn commit(&self, out: &mut Json, change: impl FnOnce(&mut M::Settings)) -> Answer {
         committed(out, commit_change(self.map, self.store, change).await)
     }
+}
+
+/// Why a sealed secret was not opened.
+pub(crate) enum Unsealed {
+    /// Not `{module, public, sealed}`.
+    NotJson,
+    /// Not hex of the right lengths.
+    NotHex,
+    /// No key was offered to this session, or the secret was sealed for another.
+    NoOffer,
+}
+
+impl Unsealed {
+    /// The answer: 400, or 409 (ask for the module's key first).
+    pub(crate) fn answer(self, out: &mut Json, lengths: &'static str) -> Answer {
+        match self {
+            Unsealed::NotJson => Answer::error(out, StatusCode::BAD_REQUEST, "expected {module, public, sealed}", None),
+            Unsealed::NotHex => Answer::error(out, StatusCode::BAD_REQUEST, lengths, None),
+            Unsealed::NoOffer => {
+                Answer::error(out, StatusCode::CONFLICT, "ask for the module's key first", Some("module"))
+            }
+        }
+    }
+}
+
+/// The `N` bytes sealed in `body` (`{module, public, sealed}`) under the key this session was
+/// offered (`POST /api/v1/password/key`, used once) and `label`: a new password, or MQTT's
+/// credentials.
+pub(crate) fn unsealed<const N: usize>(
+    session: [u8; SESSION_ID_LEN],
+    body: &[u8],
+    label: &[u8],
+) -> Result<[u8; N], Unsealed> {
+    let o = Object::parse(body).ok_or(Unsealed::NotJson)?;
+    let (module, public, sealed) =
+        (o.str("module").ok_or(Unsealed::NotJson)?, o.str("public").ok_or(Unsealed::NotJson)?, o.str("sealed"));
+    let (Some(sealed_for), Some(public), Some(mut bytes)) =
+        (unhex::<KEY_LEN>(module), unhex::<KEY_LEN>(public), unhex::<N>(sealed.ok_or(Unsealed::NotJson)?))
+    else {
+        return Err(Unsealed::NotHex);
+    };
+    // Only the key offered to this session, and only for a secret sealed for that very key: one
+    // sealed for an earlier key would open to random bytes (a password nobody knows). Another
+    // session's request leaves the key in place.
+    let offered = AGREEMENT.lock(|a| match a.get() {
+        Some((secret, module_public, offered_to)) if offered_to == session && module_public == sealed_for => {
+            a.set(None);
+            Some((secret, module_public))
+        }
+        _ => None,
+    });
+    let (secret, module_public) = offered.ok_or(Unsealed::NoOffer)?;
+    seal(&x25519(&secret, &public), &[label, &module_public], &mut bytes);
+    Ok(bytes)
 }
 
 /// The answer to a settings change once committed, or why not: 204, 429 when the commit budget

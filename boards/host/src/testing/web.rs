@@ -145,6 +145,25 @@ impl Page {
         );
         request(web, "PUT", "/api/v1/password", &self.sign("PUT", "/api/v1/password", &body), &body)
     }
+
+    /// `PUT /api/v1/mqtt/credentials`: MQTT's user name and password sealed for a key the module
+    /// offers this session (docs/mqtt.md).
+    pub fn put_mqtt_credentials(&mut self, web: SocketAddr, user: &str, password: &str) -> Answer {
+        use remodaq_protocol::web::{mqtt_credentials, MQTT_CREDENTIALS_LABEL, MQTT_CREDENTIALS_LEN};
+        let module = self.password_key(web);
+        let secret = [0x6B; KEY_LEN];
+        let mut sealed = mqtt_credentials(user, password).expect("short enough");
+        seal(&x25519(&secret, &module), &[MQTT_CREDENTIALS_LABEL, &module], &mut sealed);
+        let (mut m, mut p, mut s) = ([0u8; 64], [0u8; 64], [0u8; 2 * MQTT_CREDENTIALS_LEN]);
+        let body = format!(
+            "{{\"module\":\"{}\",\"public\":\"{}\",\"sealed\":\"{}\"}}",
+            hex(&module, &mut m).unwrap_or(""),
+            hex(&x25519(&secret, &BASE_POINT), &mut p).unwrap_or(""),
+            hex(&sealed, &mut s).unwrap_or("")
+        );
+        let target = "/api/v1/mqtt/credentials";
+        request(web, "PUT", target, &self.sign("PUT", target, &body), &body)
+    }
 }
 
 /// Logs in as a page does (docs/web.md); the answer when it fails.

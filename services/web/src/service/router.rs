@@ -208,6 +208,7 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
                 }
             }
             (method @ ("PUT" | "GET"), (Some(name @ ("network" | "access" | "password" | MQTT)), None, None))
+            | (method @ "PUT", (Some(name @ MQTT), Some("ca" | "credentials"), None))
             | (method @ "POST", (Some(name @ ("restart" | "password")), None | Some("key"), None)) => {
                 // Reading the allow-list needs a session too (discovery shows it only with the
                 // password); every other read here is open.
@@ -232,7 +233,13 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
                         Answer::error(out, StatusCode::FORBIDDEN, "set a password first", None)
                     }
                     #[cfg(feature = "mqtt")]
-                    ("PUT", "mqtt", _) => self.set_mqtt(out, signed.body).await,
+                    ("PUT", "mqtt", Some("ca")) => self.set_mqtt_ca(out, signed.body).await,
+                    #[cfg(feature = "mqtt")]
+                    ("PUT", "mqtt", Some(_)) => {
+                        self.set_mqtt_credentials(out, signed.session.unwrap_or_default(), signed.body).await
+                    }
+                    #[cfg(feature = "mqtt")]
+                    ("PUT", "mqtt", None) => self.set_mqtt(out, signed.body).await,
                     // A verified request names its session.
                     ("POST", "password", Some(_)) => self.password_key(out, signed.session.unwrap_or_default()),
                     ("PUT", "password", _) => {
