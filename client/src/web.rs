@@ -189,6 +189,12 @@ pub struct MqttSettings {
     pub on_change: bool,
     /// The 8350 takes output commands.
     pub commands: bool,
+    /// A CA certificate is stored (shown, never sent back).
+    #[serde(default, skip_serializing)]
+    pub ca: bool,
+    /// A user name and password for the broker are stored (shown, never sent back).
+    #[serde(default, skip_serializing)]
+    pub credentials: bool,
 }
 
 impl Session {
@@ -206,11 +212,60 @@ impl Session {
     pub async fn set_mqtt(&mut self, settings: &MqttSettings) -> Result<(), Error> {
         let body = serde_json::to_string(settings).map_err(|e| Error::Other(e.to_string()))?;
         let answer = self.request("PUT", "/api/v1/mqtt", &body).await?;
-        match answer.status {
-            204 => Ok(()),
-            404 => Err(Error::Other("this module has no MQTT (docs/mqtt.md)".into())),
-            422 | 400 => Err(Error::Other(format!("refused: {}", answer.reason()))),
-            _ => Err(Error::Refused(answer.reason())),
+        stored(&answer)
+    }
+
+    /// Stores the CA certificate the broker's chain must lead to: `pem`, one certificate (a PEM
+    /// file's text; its lines are joined by spaces for the API), or "" for none.
+    pub async fn set_mqtt_ca(&mut self, pem: &str) -> Result<(), Error> {
+        let joined = pem.split_whitespace().collect::<Vec<_>>().join(" ");
+        let body = serde_json::json!({ "pem": joined }).to_string();
+        let answer = self.request("PUT", "/api/v1/mqtt/ca", &body).await?;
+        stored(&answer)
+    }
+
+    /// Stores the broker's user name and password, sealed for a key the module offers this
+    /// session (`POST /api/v1/password/key`, its proof checked): never in clear on the wire.
+    pub async fn set_mqtt_credentials(&mut self, user: &str, password: &str) -> Result<(), Error> {
+        use remodaq_protocol::auth::{seal, x25519, BASE_POINT};
+        use remodaq_protocol::web::{agreement_proof, mqtt_credentials, MQTT_CREDENTIALS_LABEL};
+        let mut sealed = mqtt_credentials(user, password)
+            .ok_or_else(|| Error::Other("a user name of at most 32 bytes and a password of at most 64".into()))?;
+        #[derive(Deserialize)]
+        struct Offer {
+            public: String,
+            proof: String,
         }
+        let answer = self.request("POST", "/api/v1/password/key", "").await?;
+        if answer.status != 200 {
+            return Err(Error::Refused(answer.reason()));
+        }
+        let offer: Offer = json(&answer, "the module's key")?;
+        let module: [u8; KEY_LEN] = bytes(&offer.public, "the module's key")?;
+        if bytes::<KEY_LEN>(&offer.proof, "its proof")? != agreement_proof(&self.key, &module) {
+            return Err(Error::Other("the module's key is not signed by this session: not sent".into()));
+        }
+        let mut secret = [0u8; KEY_LEN];
+        getrandom::fill(&mut secret).map_err(|e| Error::Other(format!("no random numbers: {e}")))?;
+        seal(&x25519(&secret, &module), &[MQTT_CREDENTIALS_LABEL, &module], &mut sealed);
+        let (mut m, mut p, mut s) = ([0u8; 2 * KEY_LEN], [0u8; 2 * KEY_LEN], [0u8; 2 * 98]);
+        let body = serde_json::json!({
+            "module": hex(&module, &mut m).unwrap_or(""),
+            "public": hex(&x25519(&secret, &BASE_POINT), &mut p).unwrap_or(""),
+            "sealed": hex(&sealed, &mut s).unwrap_or(""),
+        })
+        .to_string();
+        let answer = self.request("PUT", "/api/v1/mqtt/credentials", &body).await?;
+        stored(&answer)
+    }
+}
+
+/// A change's answer: stored (204), refused with its reason.
+fn stored(answer: &Answer) -> Result<(), Error> {
+    match answer.status {
+        204 => Ok(()),
+        404 => Err(Error::Other("this module has no MQTT (docs/mqtt.md)".into())),
+        422 | 400 | 409 => Err(Error::Other(format!("refused: {}", answer.reason()))),
+        _ => Err(Error::Refused(answer.reason())),
     }
 }

@@ -49,6 +49,14 @@ pub struct Changes {
     /// The 8350 takes output commands from the broker: on or off.
     #[arg(long, value_parser = on_off)]
     pub commands: Option<bool>,
+    /// The CA certificate the broker's chain must lead to: a PEM or DER file, or "none".
+    #[arg(long, value_name = "FILE")]
+    pub ca: Option<String>,
+    /// The broker's user name; its password is asked for without echo (or REMODAQ_MQTT_PASSWORD).
+    /// Both reach the module sealed and are only ever sent to the broker inside TLS; "" removes
+    /// them.
+    #[arg(long)]
+    pub user: Option<String>,
 }
 
 fn on_off(s: &str) -> Result<bool, String> {
@@ -105,7 +113,10 @@ fn console(module: &str) -> Result<SocketAddr, Error> {
 
 fn print(settings: &MqttSettings, json: bool) -> Result<(), Error> {
     if json {
-        println!("{}", serde_json::to_string(settings).map_err(|e| Error::Other(e.to_string()))?);
+        let mut shown = serde_json::to_value(settings).map_err(|e| Error::Other(e.to_string()))?;
+        shown["ca"] = settings.ca.into();
+        shown["credentials"] = settings.credentials.into();
+        println!("{shown}");
         return Ok(());
     }
     let or = |text: &str, default: &'static str| if text.is_empty() { default.to_owned() } else { text.to_owned() };
@@ -125,6 +136,8 @@ fn print(settings: &MqttSettings, json: bool) -> Result<(), Error> {
     println!("deadbands:  {} (8318, thousandths of each channel's unit)", bands.join(" "));
     println!("on change:  {} (8350)", yes(settings.on_change));
     println!("commands:   {} (8350)", yes(settings.commands));
+    let stored = |b: bool| if b { "stored" } else { "none" };
+    println!("CA:         {}; credentials: {} (never shown)", stored(settings.ca), stored(settings.credentials));
     Ok(())
 }
 
@@ -134,18 +147,81 @@ pub async fn show(module: &str, password: &str, json: bool) -> Result<(), Error>
     print(&session.mqtt().await?, json)
 }
 
-/// `remodaq mqtt set MODULE ...`: the stored settings with `changes`, stored; then shown.
+/// `remodaq mqtt set MODULE ...`: the stored settings with `changes`, stored, then the CA
+/// certificate and the credentials when given; then shown.
 pub async fn set(module: &str, password: &str, changes: &Changes, json: bool) -> Result<(), Error> {
+    // Read before anything is changed: a file that cannot be used changes nothing.
+    let ca = match changes.ca.as_deref() {
+        None => None,
+        Some("none") => Some(String::new()),
+        Some(file) => Some(pem_of_file(file)?),
+    };
+    let broker_password = match changes.user.as_deref() {
+        None | Some("") => String::new(),
+        Some(_) => match std::env::var("REMODAQ_MQTT_PASSWORD") {
+            Ok(p) => p,
+            Err(_) => rpassword::prompt_password("the broker's password: ").map_err(|e| {
+                Error::Other(format!(
+                    "no broker password given and none could be asked for ({e}): set REMODAQ_MQTT_PASSWORD"
+                ))
+            })?,
+        },
+    };
     let mut session = Session::log_in(console(module)?, password).await?;
     let mut settings = session.mqtt().await?;
     changes.apply(&mut settings);
     session.set_mqtt(&settings).await?;
+    if let Some(pem) = ca {
+        session.set_mqtt_ca(&pem).await?;
+    }
+    if let Some(user) = changes.user.as_deref() {
+        session.set_mqtt_credentials(user, &broker_password).await?;
+    }
     print(&session.mqtt().await?, json)
+}
+
+/// A certificate file's PEM: the file itself when it is PEM, DER made PEM otherwise.
+fn pem_of_file(file: &str) -> Result<String, Error> {
+    let bytes = std::fs::read(file).map_err(|e| Error::Other(format!("{file}: {e}")))?;
+    if let Ok(text) = std::str::from_utf8(&bytes) {
+        if text.contains("-----BEGIN CERTIFICATE-----") {
+            return Ok(text.to_owned());
+        }
+    }
+    if bytes.first() != Some(&0x30) {
+        return Err(Error::Other(format!("{file}: neither a PEM nor a DER certificate")));
+    }
+    const DIGITS: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut base64 = String::new();
+    for chunk in bytes.chunks(3) {
+        let n = chunk.iter().enumerate().fold(0u32, |n, (i, b)| n | u32::from(*b) << (16 - 8 * i));
+        for i in 0..4 {
+            base64.push(if i <= chunk.len() { DIGITS[(n >> (18 - 6 * i) & 63) as usize] as char } else { '=' });
+        }
+    }
+    Ok(format!("-----BEGIN CERTIFICATE-----\n{base64}\n-----END CERTIFICATE-----\n"))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A DER file made PEM (RFC 4648's base64: 30 03 02 01 01 is "MAMCAQE="); a PEM file kept.
+    #[test]
+    fn a_certificate_file_as_pem() {
+        let dir = std::env::temp_dir().join(format!("rdaq-pem-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("a directory");
+        let der = dir.join("ca.der");
+        std::fs::write(&der, [0x30, 3, 2, 1, 1]).expect("write");
+        let pem = pem_of_file(&der.display().to_string()).expect("a PEM");
+        assert_eq!(pem, "-----BEGIN CERTIFICATE-----\nMAMCAQE=\n-----END CERTIFICATE-----\n");
+        let file = dir.join("ca.pem");
+        std::fs::write(&file, &pem).expect("write");
+        assert_eq!(pem_of_file(&file.display().to_string()).expect("a PEM"), pem);
+        std::fs::write(&file, "junk").expect("write");
+        assert!(pem_of_file(&file.display().to_string()).is_err());
+        let _ = std::fs::remove_dir_all(dir);
+    }
 
     #[test]
     fn changes_apply_to_the_given_fields_only() {

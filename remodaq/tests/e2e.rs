@@ -375,4 +375,17 @@ fn mqtt_settings_through_the_tool() {
     let (code, _, err) = remodaq(&["mqtt", "set", &web, "--qos", "2", "--password", "line 2 secret"]);
     assert_eq!(code, 1);
     assert!(err.contains("qos"), "{err}");
+    // The CA (a DER file: 30 03 02 01 01, a SEQUENCE the module stores as given) and the
+    // broker's credentials (the password from REMODAQ_MQTT_PASSWORD): stored, never shown.
+    let ca = temp("mqtt-ca.der");
+    std::fs::write(&ca, [0x30, 3, 2, 1, 1]).expect("write");
+    let ca_arg = ca.display().to_string();
+    let tls = ["mqtt", "set", &web, "--tls", "on", "--host", "broker.test", "--ca", &ca_arg, "--user", "plant"];
+    let (code, out, err) = common::remodaq(
+        &[&tls[..], &["--password", "line 2 secret", "--json"]].concat(),
+        &[("REMODAQ_MQTT_PASSWORD", "broker pass 7")],
+    );
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains(r#""ca":true"#) && out.contains(r#""credentials":true"#), "{out}");
+    assert!(!out.contains("broker pass 7") && !err.contains("broker pass 7"), "{out} {err}");
 }

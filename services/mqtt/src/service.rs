@@ -39,8 +39,9 @@ pub const KEEP_ALIVE_S: u16 = 10;
 /// breaks, s.
 const SESSION_EXPIRY_S: u32 = 300;
 /// The session's receive buffer: a command is at most [`crate::command::MAX_COMMAND`] bytes and
-/// its topic at most 76; a larger one, up to this, is read and refused (counted).
-pub const RX_BUFFER: usize = 768;
+/// its topic at most 76; a larger one, up to this, is read and refused (counted). (The STM32
+/// 8350's CCM has no room for more: docs/mqtt.md, "Sizes".)
+pub const RX_BUFFER: usize = 512;
 /// The session's transmit buffer: the packets being written and the QoS 1 publications in
 /// flight (minimq keeps at most 8, each at most about 350 bytes), until the broker acknowledges
 /// them.
