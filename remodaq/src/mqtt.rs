@@ -154,7 +154,7 @@ pub async fn set(module: &str, password: &str, changes: &Changes, json: bool) ->
     let ca = match changes.ca.as_deref() {
         None => None,
         Some("none") => Some(String::new()),
-        Some(file) => Some(pem_of_file(file)?),
+        Some(file) => Some(remodaq_client::web::pem_of_file(file)?),
     };
     let broker_password = match changes.user.as_deref() {
         None | Some("") => String::new(),
@@ -180,48 +180,9 @@ pub async fn set(module: &str, password: &str, changes: &Changes, json: bool) ->
     print(&session.mqtt().await?, json)
 }
 
-/// A certificate file's PEM: the file itself when it is PEM, DER made PEM otherwise.
-fn pem_of_file(file: &str) -> Result<String, Error> {
-    let bytes = std::fs::read(file).map_err(|e| Error::Other(format!("{file}: {e}")))?;
-    if let Ok(text) = std::str::from_utf8(&bytes) {
-        if text.contains("-----BEGIN CERTIFICATE-----") {
-            return Ok(text.to_owned());
-        }
-    }
-    if bytes.first() != Some(&0x30) {
-        return Err(Error::Other(format!("{file}: neither a PEM nor a DER certificate")));
-    }
-    const DIGITS: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-    let mut base64 = String::new();
-    for chunk in bytes.chunks(3) {
-        let n = chunk.iter().enumerate().fold(0u32, |n, (i, b)| n | u32::from(*b) << (16 - 8 * i));
-        for i in 0..4 {
-            base64.push(if i <= chunk.len() { DIGITS[(n >> (18 - 6 * i) & 63) as usize] as char } else { '=' });
-        }
-    }
-    Ok(format!("-----BEGIN CERTIFICATE-----\n{base64}\n-----END CERTIFICATE-----\n"))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// A DER file made PEM (RFC 4648's base64: 30 03 02 01 01 is "MAMCAQE="); a PEM file kept.
-    #[test]
-    fn a_certificate_file_as_pem() {
-        let dir = std::env::temp_dir().join(format!("rdaq-pem-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).expect("a directory");
-        let der = dir.join("ca.der");
-        std::fs::write(&der, [0x30, 3, 2, 1, 1]).expect("write");
-        let pem = pem_of_file(&der.display().to_string()).expect("a PEM");
-        assert_eq!(pem, "-----BEGIN CERTIFICATE-----\nMAMCAQE=\n-----END CERTIFICATE-----\n");
-        let file = dir.join("ca.pem");
-        std::fs::write(&file, &pem).expect("write");
-        assert_eq!(pem_of_file(&file.display().to_string()).expect("a PEM"), pem);
-        std::fs::write(&file, "junk").expect("write");
-        assert!(pem_of_file(&file.display().to_string()).is_err());
-        let _ = std::fs::remove_dir_all(dir);
-    }
 
     #[test]
     fn changes_apply_to_the_given_fields_only() {

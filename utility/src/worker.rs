@@ -79,6 +79,20 @@ pub enum Config {
     SetPassword(Zeroizing<String>),
     GetAccess,
     SetAccess(AllowList),
+    /// MQTT's settings, through the web console at this address (docs/mqtt.md).
+    GetMqtt(SocketAddr),
+    /// MQTT's settings stored, with a CA certificate and credentials when given.
+    SetMqtt(Box<MqttChange>),
+}
+
+/// MQTT's settings to store through the web console at `web`, the CA certificate (PEM) and the
+/// broker's user name and password when given.
+#[derive(Clone, Debug)]
+pub struct MqttChange {
+    pub web: SocketAddr,
+    pub settings: remodaq_client::web::MqttSettings,
+    pub ca: Option<String>,
+    pub credentials: Option<(String, Zeroizing<String>)>,
 }
 
 /// What the window asks for.
@@ -118,6 +132,8 @@ pub enum Done {
     Restarted(Option<Box<Located>>),
     /// Firmware before and after.
     Updated { before: u16, after: u16 },
+    /// MQTT's settings as the module holds them (after a read, or a store).
+    Mqtt(Box<remodaq_client::web::MqttSettings>),
 }
 
 /// What the worker tells the window.
@@ -352,6 +368,21 @@ async fn configure(
     timeout: Duration,
 ) -> Result<Done, Error> {
     let cmd = match &command {
+        Config::GetMqtt(web) => {
+            let mut session = remodaq_client::web::Session::log_in(*web, password).await?;
+            return Ok(Done::Mqtt(Box::new(session.mqtt().await?)));
+        }
+        Config::SetMqtt(change) => {
+            let mut session = remodaq_client::web::Session::log_in(change.web, password).await?;
+            session.set_mqtt(&change.settings).await?;
+            if let Some(pem) = &change.ca {
+                session.set_mqtt_ca(pem).await?;
+            }
+            if let Some((user, broker_password)) = &change.credentials {
+                session.set_mqtt_credentials(user, broker_password).await?;
+            }
+            return Ok(Done::Mqtt(Box::new(session.mqtt().await?)));
+        }
         Config::SetNetwork(change) => {
             let outcome = lan::set_network(module.to, only, module.mac, password, *change, timeout).await?;
             return Ok(Done::Said(said_with_route(lan::SET_NETWORK_DONE, module.mac, &outcome)));

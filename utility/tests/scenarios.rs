@@ -413,6 +413,59 @@ fn s8_security_password_and_allow_list() {
     assert!(coils(m8350.addr(), 0x10, 1)[0], "DO0 on");
 }
 
+/// Scenario 11: the MQTT tab (issue #40) against the simulated 8350 and Debian's mosquitto:
+/// the settings read through the module's web console (after its password was set: not with
+/// the factory one), changed in the form (on, the broker on this PC, TLS off, a prefix of the
+/// test's, a 500 ms period), stored: the module comes online on the broker under that prefix;
+/// read again, the form shows what the module holds. The window is saved as a picture
+/// (target/utility-mqtt-tab.png) to look at.
+#[test]
+fn s11_mqtt_tab() {
+    use remodaq_mqtt::testing::{Broker, Subscriber};
+    const PASSWORD: &str = "s11-password";
+    let _alone = alone();
+    let broker = Broker::start();
+    let sub = Subscriber::with_args(broker.port, &["-t", "test/gui/#"]);
+    let m8350 = Sim::start("8350", "s11", &["--http", "127.0.0.1:0"]);
+    let web = m8350.web().expect("the web console");
+    let mut page = remodaq_board_host::testing::web::log_in(web, FACTORY_PASSWORD)
+        .unwrap_or_else(|a| panic!("login: {} {}", a.status, a.body));
+    assert_eq!(page.change_password(web, PASSWORD, [11; 16]).status, 204);
+    let found = discover(m8350.discovery());
+    let dialog = named("RemoDAQ-8350", found.mac);
+    let mut gui = Gui::new(vec![m8350.discovery()]);
+    gui.select_module("RemoDAQ-8350", m8350.port());
+    gui.click("MQTT");
+    gui.set_text("Web console", &web.to_string());
+    gui.click("Read MQTT settings");
+    gui.password(&dialog, PASSWORD);
+    gui.wait("the settings read", |g| g.said() == "MQTT settings as the module holds them");
+    // docs/mqtt.md's defaults: off, TLS on port 8883, a 10 s period.
+    assert_eq!((gui.field_value("Port"), gui.field_value("Period (ms)")), ("8883".into(), "10000".into()));
+    gui.click("Publish to the broker");
+    gui.click("TLS");
+    gui.set_text("Broker address", "127.0.0.1");
+    gui.set_text("Port", &broker.port.to_string());
+    gui.set_text("Topic prefix", "test/gui");
+    gui.set_text("Period (ms)", "500");
+    gui.click("Store MQTT settings");
+    gui.password(&dialog, PASSWORD);
+    gui.wait("stored", |g| g.said() == "MQTT settings as the module holds them");
+    let online = sub.next_on("test/gui/status", Duration::from_secs(15)).expect("online under the prefix set");
+    assert!(online.1.contains(r#""state":"online""#), "{online:?}");
+    gui.set_text("Period (ms)", "");
+    gui.click("Read MQTT settings");
+    gui.password(&dialog, PASSWORD);
+    gui.wait("read again", |g| g.field_value("Period (ms)") == "500");
+    assert_eq!(gui.field_value("Topic prefix"), "test/gui");
+    gui.frames(3);
+    if let Ok(image) = gui.harness.render() {
+        let file = workspace().join("target").join("utility-mqtt-tab.png");
+        let _ = image.save(&file);
+        eprintln!("the MQTT tab: {}", file.display());
+    }
+}
+
 /// The update service's port (docs/update.md).
 const UPDATE_PORT: u16 = 8301;
 

@@ -121,6 +121,10 @@ impl Utility {
                                 false,
                             );
                         }
+                        Ok(Done::Mqtt(settings)) => {
+                            self.mqtt.load(*settings);
+                            self.say(tr(self.lang, "MQTT settings as the module holds them"), false);
+                        }
                         Ok(Done::Restarted(None)) => {
                             self.say(tr(self.lang, "The module did not answer a search after its restart"), true)
                         }

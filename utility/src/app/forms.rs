@@ -27,6 +27,8 @@ pub(super) enum Purpose {
     GetAccess,
     SetAccess(AllowList),
     Update(PathBuf),
+    GetMqtt(std::net::SocketAddr),
+    SetMqtt(Box<crate::worker::MqttChange>),
 }
 
 /// The password dialog.

@@ -28,6 +28,7 @@ mod diagnostics;
 mod events;
 mod firmware;
 mod forms;
+mod mqtt;
 mod network;
 mod panel_8318;
 mod panel_8350;
@@ -87,6 +88,7 @@ pub enum Tab {
     Trends,
     Diagnostics,
     Security,
+    Mqtt,
     Firmware,
 }
 
@@ -158,6 +160,7 @@ pub struct Utility {
     new_password: Zeroizing<String>,
     new_password_again: Zeroizing<String>,
     allow_text: String,
+    mqtt: mqtt::MqttForm,
     // Firmware tab.
     image_path: String,
     progress: Option<(u64, u64, bool)>,
@@ -244,6 +247,7 @@ impl Utility {
             new_password: Zeroizing::default(),
             new_password_again: Zeroizing::default(),
             allow_text: String::new(),
+            mqtt: mqtt::MqttForm::default(),
             image_path: String::new(),
             progress: None,
             trend: Trend::default(),
@@ -405,6 +409,7 @@ impl Utility {
                 (Tab::Trends, tr(lang, "Trends")),
                 (Tab::Diagnostics, tr(lang, "Diagnostics")),
                 (Tab::Security, tr(lang, "Security")),
+                (Tab::Mqtt, "MQTT"),
                 (Tab::Firmware, tr(lang, "Firmware")),
             ] {
                 ui.selectable_value(&mut self.tab, tab, name);
@@ -418,6 +423,7 @@ impl Utility {
             Tab::Trends => self.trends_tab(ui),
             Tab::Diagnostics => self.diagnostics_tab(ui, &m),
             Tab::Security => self.security_tab(ui, &m),
+            Tab::Mqtt => self.mqtt_tab(ui, &m),
             Tab::Firmware => self.firmware_tab(ui, &m),
         });
     }

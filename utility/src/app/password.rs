@@ -65,6 +65,8 @@ impl Utility {
             Purpose::SetPassword(new) => Config::SetPassword(new),
             Purpose::GetAccess => Config::GetAccess,
             Purpose::SetAccess(list) => Config::SetAccess(list),
+            Purpose::GetMqtt(web) => Config::GetMqtt(web),
+            Purpose::SetMqtt(change) => Config::SetMqtt(change),
         };
         if matches!(command, Config::Restart) {
             self.say(tr(self.lang, "Restarting; searching again…"), false);

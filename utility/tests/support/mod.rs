@@ -181,6 +181,11 @@ impl Sim {
         self.module.discovery
     }
 
+    /// Its web console (started with `--http`).
+    pub fn web(&self) -> Option<SocketAddr> {
+        self.module.web
+    }
+
     pub fn wait_restarted(&mut self) {
         self.module.wait_listening();
     }
