@@ -2,7 +2,8 @@
 //! and stored records never panic; a payload taken as a command writes what it says, re-read
 //! from its canonical form; a topic taken as a command names that output's own topic; a prefix
 //! taken as valid makes topics that read back; a stored record reads as settings that are off
-//! or valid, and that store and read back the same. `cargo +nightly fuzz run mqtt_command`
+//! or valid, and that store and read back the same; a CA's PEM decodes to a DER that fits, or
+//! to nothing; credentials stored or sealed read back the same. `cargo +nightly fuzz run mqtt_command`
 //! (from the repository root).
 #![no_main]
 
@@ -10,6 +11,8 @@ use libfuzzer_sys::fuzz_target;
 use remodaq_mqtt::command::{Command, MAX_COMMAND};
 use remodaq_mqtt::config::Config;
 use remodaq_mqtt::topics::{command_output, point, prefix_is_valid, Kind};
+use remodaq_protocol::web::{mqtt_credentials, mqtt_credentials_of, MQTT_CREDENTIALS_LEN};
+use remodaq_shared::mqtt::Credentials;
 use remodaq_shared::settings::{decode_record, encode_record, MAX_RECORD};
 
 fuzz_target!(|data: &[u8]| {
@@ -19,6 +22,23 @@ fuzz_target!(|data: &[u8]| {
         let mut record = [0u8; MAX_RECORD];
         let n = encode_record(&config, &mut record).expect("settings that were read fit a record");
         assert_eq!(decode_record::<Config>(&record[..n]).as_ref(), Some(&config));
+    }
+    // The whole input as a CA certificate's PEM (`PUT /api/v1/mqtt/ca`): a DER that fits, or
+    // nothing; as stored credentials and as sealed ones opened.
+    let mut der = [0u8; remodaq_shared::mqtt::MAX_CA];
+    if let Some(n) = remodaq_shared::mqtt::der_of_pem(data, &mut der) {
+        assert!(n <= der.len() && der[0] == 0x30);
+    }
+    if let Some(c) = decode_record::<Credentials>(data) {
+        let mut record = [0u8; MAX_RECORD];
+        let n = encode_record(&c, &mut record).expect("credentials that were read fit a record");
+        assert_eq!(decode_record::<Credentials>(&record[..n]).as_ref(), Some(&c));
+    }
+    if let Ok(sealed) = <[u8; MQTT_CREDENTIALS_LEN]>::try_from(data.get(..MQTT_CREDENTIALS_LEN).unwrap_or(&[])) {
+        if let Some((user, password)) = mqtt_credentials_of(&sealed) {
+            let again = mqtt_credentials(user, password).expect("what was read fits");
+            assert_eq!(mqtt_credentials_of(&again), Some((user, password)));
+        }
     }
     let Some((&split, rest)) = data.split_first() else { return };
     let (text, payload) = rest.split_at(usize::from(split).min(rest.len()));

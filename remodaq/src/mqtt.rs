@@ -199,6 +199,8 @@ mod tests {
             deadbands: vec![0; 8],
             on_change: true,
             commands: false,
+            ca: false,
+            credentials: false,
         };
         let changes = Changes {
             on: true,

@@ -18,7 +18,7 @@ use crate::service::{run, Board, Connector, KEEP_ALIVE_S};
 /// The socket's buffers: what the module sends (publications of at most about 350 bytes) is
 /// most; what it receives is acknowledgments and the odd command.
 const SOCKET_RX: usize = 512;
-const SOCKET_TX: usize = 1024;
+const SOCKET_TX: usize = 768;
 
 /// Opens connections to the broker on an embassy-net stack, one at a time through one socket,
 /// which it keeps: the session's end (the settings changed) does not drop it unclosed, so the

@@ -173,7 +173,9 @@ async fn sessions<A: RegisterMap, C: Connector>(
         });
     let Some(built) = built.ok().and_then(|c| will.ok().and_then(|w| c.will(w).ok())) else {
         error!("mqtt: the session's configuration was refused");
-        return core::future::pending().await;
+        loop {
+            core::future::pending::<()>().await;
+        }
     };
     let mut session = Session::new(built);
     let settings = Settings {

@@ -3,6 +3,10 @@
 //! host name, its validity against the module's time ([`Clock`]); without a time, no TLS
 //! connection is tried ([`Refused::NoTime`]).
 
+use core::cell::Cell;
+
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::blocking_mutex::Mutex;
 use embedded_io_async::{Read, Write};
 use embedded_tls::pki::CertVerifier;
 use embedded_tls::{
@@ -21,18 +25,18 @@ pub trait Clock {
     fn now() -> Option<u64>;
 }
 
+/// A board's time of day: ms since 1970, or `None` before it has one.
+type TimeOfDay = fn() -> Option<u64>;
+
 /// The board's time of day, for [`BoardClock`]: set by the service before it opens TLS.
-static BOARD_TIME: embassy_sync::blocking_mutex::Mutex<
-    embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex,
-    core::cell::Cell<Option<fn() -> Option<u64>>>,
-> = embassy_sync::blocking_mutex::Mutex::new(core::cell::Cell::new(None));
+static BOARD_TIME: Mutex<CriticalSectionRawMutex, Cell<Option<TimeOfDay>>> = Mutex::new(Cell::new(None));
 
 /// The board's time of day (ms since 1970, or `None`) as the certificates' [`Clock`].
 pub struct BoardClock;
 
 impl BoardClock {
     /// Takes the board's time of day from `time_ms`.
-    pub fn set(time_ms: fn() -> Option<u64>) {
+    pub fn set(time_ms: TimeOfDay) {
         BOARD_TIME.lock(|t| t.set(Some(time_ms)));
     }
 }

@@ -160,7 +160,7 @@ pub struct Utility {
     new_password: Zeroizing<String>,
     new_password_again: Zeroizing<String>,
     allow_text: String,
-    mqtt: mqtt::MqttForm,
+    mqtt: forms::MqttForm,
     // Firmware tab.
     image_path: String,
     progress: Option<(u64, u64, bool)>,
@@ -247,7 +247,7 @@ impl Utility {
             new_password: Zeroizing::default(),
             new_password_again: Zeroizing::default(),
             allow_text: String::new(),
-            mqtt: mqtt::MqttForm::default(),
+            mqtt: forms::MqttForm::default(),
             image_path: String::new(),
             progress: None,
             trend: Trend::default(),

@@ -3,88 +3,11 @@
 //! network), read into the form and stored from it, with the CA certificate (a PEM or DER file)
 //! and the broker's user name and password (sealed on the way, never shown back).
 
-use std::net::SocketAddr;
-
 use eframe::egui::{self, Ui};
-use remodaq_client::web::MqttSettings;
-use zeroize::Zeroizing;
 
 use super::password::Purpose;
 use super::{field, tr, Utility};
 use crate::worker::{Located, MqttChange};
-
-/// The MQTT tab's fields, as typed.
-#[derive(Default)]
-pub(crate) struct MqttForm {
-    /// The module's web console, `HOST[:PORT]` (empty: the module's address, port 80).
-    console: String,
-    /// The settings last read or stored (what the fields started from).
-    loaded: Option<MqttSettings>,
-    on: bool,
-    broker: String,
-    host: String,
-    port: String,
-    client_id: String,
-    tls: bool,
-    prefix: String,
-    period_ms: String,
-    qos1: bool,
-    deadbands: String,
-    on_change: bool,
-    commands: bool,
-    ca_file: String,
-    user: String,
-    password: Zeroizing<String>,
-}
-
-impl MqttForm {
-    /// The fields from `s`, as read or stored.
-    pub(crate) fn load(&mut self, s: MqttSettings) {
-        self.on = s.on;
-        self.broker = s.broker.clone();
-        self.host = s.host.clone();
-        self.port = s.port.to_string();
-        self.client_id = s.client_id.clone();
-        self.tls = s.tls;
-        self.prefix = s.prefix.clone();
-        self.period_ms = s.period_ms.to_string();
-        self.qos1 = s.qos == 1;
-        self.deadbands = s.deadbands.iter().map(u32::to_string).collect::<Vec<_>>().join(" ");
-        self.on_change = s.on_change;
-        self.commands = s.commands;
-        self.loaded = Some(s);
-    }
-
-    /// The settings the fields say, or which field is not a number.
-    fn settings(&self) -> Result<MqttSettings, &'static str> {
-        let number = |text: &str, what: &'static str| text.trim().parse::<u32>().map_err(|_| what);
-        let deadbands =
-            self.deadbands.split_whitespace().map(|d| number(d, "Deadbands")).collect::<Result<Vec<_>, _>>()?;
-        Ok(MqttSettings {
-            on: self.on,
-            broker: self.broker.trim().to_owned(),
-            host: self.host.trim().to_owned(),
-            port: u16::try_from(number(&self.port, "Port")?).map_err(|_| "Port")?,
-            client_id: self.client_id.trim().to_owned(),
-            tls: self.tls,
-            prefix: self.prefix.trim().to_owned(),
-            period_ms: number(&self.period_ms, "Period (ms)")?,
-            qos: u8::from(self.qos1),
-            deadbands,
-            on_change: self.on_change,
-            commands: self.commands,
-            ca: false,
-            credentials: false,
-        })
-    }
-
-    /// The web console's address: the field, or the module's address on port 80.
-    fn console(&self, m: &Located) -> Result<SocketAddr, String> {
-        let given = self.console.trim();
-        let text = if given.is_empty() { m.modbus.ip().to_string() } else { given.to_owned() };
-        remodaq_client::modbus::resolve_on(&text, 80).map_err(|e| e.to_string())
-    }
-}
 
 impl Utility {
     pub(super) fn mqtt_tab(&mut self, ui: &mut Ui, m: &Located) {
