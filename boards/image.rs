@@ -140,7 +140,8 @@ async fn web(app: &'static Running) -> ! {
 #[cfg(any(not(target_os = "none"), feature = "mqtt"))]
 #[embassy_executor::task]
 async fn mqtt(app: &'static Running) -> ! {
-    transport::mqtt(app.net(), app.map(), app.store(), app.identity()).await
+    // Made in place, as the web console's (its buffers would be copied through the stack).
+    core::pin::pin!(transport::mqtt(app.net(), app.map(), app.store(), app.identity())).await
 }
 
 /// Brings the module up, then starts its tasks: a Modbus connection task per slot, discovery,

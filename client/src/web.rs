@@ -189,6 +189,9 @@ pub struct MqttSettings {
     pub on_change: bool,
     /// The 8350 takes output commands.
     pub commands: bool,
+    /// The time server (SNTP): `a.b.c.d[:port]`, empty for none.
+    #[serde(default)]
+    pub sntp: String,
     /// A CA certificate is stored (shown, never sent back).
     #[serde(default, skip_serializing)]
     pub ca: bool,

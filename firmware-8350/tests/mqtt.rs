@@ -196,7 +196,7 @@ fn settings_set_through_the_web_console_are_stored_and_in_force_at_once() {
     let settings = |on: bool| {
         format!(
             r#"{{"on":{on},"broker":"127.0.0.1","host":"","port":{},"client_id":"","tls":false,"prefix":"test/sim",
-            "period_ms":1000,"qos":1,"deadbands":[0,0,0,0,0,0,0,0],"on_change":true,"commands":false}}"#,
+            "period_ms":1000,"qos":1,"deadbands":[0,0,0,0,0,0,0,0],"on_change":true,"commands":false,"sntp":""}}"#,
             broker.port
         )
     };
@@ -280,7 +280,7 @@ fn over_tls_with_stored_settings() {
     let settings = |tls: bool, host: &str| {
         format!(
             r#"{{"on":true,"broker":"127.0.0.1","host":"{host}","port":{},"client_id":"","tls":{tls},"prefix":"test/tls",
-            "period_ms":1000,"qos":1,"deadbands":[0,0,0,0,0,0,0,0],"on_change":true,"commands":false}}"#,
+            "period_ms":1000,"qos":1,"deadbands":[0,0,0,0,0,0,0,0],"on_change":true,"commands":false,"sntp":""}}"#,
             broker.port
         )
     };
@@ -347,6 +347,12 @@ fn over_tls_with_stored_settings() {
 
     put(&mut page, "/api/v1/mqtt", &settings(false, HOST));
     until("credentials without TLS: refused, counted", &|d| d[0] == 3 && d[9] == 1);
+    // Another broker's name with TLS (or another CA): the credentials stay home (they were
+    // stored for broker.test), counted.
+    put(&mut page, "/api/v1/mqtt", &settings(true, "other.test"));
+    until("credentials stored for another broker: refused, counted", &|d| d[0] == 3 && d[9] == 2);
+    put(&mut page, "/api/v1/mqtt", &settings(true, HOST));
+    until("the broker they were stored for again: online", &|d| d[0] == 2);
     drop(module);
     drop(sub);
 

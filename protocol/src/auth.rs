@@ -282,7 +282,7 @@ mod tests {
     fn domain_tags_are_length_prefixed_and_none_is_a_prefix_of_another() {
         assert_eq!(crate::domain_tag!(b"RDAQ seal"), b"\x09RDAQ seal");
         assert_eq!(crate::update::UPDATE_LABEL, b"\x0eRDAQ update v2");
-        let tags: [&[u8]; 13] = [
+        let tags: [&[u8]; 14] = [
             crate::update::UPDATE_LABEL,
             crate::update::ANSWER_LABEL,
             crate::discovery::CLIENT_LABEL,
@@ -290,6 +290,7 @@ mod tests {
             crate::discovery::SEAL_LABEL,
             crate::web::PASSWORD_SEAL_LABEL,
             crate::web::MQTT_CREDENTIALS_LABEL,
+            crate::web::MQTT_BINDING_LABEL,
             crate::web::AGREEMENT_LABEL,
             crate::web::LOGIN_LABEL,
             crate::web::SESSION_LABEL,

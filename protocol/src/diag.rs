@@ -69,7 +69,8 @@ pub mod mqtt {
     pub const CERTIFICATE: u8 = 7;
     /// TLS handshakes that failed otherwise (40336).
     pub const HANDSHAKE: u8 = 8;
-    /// Settings refused: credentials set with TLS off (they would cross in clear) (40337).
+    /// Settings refused: credentials set with TLS off (they would cross in clear), or stored for
+    /// another broker (its address, port, name or CA changed since) (40337).
     pub const PLAIN_CREDENTIALS: u8 = 9;
     /// How many registers.
     pub const REGISTERS: u16 = 10;

@@ -32,6 +32,9 @@ pub const PASSWORD_SEAL_LABEL: &[u8] = crate::domain_tag!(b"RDAQ web new credent
 /// The context's domain tag of MQTT's credentials sealed by a client (the module's public key
 /// follows), as a new password is sealed ([`PASSWORD_SEAL_LABEL`]).
 pub const MQTT_CREDENTIALS_LABEL: &[u8] = crate::domain_tag!(b"RDAQ web mqtt credentials");
+/// Domain tag of the binding of MQTT's credentials to the broker they were stored for (its
+/// address, port, host name and CA certificate: `remodaq_shared::mqtt::binding`).
+pub const MQTT_BINDING_LABEL: &[u8] = crate::domain_tag!(b"RDAQ mqtt binding");
 /// The longest MQTT user name and password, bytes.
 pub const MQTT_USER_MAX: usize = 32;
 /// See [`MQTT_USER_MAX`].

@@ -49,6 +49,9 @@ pub struct Changes {
     /// The 8350 takes output commands from the broker: on or off.
     #[arg(long, value_parser = on_off)]
     pub commands: Option<bool>,
+    /// The time server (SNTP) the modules take the time of day from: ADDR or ADDR:PORT ("" none).
+    #[arg(long)]
+    pub sntp: Option<String>,
     /// The CA certificate the broker's chain must lead to: a PEM or DER file, or "none".
     #[arg(long, value_name = "FILE")]
     pub ca: Option<String>,
@@ -92,6 +95,7 @@ impl Changes {
         text(&self.host, &mut settings.host);
         text(&self.client_id, &mut settings.client_id);
         text(&self.prefix, &mut settings.prefix);
+        text(&self.sntp, &mut settings.sntp);
         settings.port = self.port.unwrap_or(settings.port);
         settings.tls = self.tls.unwrap_or(settings.tls);
         settings.period_ms = self.period_ms.unwrap_or(settings.period_ms);
@@ -136,6 +140,7 @@ fn print(settings: &MqttSettings, json: bool) -> Result<(), Error> {
     println!("deadbands:  {} (8318, thousandths of each channel's unit)", bands.join(" "));
     println!("on change:  {} (8350)", yes(settings.on_change));
     println!("commands:   {} (8350)", yes(settings.commands));
+    println!("time:       {}", or(&settings.sntp, "no time server"));
     let stored = |b: bool| if b { "stored" } else { "none" };
     println!("CA:         {}; credentials: {} (never shown)", stored(settings.ca), stored(settings.credentials));
     Ok(())
@@ -199,6 +204,7 @@ mod tests {
             deadbands: vec![0; 8],
             on_change: true,
             commands: false,
+            sntp: String::new(),
             ca: false,
             credentials: false,
         };

@@ -16,6 +16,7 @@ pub mod access;
 pub mod app;
 pub mod board;
 pub mod budget;
+pub mod clock;
 pub mod diagnostics;
 pub mod flash;
 pub mod health;

@@ -66,6 +66,11 @@ pub struct Config {
     pub on_change: bool,
     /// The 8350's output commands taken.
     pub commands: bool,
+    /// The time server (SNTP) the embassy-net boards ask the time of day (a certificate's
+    /// validity, the payloads' `time`); 0.0.0.0: none.
+    pub sntp: [u8; 4],
+    /// Its UDP port.
+    pub sntp_port: u16,
 }
 
 /// A setting that is not valid, by name (as the web console's API names its fields).
@@ -84,6 +89,11 @@ const TAG_QOS: u8 = 9;
 const TAG_DEADBANDS: u8 = 10;
 const TAG_ON_CHANGE: u8 = 11;
 const TAG_COMMANDS: u8 = 12;
+const TAG_SNTP: u8 = 13;
+const TAG_SNTP_PORT: u8 = 14;
+
+/// SNTP's port (RFC 4330), the default.
+pub const SNTP_PORT: u16 = 123;
 
 /// MQTT over TLS's port (IANA), the default.
 pub const TLS_PORT: u16 = 8883;
@@ -92,7 +102,8 @@ impl Config {
     /// Whether every setting is valid: a port, a client id of 1-23 of `[0-9A-Za-z_-]` or none,
     /// a prefix [`prefix_is_valid`] or none, a period of 100 ms to 1 h, a host name of
     /// letters, digits, `-` and `.` (needed on with TLS, whose check names the broker), a broker
-    /// address when on: not 0.0.0.0, multicast or broadcast (a loopback one serves a simulator).
+    /// address when on: not 0.0.0.0, multicast or broadcast (a loopback one serves a simulator),
+    /// a time server that is none or no multicast or broadcast address, on a port.
     pub fn check(&self) -> Result<(), Invalid> {
         let id_ok = self.client_id.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_');
         let host_ok = self.host.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'.');
@@ -108,6 +119,8 @@ impl Config {
             Err(Invalid("host"))
         } else if self.on && (self.broker == [0; 4] || self.broker[0] >= 224) {
             Err(Invalid("broker"))
+        } else if self.sntp[0] >= 224 || self.sntp_port == 0 {
+            Err(Invalid("sntp"))
         } else {
             Ok(())
         }
@@ -145,6 +158,8 @@ impl Schema for Config {
             deadbands: [0; CHANNELS],
             on_change: true,
             commands: false,
+            sntp: [0; 4],
+            sntp_port: SNTP_PORT,
         }
     }
 
@@ -170,6 +185,8 @@ impl Schema for Config {
         w.put(TAG_DEADBANDS, &deadbands);
         w.put(TAG_ON_CHANGE, &[u8::from(self.on_change)]);
         w.put(TAG_COMMANDS, &[u8::from(self.commands)]);
+        w.put(TAG_SNTP, &self.sntp);
+        w.put_u16(TAG_SNTP_PORT, self.sntp_port);
     }
 
     fn decode(_version: u8, r: &RecordReader<'_>) -> Self {
@@ -192,6 +209,8 @@ impl Schema for Config {
                 .unwrap_or(d.deadbands),
             on_change: flag(r, TAG_ON_CHANGE).unwrap_or(d.on_change),
             commands: flag(r, TAG_COMMANDS).unwrap_or(d.commands),
+            sntp: r.array(TAG_SNTP).unwrap_or(d.sntp),
+            sntp_port: r.u16(TAG_SNTP_PORT).unwrap_or(d.sntp_port),
         };
         // A stored record that is not valid whole is not used: off (never a connection made on
         // half a configuration).
@@ -252,17 +271,36 @@ pub const MAX_USER: usize = remodaq_protocol::web::MQTT_USER_MAX;
 pub const MAX_PASSWORD: usize = remodaq_protocol::web::MQTT_PASSWORD_MAX;
 
 /// The broker's user name and password (`settings::key::MQTT_CREDENTIALS`): sent only inside
-/// TLS, never shown back. An empty user name: none (anonymous).
+/// TLS, only to the broker they were stored for ([`binding`]), never shown back. An empty user
+/// name: none (anonymous).
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Credentials {
     /// The user name.
     pub user: heapless::String<MAX_USER>,
     /// The password.
     pub password: heapless::String<MAX_PASSWORD>,
+    /// The broker they were stored for ([`binding`]): whoever changes the broker's address,
+    /// name or CA afterwards (the configuration password's holder) does not get them sent to
+    /// his own broker; they must be stored again.
+    pub binding: [u8; 8],
+}
+
+/// Which broker credentials are for: the first 8 bytes of HMAC-SHA-256 under an all-zero key of
+/// tag("RDAQ mqtt binding"), the broker's address, port (little-endian), host name and CA
+/// certificate (DER).
+pub fn binding(config: &Config, ca: &[u8]) -> [u8; 8] {
+    let port = config.port.to_le_bytes();
+    let parts: [&[u8]; 5] =
+        [remodaq_protocol::web::MQTT_BINDING_LABEL, &config.broker, &port, config.host.as_bytes(), ca];
+    let mac = remodaq_protocol::auth::hmac(&[0; 32], &parts);
+    let mut out = [0u8; 8];
+    out.copy_from_slice(&mac[..8]);
+    out
 }
 
 const TAG_USER: u8 = 1;
 const TAG_PASSWORD: u8 = 2;
+const TAG_BINDING: u8 = 3;
 
 impl Schema for Credentials {
     const VERSION: u8 = 1;
@@ -280,10 +318,15 @@ impl Schema for Credentials {
     fn encode(&self, w: &mut RecordWriter<'_>) {
         w.put(TAG_USER, self.user.as_bytes());
         w.put(TAG_PASSWORD, self.password.as_bytes());
+        w.put(TAG_BINDING, &self.binding);
     }
 
     fn decode(_version: u8, r: &RecordReader<'_>) -> Self {
-        Self { user: string(r, TAG_USER).unwrap_or_default(), password: string(r, TAG_PASSWORD).unwrap_or_default() }
+        Self {
+            user: string(r, TAG_USER).unwrap_or_default(),
+            password: string(r, TAG_PASSWORD).unwrap_or_default(),
+            binding: r.array(TAG_BINDING).unwrap_or_default(),
+        }
     }
 }
 
@@ -353,6 +396,7 @@ mod tests {
         let c = Credentials {
             user: heapless::String::try_from("u".repeat(MAX_USER).as_str()).unwrap(),
             password: heapless::String::try_from("p".repeat(MAX_PASSWORD).as_str()).unwrap(),
+            binding: [7; 8],
         };
         let n = encode_record(&c, &mut record).expect("fits a record");
         assert_eq!(decode_record::<Credentials>(&record[..n]), Some(c));
@@ -362,7 +406,9 @@ mod tests {
     /// Docs/mqtt.md's ranges.
     #[test]
     fn what_is_not_valid() {
-        let cases: [(Config, &str); 8] = [
+        let cases: [(Config, &str); 10] = [
+            (Config { sntp: [224, 0, 0, 1], ..on() }, "sntp"),
+            (Config { sntp_port: 0, ..on() }, "sntp"),
             (Config { port: 0, ..on() }, "port"),
             (Config { client_id: heapless::String::try_from("a b").unwrap(), ..on() }, "client_id"),
             (Config { prefix: heapless::String::try_from("a/#").unwrap(), ..on() }, "prefix"),

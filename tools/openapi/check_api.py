@@ -504,7 +504,7 @@ CA_PEM = ("-----BEGIN CERTIFICATE----- "
 # (RFC 5737: nothing answers there).
 MQTT = {"on": True, "broker": "192.0.2.50", "host": "", "port": 1883, "client_id": "rdaq-api-test", "tls": False,
         "prefix": "plant/line-2", "period_ms": 1000, "qos": 1, "deadbands": [50, 0, 0, 0, 0, 0, 0, 7],
-        "on_change": True, "commands": False}
+        "on_change": True, "commands": False, "sntp": "192.0.2.1"}
 
 
 def exercise_settings(c):

@@ -193,6 +193,7 @@ pub static ZH: &[(&str, &str)] = &[
         "通过模块的网页控制台；出厂密码有效时不可更改",
     ),
     ("Web console", "网页控制台"),
+    ("Time server (SNTP)", "时间服务器 (SNTP)"),
     ("Port", "端口"),
     ("Publish to the broker", "发布到代理服务器"),
     ("Broker address", "代理服务器地址"),

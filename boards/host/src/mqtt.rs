@@ -67,6 +67,7 @@ pub async fn run<A: RegisterMap + SettingsAccess, F: NorFlash>(
     store: &'static Store<F, A::Settings>,
     identity: Identity,
 ) -> ! {
-    let board = Board { time_ms, imposed: broker.map(overridden) };
+    let mut tls_buffer = vec![0u8; service::TLS_BUFFER];
+    let board = Board { time_ms, imposed: broker.map(overridden), tls_buffer: &mut tls_buffer };
     service::run(board, &mut StdConnector, map, store, identity).await
 }

@@ -36,8 +36,10 @@ pub fn run(init: impl FnOnce(Spawner)) -> ! {
     let executor: &'static raw::Executor = EXECUTOR.init(raw::Executor::new(core::ptr::null_mut()));
     init(executor.spawner());
     loop {
+        let started = crate::time::counter_us();
         // SAFETY: polled from thread mode only, never re-entered.
         unsafe { executor.poll() };
+        crate::time::main_poll(crate::time::counter_us().wrapping_sub(started));
         // Sleep unless something was woken meanwhile. Interrupts are masked while checking, so
         // a wake-up between the check and WFI still ends the WFI (a pending interrupt does).
         cortex_m::interrupt::disable();

@@ -159,6 +159,31 @@ const STALL_US: u64 = 5_000;
 /// A critical section at least this long is said in the log when it is the longest yet.
 const LONG_SECTION_US: u32 = 1_000;
 
+/// A poll of the main executor at least this long is said in the log, each one: a task that
+/// holds the executor (MQTT's TLS handshake's arithmetic, docs/mqtt.md "Never in the way") delays
+/// every other task of it by as much. 3 ms: rare in normal running, so that the log's writes
+/// (each one stops the machine) do not disturb the latency checks.
+const LONG_POLL_US: u32 = 3_000;
+
+/// The FPGAIO's microsecond counter (wraps every 71 minutes: subtract with `wrapping_sub`).
+pub(crate) fn counter_us() -> u32 {
+    fpgaio_read(COUNTER)
+}
+
+/// A poll of the main executor that took `took` µs: said in the log if long ([`LONG_POLL_US`]).
+/// The time includes what preempted it (interrupts, the realtime executor) and any stall of
+/// the machine by this PC, which the log's stall lines say.
+pub(crate) fn main_poll(took: u32) {
+    // A poll across `start`, which sets the counter going from 0, wraps: it says nothing.
+    if (LONG_POLL_US..1 << 31).contains(&took) {
+        cortex_m_semihosting::hprintln!(
+            "qemu board: a poll of the main executor took {} us, at {} us",
+            took,
+            DRIVER.now()
+        );
+    }
+}
+
 /// The time of the last SysTick, µs.
 static LAST_TICK_US: Mutex<Cell<u64>> = Mutex::new(Cell::new(0));
 /// The longest critical section said in the log so far, µs.

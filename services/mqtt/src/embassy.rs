@@ -1,7 +1,11 @@
 //! MQTT's connection to the broker on embassy-net (the STM32 and QEMU boards): a TCP socket of
-//! the stack's socket plan (`remodaq_net::STACK_SOCKETS` counts it with the feature `mqtt`),
-//! over buffers the service's task holds, and [`serve`], the service on it.
+//! the stack's socket plan (`remodaq_net::STACK_SOCKETS` counts it, and SNTP's UDP socket, with
+//! the feature `mqtt`), over buffers the service's task holds, and [`serve`], the service on it
+//! beside the SNTP client.
 
+use core::pin::pin;
+
+use embassy_futures::select::{select, Either};
 use embassy_net::tcp::TcpSocket;
 use embassy_net::{IpEndpoint, Ipv4Address};
 use embassy_time::Duration;
@@ -13,7 +17,7 @@ use remodaq_shared::modbus::RegisterMap;
 use remodaq_shared::module::{SettingsAccess, Store};
 use remodaq_shared::warn;
 
-use crate::service::{run, Board, Connector, KEEP_ALIVE_S};
+use crate::service::{run, Board, Connector, KEEP_ALIVE_S, TLS_BUFFER};
 
 /// The socket's buffers: what the module sends (publications of at most about 350 bytes) is
 /// most; what it receives is acknowledgments and the odd command.
@@ -54,8 +58,9 @@ impl<'b> Connector for EmbassyConnector<'b> {
     }
 }
 
-/// Serves MQTT on `net` with the stored settings, forever. These boards have no time of day yet
-/// (SNTP is not built): payloads say `"time": null`.
+/// Serves MQTT on `net` with the stored settings, forever, and keeps the module's time of day
+/// from the time server they name (`crate::sntp`): the certificates' validity and the payloads'
+/// `time` (`null` before the module has one).
 pub async fn serve<E: Effects, A: RegisterMap + SettingsAccess, F: NorFlash>(
     net: &'static EmbassyNet<E>,
     map: &'static Shared<A>,
@@ -63,6 +68,13 @@ pub async fn serve<E: Effects, A: RegisterMap + SettingsAccess, F: NorFlash>(
     identity: Identity,
 ) -> ! {
     let (mut rx, mut tx) = ([0u8; SOCKET_RX], [0u8; SOCKET_TX]);
+    let mut tls_buffer = [0u8; TLS_BUFFER];
     let mut connector = EmbassyConnector { socket: TcpSocket::new(net.stack, &mut rx, &mut tx) };
-    run(Board { time_ms: || None, imposed: None }, &mut connector, map, store, identity).await
+    let board = Board { time_ms: remodaq_shared::clock::now_ms, imposed: None, tls_buffer: &mut tls_buffer };
+    // Made in place: passed by value, these futures would be copied through the stack first.
+    let service = pin!(run(board, &mut connector, map, store, identity));
+    let time = pin!(crate::sntp::keep_time(net));
+    match select(service, time).await {
+        Either::First(never) | Either::Second(never) => never,
+    }
 }

@@ -22,6 +22,8 @@ pub mod points;
 pub mod schedule;
 pub mod service;
 pub mod session;
+#[cfg(feature = "embassy-net")]
+pub mod sntp;
 #[cfg(feature = "testing")]
 pub mod testing;
 #[cfg(feature = "tls")]

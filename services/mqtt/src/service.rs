@@ -19,7 +19,7 @@ use remodaq_shared::diagnostics::{mqtt, DIAGNOSTICS};
 use remodaq_shared::identity::Identity;
 use remodaq_shared::modbus::RegisterMap;
 use remodaq_shared::module::{SettingsAccess, Store};
-use remodaq_shared::mqtt::{Config, Credentials, CA_VERSION, CHANGED};
+use remodaq_shared::mqtt::{binding, Config, Credentials, CA_VERSION, CHANGED};
 use remodaq_shared::settings::key;
 use remodaq_shared::{error, info, warn};
 
@@ -65,11 +65,14 @@ pub trait Connector {
 }
 
 /// The board's side of the service beyond the connection.
-pub struct Board {
+pub struct Board<'a> {
     /// Milliseconds since 1970, or `None` before the module has a time (`time` in payloads).
     pub time_ms: fn() -> Option<u64>,
     /// Settings that override the stored ones (the simulator's `--mqtt`).
     pub imposed: Option<Config>,
+    /// TLS's record buffers, [`TLS_BUFFER`] bytes (none without TLS): the caller's, in its
+    /// task's storage, so that no future holding them is moved through the stack.
+    pub tls_buffer: &'a mut [u8],
 }
 
 /// The CA certificate as the service holds it: up to `MAX_CA` bytes where TLS is built, none
@@ -80,15 +83,15 @@ type Ca = heapless::Vec<u8, { remodaq_shared::mqtt::MAX_CA }>;
 type Ca = heapless::Vec<u8, 0>;
 
 /// TLS's record buffers: 16 KiB + 256 B for reading (TLS's largest record, with its overhead),
-/// 4 KiB for writing (the module's records are small).
-#[cfg(feature = "tls")]
-const TLS_READ: usize = 16_640;
-#[cfg(feature = "tls")]
+/// 4 KiB for writing (the module's records are small); none without TLS.
+pub const TLS_BUFFER: usize = if cfg!(feature = "tls") { 16_640 + TLS_WRITE } else { 0 };
+/// TLS's write buffer (the end of [`TLS_BUFFER`]).
+#[cfg_attr(not(feature = "tls"), allow(dead_code))]
 const TLS_WRITE: usize = 4_096;
 
 /// Serves MQTT for ever (see the module's documentation).
 pub async fn run<A: RegisterMap + SettingsAccess, F: NorFlash, C: Connector>(
-    board: Board,
+    board: Board<'_>,
     connector: &mut C,
     map: &'static Shared<A>,
     store: &'static Store<F, A::Settings>,
@@ -107,20 +110,22 @@ pub async fn run<A: RegisterMap + SettingsAccess, F: NorFlash, C: Connector>(
                 (config, store.service_record::<Credentials>(key::MQTT_CREDENTIALS).await)
             }
         };
+        remodaq_shared::clock::set_server((config.sntp != [0; 4]).then_some((config.sntp, config.sntp_port)));
         if !config.on {
             DIAGNOSTICS.mqtt_state(mqtt::OFF);
             info!("mqtt: off");
         } else if config.tls && ca.is_empty() {
             DIAGNOSTICS.mqtt_state(mqtt::UNUSABLE);
             warn!("mqtt: TLS without a CA certificate stored (or in an image without TLS): not connected");
-        } else if !config.tls && !credentials.user.is_empty() {
+        } else if !credentials.user.is_empty() && (!config.tls || credentials.binding != binding(&config, &ca)) {
             DIAGNOSTICS.mqtt_state(mqtt::UNUSABLE);
             DIAGNOSTICS.mqtt_event(mqtt::PLAIN_CREDENTIALS);
-            warn!("mqtt: credentials are sent only inside TLS, and TLS is off: not connected");
+            warn!("mqtt: credentials are sent only inside TLS, to the broker they were stored for: not connected");
         } else {
             DIAGNOSTICS.mqtt_state(mqtt::CONNECTING);
             let configured = Configured { config: &config, credentials: &credentials, ca: &ca, time_ms: board.time_ms };
-            match select(sessions(&configured, connector, map, identity), CHANGED.wait()).await {
+            let tls = &mut *board.tls_buffer;
+            match select(sessions(&configured, tls, connector, map, identity), CHANGED.wait()).await {
                 Either::First(never) => match never {},
                 Either::Second(()) => info!("mqtt: the settings changed: starting again"),
             }
@@ -142,11 +147,16 @@ struct Configured<'a> {
 /// One configuration's sessions, reconnecting for ever.
 async fn sessions<A: RegisterMap, C: Connector>(
     configured: &Configured<'_>,
+    tls_buffer: &mut [u8],
     connector: &mut C,
     map: &'static Shared<A>,
     identity: Identity,
 ) -> core::convert::Infallible {
     let Configured { config, credentials, ca, time_ms } = *configured;
+    #[cfg(feature = "tls")]
+    let (read, write) = tls_buffer.split_at_mut(tls_buffer.len().saturating_sub(TLS_WRITE));
+    #[cfg(not(feature = "tls"))]
+    let _ = tls_buffer;
     let prefix = if config.prefix.is_empty() {
         topics::default_prefix(identity.model, identity.mac)
     } else {
@@ -199,16 +209,14 @@ async fn sessions<A: RegisterMap, C: Connector>(
     let mut back_off = BACK_OFF_MIN;
     let [a, b, c, d] = config.broker;
     info!("mqtt: publishing to {}.{}.{}.{}:{} under {}", a, b, c, d, config.port, prefix.as_str());
-    #[cfg(feature = "tls")]
-    let (mut read, mut write) = ([0u8; TLS_READ], [0u8; TLS_WRITE]);
     loop {
         match connector.connect(config.broker, config.port).await {
             Some(io) if config.tls => {
                 #[cfg(feature = "tls")]
                 match crate::tls::open::<_, _, crate::tls::BoardClock>(
                     io,
-                    &mut read,
-                    &mut write,
+                    &mut *read,
+                    &mut *write,
                     ca,
                     &config.host,
                     crate::tls::ModuleRng,

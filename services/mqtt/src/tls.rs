@@ -10,8 +10,8 @@ use embassy_sync::blocking_mutex::Mutex;
 use embedded_io_async::{Read, Write};
 use embedded_tls::pki::CertVerifier;
 use embedded_tls::{
-    Aes128GcmSha256, Certificate, CryptoProvider, CryptoRngCore, TlsClock, TlsConfig, TlsConnection, TlsContext,
-    TlsError, TlsVerifier,
+    Aes128GcmSha256, Certificate, CertificateEntryRef, CertificateRef, CertificateVerifyRef, CryptoProvider,
+    CryptoRngCore, TlsCipherSuite, TlsClock, TlsConfig, TlsConnection, TlsContext, TlsError, TlsVerifier,
 };
 
 /// The largest certificate message of the broker the verifier keeps, bytes (a P-256 server
@@ -82,10 +82,64 @@ impl<C: Clock> TlsClock for Validity<C> {
     }
 }
 
+/// What of the broker's identity the handshake showed ([`Checked`]).
+const CERTIFICATE: u8 = 1;
+const SIGNATURE: u8 = 2;
+
+/// The CA's verifier held to the handshake's order, which embedded-tls 0.19 does not enforce:
+/// it takes a server's Finished without its Certificate and CertificateVerify (the Finished
+/// proves only the key exchange, not who the broker is), and panics on a CertificateVerify
+/// without a Certificate (security review of issue #40). Here the broker's certificate is
+/// checked once, and only with a time of day; its signature only after it; `seen` says which
+/// passed, and [`open`] refuses a connection unless both did. The broker's certificate signed
+/// by the installed CA itself (the CA may follow it): embedded-tls does not check that an
+/// intermediate may sign others.
+struct Checked<'a, V, C> {
+    inner: V,
+    ca: &'a [u8],
+    seen: &'a Cell<u8>,
+    clock: core::marker::PhantomData<C>,
+}
+
+impl<V: TlsVerifier<Aes128GcmSha256>, C: Clock> TlsVerifier<Aes128GcmSha256> for Checked<'_, V, C> {
+    fn set_hostname_verification(&mut self, hostname: &str) -> Result<(), TlsError> {
+        self.inner.set_hostname_verification(hostname)
+    }
+
+    fn verify_certificate(
+        &mut self,
+        transcript: &<Aes128GcmSha256 as TlsCipherSuite>::Hash,
+        cert: CertificateRef,
+    ) -> Result<(), TlsError> {
+        // The broker's own certificate, and after it at most the installed CA itself (as an
+        // OpenSSL server sends it): no intermediate.
+        let direct = match cert.entries.as_slice() {
+            [_] => true,
+            [_, CertificateEntryRef::X509(ca)] => *ca == self.ca,
+            _ => false,
+        };
+        if self.seen.get() != 0 || !direct || C::now().is_none() {
+            return Err(TlsError::InvalidCertificate);
+        }
+        self.inner.verify_certificate(transcript, cert)?;
+        self.seen.set(CERTIFICATE);
+        Ok(())
+    }
+
+    fn verify_signature(&mut self, verify: CertificateVerifyRef) -> Result<(), TlsError> {
+        if self.seen.get() != CERTIFICATE {
+            return Err(TlsError::InvalidSignature);
+        }
+        self.inner.verify_signature(verify)?;
+        self.seen.set(CERTIFICATE | SIGNATURE);
+        Ok(())
+    }
+}
+
 /// The session's cryptography: randomness from the board, the CA's verifier.
 struct Provider<'a, R, C: Clock> {
     rng: R,
-    verifier: CertVerifier<'a, Aes128GcmSha256, Validity<C>, MAX_CHAIN>,
+    verifier: Checked<'a, CertVerifier<'a, Aes128GcmSha256, Validity<C>, MAX_CHAIN>, C>,
 }
 
 impl<R: CryptoRngCore, C: Clock> CryptoProvider for Provider<'_, R, C> {
@@ -131,10 +185,16 @@ pub async fn open<'b, T: Read + Write + 'b, R: CryptoRngCore, C: Clock>(
         return Err(Refused::NoTime);
     }
     let config = TlsConfig::new().with_server_name(host);
-    let provider = Provider::<R, C> { rng, verifier: CertVerifier::new(Certificate::X509(ca)) };
+    let seen = Cell::new(0);
+    let verifier =
+        Checked { inner: CertVerifier::new(Certificate::X509(ca)), ca, seen: &seen, clock: core::marker::PhantomData };
+    let provider = Provider::<R, C> { rng, verifier };
     let mut tls = TlsConnection::new(transport, read, write);
     match tls.open(TlsContext::new(&config, provider)).await {
-        Ok(()) => Ok(tls),
+        // Nothing of the application's is written before this: a broker that did not show its
+        // certificate and prove it holds its key gets no credentials.
+        Ok(()) if seen.get() == CERTIFICATE | SIGNATURE => Ok(tls),
+        Ok(()) => Err(Refused::Certificate),
         Err(TlsError::InvalidCertificate | TlsError::InvalidSignature | TlsError::DecodeError) => {
             Err(Refused::Certificate)
         }

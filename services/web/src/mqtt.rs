@@ -19,7 +19,7 @@ use remodaq_protocol::net::parse_ipv4;
 use remodaq_protocol::web::{mqtt_credentials_of, MQTT_CREDENTIALS_LABEL, MQTT_CREDENTIALS_LEN, SESSION_ID_LEN};
 use remodaq_shared::json::Object;
 use remodaq_shared::module::{commit_raw_record, commit_service_record, SettingsAccess};
-use remodaq_shared::mqtt::{der_of_pem, Config, Credentials, Invalid, CA_VERSION};
+use remodaq_shared::mqtt::{binding, der_of_pem, Config, Credentials, Invalid, CA_VERSION, SNTP_PORT};
 use remodaq_shared::settings::key;
 
 use crate::service::api::{Answer, Api, Json};
@@ -66,6 +66,19 @@ pub fn config_of(body: &[u8]) -> Result<Config, MqttError> {
         deadbands,
         on_change: flag("on_change")?,
         commands: flag("commands")?,
+        sntp: [0; 4],
+        sntp_port: SNTP_PORT,
+    };
+    // The time server: "" for none, `a.b.c.d` (port 123) or `a.b.c.d:port`.
+    let sntp = text("sntp")?;
+    let config = match sntp.split_once(':') {
+        _ if sntp.is_empty() => config,
+        Some((ip, port)) => Config {
+            sntp: parse_ipv4(ip).ok_or(MqttError::Field("sntp"))?,
+            sntp_port: port.parse().map_err(|_| MqttError::Field("sntp"))?,
+            ..config
+        },
+        None => Config { sntp: parse_ipv4(sntp).ok_or(MqttError::Field("sntp"))?, ..config },
     };
     config.check().map_err(|Invalid(field)| MqttError::Field(field))?;
     Ok(config)
@@ -95,7 +108,14 @@ fn write_config(out: &mut Json, c: &Config) {
     for (i, band) in c.deadbands.iter().enumerate() {
         let _ = write!(out, "{}{band}", if i > 0 { "," } else { "" });
     }
-    let _ = write!(out, "],\"on_change\":{},\"commands\":{}}}", c.on_change, c.commands);
+    let _ = write!(out, "],\"on_change\":{},\"commands\":{},\"sntp\":\"", c.on_change, c.commands);
+    if c.sntp != [0; 4] {
+        let _ = write!(out, "{}", Ipv4Addr::from(c.sntp));
+        if c.sntp_port != SNTP_PORT {
+            let _ = write!(out, ":{}", c.sntp_port);
+        }
+    }
+    let _ = write!(out, "\"}}");
 }
 
 impl<R: RawMutex, M: remodaq_shared::modbus::RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F> {
@@ -145,7 +165,8 @@ impl<R: RawMutex, M: remodaq_shared::modbus::RegisterMap + SettingsAccess, F: No
     /// `PUT /api/v1/mqtt/credentials` (signed, not with the factory password): the broker's user
     /// name and password sealed as a new password is (`{module, public, sealed}`, under the key
     /// `POST /api/v1/password/key` offered this session, `MQTT_CREDENTIALS_LABEL`): never in
-    /// clear on the wire. An empty user name removes them.
+    /// clear on the wire. Bound to the broker as stored (`binding`): store the settings and the
+    /// CA first. An empty user name removes them.
     pub(super) async fn set_mqtt_credentials(
         &self,
         out: &mut Json,
@@ -164,9 +185,16 @@ impl<R: RawMutex, M: remodaq_shared::modbus::RegisterMap + SettingsAccess, F: No
                 Some("sealed"),
             );
         };
+        // Bound to the broker as stored now (its address, port, name and CA: `binding`).
+        let bound = {
+            let mut store = self.store.lock().await;
+            let config: Config = store.service_record(key::MQTT).await;
+            store.raw_record(key::MQTT_CA, CA_VERSION, |der| binding(&config, der)).await
+        };
         let credentials = Credentials {
             user: heapless::String::try_from(user).unwrap_or_default(),
             password: heapless::String::try_from(password).unwrap_or_default(),
+            binding: bound,
         };
         crate::settings::committed(out, commit_service_record(self.store, key::MQTT_CREDENTIALS, &credentials).await)
     }
@@ -179,7 +207,7 @@ impl<R: RawMutex, M: remodaq_shared::modbus::RegisterMap + SettingsAccess, F: No
             Err(MqttError::NotJson) => Answer::error(
                 out,
                 StatusCode::BAD_REQUEST,
-                "expected {on, broker, host, port, client_id, tls, prefix, period_ms, qos, deadbands, on_change, commands}",
+                "expected {on, broker, host, port, client_id, tls, prefix, period_ms, qos, deadbands, on_change, commands, sntp}",
                 None,
             ),
             Err(MqttError::Field(field)) => {
@@ -195,7 +223,7 @@ mod tests {
 
     const BODY: &str = r#"{"on":true,"broker":"192.168.0.10","host":"broker.plant","port":8883,"client_id":"",
         "tls":true,"prefix":"plant/line-2","period_ms":1000,"qos":1,"deadbands":[50,0,0,0,0,0,0,7],
-        "on_change":true,"commands":false}"#;
+        "on_change":true,"commands":false,"sntp":"192.168.0.1:1123"}"#;
 
     #[test]
     fn a_body_read_and_written_back() {
@@ -224,6 +252,8 @@ mod tests {
             (with("plant/line-2", "plant/#"), MqttError::Field("prefix")),
             (with(r#""port":8883"#, r#""port":0"#), MqttError::Field("port")),
             (with(r#""on":true"#, r#""on":1"#), MqttError::NotJson),
+            (with("192.168.0.1:1123", "192.168.0.1:0"), MqttError::Field("sntp")),
+            (with("192.168.0.1:1123", "239.0.0.1"), MqttError::Field("sntp")),
             (with(r#""commands":false"#, r#""other":false"#), MqttError::NotJson),
         ] {
             assert_eq!(config_of(body.as_bytes()), Err(want), "{body}");

@@ -30,11 +30,11 @@ use crate::backlog::{Gate, Peer, HANDSHAKE_TIMEOUT_MS};
 const CLOSE_WAIT: Duration = Duration::from_millis(100);
 
 /// The stack's sockets: the Modbus connection tasks, discovery's, update, one of slack, the
-/// web console's connections and MQTT's, in an image that has them.
+/// web console's connections and MQTT's (its broker's, SNTP's), in an image that has them.
 pub const STACK_SOCKETS: usize =
     MODBUS_SOCKETS + remodaq_shared::sockets::DISCOVERY_SOCKETS + 2 + WEB_SOCKETS + MQTT_SOCKETS;
 #[cfg(feature = "mqtt")]
-const MQTT_SOCKETS: usize = 1;
+const MQTT_SOCKETS: usize = 2;
 #[cfg(not(feature = "mqtt"))]
 const MQTT_SOCKETS: usize = 0;
 #[cfg(feature = "web")]

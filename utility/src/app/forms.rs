@@ -63,6 +63,7 @@ pub(super) struct MqttForm {
     pub(super) deadbands: String,
     pub(super) on_change: bool,
     pub(super) commands: bool,
+    pub(super) sntp: String,
     pub(super) ca_file: String,
     pub(super) user: String,
     pub(super) password: Zeroizing<String>,
@@ -83,6 +84,7 @@ impl MqttForm {
         self.deadbands = s.deadbands.iter().map(u32::to_string).collect::<Vec<_>>().join(" ");
         self.on_change = s.on_change;
         self.commands = s.commands;
+        self.sntp = s.sntp.clone();
         self.loaded = Some(s);
     }
 
@@ -104,6 +106,7 @@ impl MqttForm {
             deadbands,
             on_change: self.on_change,
             commands: self.commands,
+            sntp: self.sntp.trim().to_owned(),
             ca: false,
             credentials: false,
         })

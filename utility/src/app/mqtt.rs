@@ -41,6 +41,7 @@ impl Utility {
                 ui.checkbox(&mut f.commands, tr(lang, "Take output commands"));
             });
         }
+        field(ui, tr(lang, "Time server (SNTP)"), &mut f.sntp, None, 160.0);
         if let Some(s) = &f.loaded {
             let stored = |b: bool| if b { tr(lang, "stored") } else { tr(lang, "none") };
             ui.label(format!(

@@ -43,9 +43,9 @@ pub const WEB_HELD: usize = 8;
 #[cfg(feature = "web")]
 pub type WebGate = SynGate<WEB_HELD, { remodaq_shared::sockets::WEB_CONNECTIONS }>;
 
-/// The web console port's backlog on the boards that run embassy-net.
+/// The web console port's backlog on the boards that run embassy-net (in SRAM: the STM32 8350's
+/// CCM is full with MQTT's task, docs/mqtt.md "Sizes").
 #[cfg(feature = "web")]
-#[cfg_attr(feature = "ccm", unsafe(link_section = ".bss.ccm.WEB_BACKLOG"))]
 pub static WEB_BACKLOG: WebGate = SynGate::new();
 
 /// Every port's gate, in the order they see a frame.
