@@ -85,20 +85,7 @@ fn published_values_are_modbus_reads_and_commands_apply() {
 
     // A command: DO3 on (normal mode), applied and read back over Modbus (spec §3.1: coil 13h),
     // and echoed on its point.
-    let ok = Command::new("mosquitto_pub")
-        .args([
-            "-h",
-            "127.0.0.1",
-            "-p",
-            &broker.port.to_string(),
-            "-t",
-            &format!("{PREFIX}/do/3/set"),
-            "-m",
-            r#"{"level": true}"#,
-        ])
-        .status()
-        .expect("mosquitto_pub");
-    assert!(ok.success());
+    publish(broker.port, &format!("{PREFIX}/do/3/set"), r#"{"level": true}"#);
     let deadline = Instant::now() + Duration::from_secs(5);
     while modbus(modbus_port, &[0x01, 0x00, 0x13, 0x00, 0x01]) != [0x01, 0x01, 0x01] {
         assert!(Instant::now() < deadline, "DO3 never on");
@@ -125,20 +112,7 @@ fn published_values_are_modbus_reads_and_commands_apply() {
     for (topic, payload) in
         [("do/2/set", r#"{"level": 1}"#), ("do/2/set", oversized.as_str()), ("do/9/set", r#"{"level": true}"#)]
     {
-        let ok = Command::new("mosquitto_pub")
-            .args([
-                "-h",
-                "127.0.0.1",
-                "-p",
-                &broker.port.to_string(),
-                "-t",
-                &format!("{PREFIX}/{topic}"),
-                "-m",
-                payload,
-            ])
-            .status()
-            .expect("mosquitto_pub");
-        assert!(ok.success());
+        publish(broker.port, &format!("{PREFIX}/{topic}"), payload);
     }
     let deadline = Instant::now() + Duration::from_secs(5);
     while mqtt_diagnostics(modbus_port)[3..6] != [2, 0, 1] {
@@ -166,6 +140,15 @@ fn published_values_are_modbus_reads_and_commands_apply() {
     let d = mqtt_diagnostics(modbus_port);
     assert!(d[0] == 2 && d[1] == 2 && d[2] >= 1, "state, sessions, failures: {d:?}");
     drop(module);
+}
+
+/// Publishes `payload` on `topic` at the broker on `port` (Debian's mosquitto_pub).
+fn publish(port: u16, topic: &str, payload: &str) {
+    let ok = Command::new("mosquitto_pub")
+        .args(["-h", "127.0.0.1", "-p", &port.to_string(), "-t", topic, "-m", payload])
+        .status()
+        .expect("mosquitto_pub");
+    assert!(ok.success());
 }
 
 /// MQTT's diagnostics registers, 40328-40337 (PDU 0147h-0150h, docs/diagnostics.md): state,

@@ -17,10 +17,9 @@ scripts/size-report.
 """
 
 import re
-import subprocess
 import sys
 
-from web_part import code_by_file, totals
+from web_part import code_by_file, pool, totals
 
 TLS_CRATES = ("embedded-tls", "p256", "elliptic-curve", "primeorder", "aes-gcm", "aes", "ghash", "sha2",
               "hkdf", "hmac", "der", "x509", "rustpki", "signature", "ecdsa")
@@ -36,12 +35,6 @@ def piece_of(path):
     return None
 
 
-def pool(elf):
-    """Bytes of the MQTT task's pool (its mangled name holds `4mqtt4POOL`)."""
-    out = subprocess.run(["nm", "-S", elf], capture_output=True, text=True, check=True).stdout
-    return sum(int(p[1], 16) for p in (line.split() for line in out.splitlines()) if len(p) == 4 and "4mqtt4POOL" in p[3])
-
-
 def main():
     label, with_mqtt, without = sys.argv[1:4]
     (f1, r1), (f0, r0) = totals(with_mqtt), totals(without)
@@ -54,7 +47,7 @@ def main():
             piece = piece_of(path)
             if piece:
                 code[piece] += sign * n
-    tasks = pool(with_mqtt)
+    tasks = pool(with_mqtt, "mqtt")
     print(f"MQTT part of {label}: flash {flash} B, RAM {ram} B (the image with MQTT less the image without)")
     print(f"  code: client (minimq) {code['client']} B; TLS {code['tls']} B; the service (services/mqtt, "
           f"its settings' record) {code['service']} B; the rest of the flash (library code inlined, strings, "

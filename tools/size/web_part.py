@@ -112,10 +112,12 @@ def pages(elf):
         count, total, at = count + 1, total + length, at + length
 
 
-def pool(elf):
-    """Bytes of the web connection tasks' pool (its mangled name holds `3web4POOL`)."""
+def pool(elf, task="web"):
+    """Bytes of an image task's pool (`web`: the connection tasks'; its mangled name holds
+    `3web4POOL`, the length of the task's name before it)."""
     out = subprocess.run(["nm", "-S", elf], capture_output=True, text=True, check=True).stdout
-    return sum(int(p[1], 16) for p in (line.split() for line in out.splitlines()) if len(p) == 4 and "3web4POOL" in p[3])
+    name = f"{len(task)}{task}4POOL"
+    return sum(int(p[1], 16) for p in (line.split() for line in out.splitlines()) if len(p) == 4 and name in p[3])
 
 
 def main():
