@@ -8,7 +8,7 @@ use std::net::TcpStream;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use remodaq_mqtt::testing::{free_port, Broker, Subscriber};
+use remodaq_mqtt::testing::{free_port, publish, Broker, Subscriber};
 
 const BIN: &str = env!("CARGO_BIN_EXE_firmware-8350");
 /// The module's MAC (`--mac`): its default prefix is `remodaq/8350/028350000001`.
@@ -140,15 +140,6 @@ fn published_values_are_modbus_reads_and_commands_apply() {
     let d = mqtt_diagnostics(modbus_port);
     assert!(d[0] == 2 && d[1] == 2 && d[2] >= 1, "state, sessions, failures: {d:?}");
     drop(module);
-}
-
-/// Publishes `payload` on `topic` at the broker on `port` (Debian's mosquitto_pub).
-fn publish(port: u16, topic: &str, payload: &str) {
-    let ok = Command::new("mosquitto_pub")
-        .args(["-h", "127.0.0.1", "-p", &port.to_string(), "-t", topic, "-m", payload])
-        .status()
-        .expect("mosquitto_pub");
-    assert!(ok.success());
 }
 
 /// MQTT's diagnostics registers, 40328-40337 (PDU 0147h-0150h, docs/diagnostics.md): state,

@@ -81,6 +81,15 @@ impl Drop for Broker {
     }
 }
 
+/// Publishes `payload` on `topic` at the broker on `port` (Debian's mosquitto_pub).
+pub fn publish(port: u16, topic: &str, payload: &str) {
+    let ok = Process::new("mosquitto_pub")
+        .args(["-h", "127.0.0.1", "-p", &port.to_string(), "-t", topic, "-m", payload])
+        .status()
+        .expect("mosquitto_pub (Debian: apt-get install mosquitto-clients)");
+    assert!(ok.success(), "mosquitto_pub {topic}");
+}
+
 /// A subscriber to `test/#`: each message as `retained topic payload`.
 pub struct Subscriber {
     child: Child,

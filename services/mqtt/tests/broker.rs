@@ -5,7 +5,6 @@
 //! them); without them each test says so and fails.
 
 use std::net::{SocketAddr, TcpStream};
-use std::process::Command as Process;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -16,7 +15,7 @@ use minimq::{Buffers, ConfigBuilder, QoS, Session, Will};
 use remodaq_mqtt::command::Command;
 use remodaq_mqtt::schedule::Point;
 use remodaq_mqtt::session::{serve, Module, Payload, PointTopic, Reading, Refused, Settings, OFFLINE};
-use remodaq_mqtt::testing::{Broker, Subscriber};
+use remodaq_mqtt::testing::{publish, Broker, Subscriber};
 use remodaq_mqtt::topics::Kind;
 
 /// What the test sets and sees of the fake module.
@@ -128,14 +127,6 @@ fn client(port: u16, period_ms: u32, commands: bool, shared: Arc<Mutex<Shared>>,
             let _ = serve(&mut session, io, &settings, &mut Fake(shared), &mut schedules).await;
         })
     });
-}
-
-fn publish(port: u16, topic: &str, payload: &str) {
-    let status = Process::new("mosquitto_pub")
-        .args(["-h", "127.0.0.1", "-p", &port.to_string(), "-t", topic, "-m", payload])
-        .status()
-        .expect("mosquitto_pub");
-    assert!(status.success());
 }
 
 #[test]
