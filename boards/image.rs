@@ -165,6 +165,8 @@ async fn start(spawner: Spawner) {
     for _ in 0..remodaq_shared::sockets::WEB_CONNECTIONS {
         spawn(spawner, web(app), "web");
     }
+    #[cfg(all(target_os = "none", feature = "mqtt-tls", not(feature = "board-qemu")))]
+    spawn(spawner, tls_worker(), "tls");
 }
 
 #[cfg(not(all(target_os = "none", feature = "board-qemu")))]
@@ -173,16 +175,29 @@ async fn main(spawner: Spawner) {
     start(spawner).await;
 }
 
-/// The QEMU board runs its own executor (it sleeps with WFI: Embassy's WFE loop never sleeps
-/// under QEMU).
+/// The QEMU board runs its own executors (`remodaq_board_qemu::executor`): the main one polled
+/// from an interrupt, the background one in thread mode on its own stack (MQTT's TLS worker).
 #[cfg(all(target_os = "none", feature = "board-qemu"))]
 #[cortex_m_rt::entry]
 fn main() -> ! {
-    remodaq_board_qemu::executor::run(|spawner| remodaq_shared::app::spawn(spawner, main_task(spawner), "main"))
+    remodaq_board_qemu::executor::run(|_background, main| {
+        remodaq_shared::app::spawn(main, main_task(main), "main");
+        #[cfg(feature = "mqtt-tls")]
+        remodaq_shared::app::spawn(_background, tls_worker(), "tls");
+    })
 }
 
 #[cfg(all(target_os = "none", feature = "board-qemu"))]
 #[embassy_executor::task]
 async fn main_task(spawner: Spawner) {
     start(spawner).await;
+}
+
+/// MQTT's TLS worker (`remodaq_mqtt::relay`): on the QEMU board its background executor, which
+/// every other task preempts; on the STM32 board (no such executor yet) the main one.
+#[cfg(all(target_os = "none", feature = "mqtt-tls"))]
+#[embassy_executor::task]
+async fn tls_worker() -> ! {
+    // Made in place: it holds TLS's record buffers.
+    core::pin::pin!(remodaq_mqtt::relay::work()).await
 }

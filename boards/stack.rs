@@ -30,10 +30,31 @@ pub fn paint_stack() {
 pub fn stack_high_water() -> (usize, usize) {
     let bottom = core::ptr::addr_of!(_stack_end) as usize;
     let top = core::ptr::addr_of!(_stack_start) as usize;
+    // SAFETY: the stack region the linker defines.
+    (unsafe { high_water(bottom, top) }, top - bottom)
+}
+
+/// Paints a whole stack no code runs on yet, `bottom..top` (word-aligned addresses).
+///
+/// # Safety
+/// `bottom..top` is a stack nothing uses yet.
+#[allow(dead_code)]
+pub unsafe fn paint(bottom: usize, top: usize) {
+    for at in (bottom..top).step_by(4) {
+        // SAFETY: a word of the unused stack (the caller's promise).
+        unsafe { core::ptr::write_volatile(at as *mut u32, STACK_PAINT) };
+    }
+}
+
+/// The most of the painted stack `bottom..top` used (bytes from its top).
+///
+/// # Safety
+/// `bottom..top` is a stack region (word-aligned, readable).
+pub unsafe fn high_water(bottom: usize, top: usize) -> usize {
     let mut at = bottom;
-    // SAFETY: reads of words inside the stack region the linker defines.
+    // SAFETY: reads of words inside the stack region the caller names.
     while at < top && unsafe { core::ptr::read_volatile(at as *const u32) } == STACK_PAINT {
         at += 4;
     }
-    (top - at, top - bottom)
+    top - at
 }

@@ -73,6 +73,7 @@ static __INTERRUPTS: [extern "C" fn(); 32] = {
     let mut v: [extern "C" fn(); 32] = [unused_interrupt; 32];
     v[LAN9118_IRQ as usize] = lan9118_interrupt;
     v[executor::REALTIME_IRQ as usize] = executor::realtime_interrupt;
+    v[executor::MAIN_IRQ as usize] = executor::main_interrupt;
     v
 };
 
@@ -303,13 +304,24 @@ async fn net_task(mut runner: embassy_net::Runner<'static, Backlogged<Device>>) 
 /// which stops the machine for a few ms: only when the mark rises.
 #[embassy_executor::task]
 async fn stack_task() -> ! {
-    let mut said = 0;
+    let (mut said, mut background_said) = (0, 0);
     loop {
         embassy_time::Timer::after_secs(1).await;
         let (used, size) = stack::stack_high_water();
         if used >= said + 256 {
             said = used;
             cortex_m_semihosting::hprintln!("qemu board: stack high-water mark {} of {} bytes", used, size);
+        }
+        let (bottom, top) = executor::background_stack();
+        // SAFETY: the background stack, painted by `executor::run`.
+        let used = unsafe { stack::high_water(bottom, top) };
+        if used >= background_said + 256 {
+            background_said = used;
+            cortex_m_semihosting::hprintln!(
+                "qemu board: the background executor's stack used {} of {} bytes at the most",
+                used,
+                top - bottom
+            );
         }
     }
 }

@@ -17,7 +17,7 @@ use remodaq_shared::modbus::RegisterMap;
 use remodaq_shared::module::{SettingsAccess, Store};
 use remodaq_shared::warn;
 
-use crate::service::{run, Board, Connector, KEEP_ALIVE_S, TLS_BUFFER};
+use crate::service::{run, Board, Connector, KEEP_ALIVE_S};
 
 /// The socket's buffers: what the module sends (publications of at most about 350 bytes) is
 /// most; what it receives is acknowledgments and the odd command.
@@ -53,7 +53,32 @@ impl<'b> Connector for EmbassyConnector<'b> {
         }
     }
 
+    #[cfg(feature = "tls")]
+    type Tls<'a>
+        = crate::relay::Relay<'a, 'b>
+    where
+        Self: 'a;
+
+    /// TLS by the worker off the main executor (`crate::relay`), which holds the record buffers:
+    /// `buffer` is not used.
+    #[cfg(feature = "tls")]
+    async fn connect_tls<'a>(
+        &'a mut self,
+        broker: [u8; 4],
+        port: u16,
+        ca: &[u8],
+        host: &str,
+        _buffer: &'a mut [u8],
+    ) -> Result<crate::relay::Relay<'a, 'b>, Option<crate::tls::Refused>> {
+        // The last link's TLS first, before its socket is reset under it.
+        crate::relay::stop().await;
+        let socket = self.connect(broker, port).await.ok_or(None)?;
+        crate::relay::open(socket, ca, host).await.map_err(Some)
+    }
+
     async fn close(&mut self) {
+        #[cfg(feature = "tls")]
+        crate::relay::stop().await;
         close(&mut self.socket).await;
     }
 }
@@ -68,9 +93,9 @@ pub async fn serve<E: Effects, A: RegisterMap + SettingsAccess, F: NorFlash>(
     identity: Identity,
 ) -> ! {
     let (mut rx, mut tx) = ([0u8; SOCKET_RX], [0u8; SOCKET_TX]);
-    let mut tls_buffer = [0u8; TLS_BUFFER];
     let mut connector = EmbassyConnector { socket: TcpSocket::new(net.stack, &mut rx, &mut tx) };
-    let board = Board { time_ms: remodaq_shared::clock::now_ms, imposed: None, tls_buffer: &mut tls_buffer };
+    // TLS's record buffers are the worker's (`crate::relay`).
+    let board = Board { time_ms: remodaq_shared::clock::now_ms, imposed: None, tls_buffer: &mut [] };
     // Made in place: passed by value, these futures would be copied through the stack first.
     let service = pin!(run(board, &mut connector, map, store, identity));
     let time = pin!(crate::sntp::keep_time(net));

@@ -19,6 +19,8 @@ pub mod config {
     pub use remodaq_shared::mqtt::*;
 }
 pub mod points;
+#[cfg(all(feature = "tls", feature = "embassy-net"))]
+pub mod relay;
 pub mod schedule;
 pub mod service;
 pub mod session;

@@ -56,8 +56,27 @@ pub trait Connector {
     type Io<'a>: Io
     where
         Self: 'a;
+    /// A TLS connection.
+    #[cfg(feature = "tls")]
+    type Tls<'a>: Io
+    where
+        Self: 'a;
     /// Opens a TCP connection to `broker`:`port`; `None` (logged by the board) if it could not.
     async fn connect(&mut self, broker: [u8; 4], port: u16) -> Option<Self::Io<'_>>;
+    /// Opens a TLS connection to `broker`:`port`, the broker named `host`, its chain checked
+    /// against `ca` (`crate::tls`): TCP as [`connect`](Self::connect), then the handshake, in
+    /// the caller's task over the record buffers `buffer` ([`TLS_BUFFER`] bytes:
+    /// `crate::tls::in_place`) or elsewhere (`crate::relay`). `Err(None)`: the broker was not
+    /// reached.
+    #[cfg(feature = "tls")]
+    async fn connect_tls<'a>(
+        &'a mut self,
+        broker: [u8; 4],
+        port: u16,
+        ca: &[u8],
+        host: &str,
+        buffer: &'a mut [u8],
+    ) -> Result<Self::Tls<'a>, Option<crate::tls::Refused>>;
     /// Closes the connection the last [`connect`](Self::connect) opened, if it is still open
     /// (the session was dropped: the settings changed), so that the broker gives the will at
     /// once. A connection that closes itself when dropped has nothing to do.
@@ -70,8 +89,9 @@ pub struct Board<'a> {
     pub time_ms: fn() -> Option<u64>,
     /// Settings that override the stored ones (the simulator's `--mqtt`).
     pub imposed: Option<Config>,
-    /// TLS's record buffers, [`TLS_BUFFER`] bytes (none without TLS): the caller's, in its
-    /// task's storage, so that no future holding them is moved through the stack.
+    /// TLS's record buffers, [`TLS_BUFFER`] bytes (none without TLS, or where TLS runs
+    /// elsewhere: `crate::relay`): the caller's, in its task's storage, so that no future
+    /// holding them is moved through the stack.
     pub tls_buffer: &'a mut [u8],
 }
 
@@ -87,7 +107,7 @@ type Ca = heapless::Vec<u8, 0>;
 pub const TLS_BUFFER: usize = if cfg!(feature = "tls") { 16_640 + TLS_WRITE } else { 0 };
 /// TLS's write buffer (the end of [`TLS_BUFFER`]).
 #[cfg_attr(not(feature = "tls"), allow(dead_code))]
-const TLS_WRITE: usize = 4_096;
+pub(crate) const TLS_WRITE: usize = 4_096;
 
 /// Serves MQTT for ever (see the module's documentation).
 pub async fn run<A: RegisterMap + SettingsAccess, F: NorFlash, C: Connector>(
@@ -153,10 +173,6 @@ async fn sessions<A: RegisterMap, C: Connector>(
     identity: Identity,
 ) -> core::convert::Infallible {
     let Configured { config, credentials, ca, time_ms } = *configured;
-    #[cfg(feature = "tls")]
-    let (read, write) = tls_buffer.split_at_mut(tls_buffer.len().saturating_sub(TLS_WRITE));
-    #[cfg(not(feature = "tls"))]
-    let _ = tls_buffer;
     let prefix = if config.prefix.is_empty() {
         topics::default_prefix(identity.model, identity.mac)
     } else {
@@ -210,44 +226,38 @@ async fn sessions<A: RegisterMap, C: Connector>(
     let [a, b, c, d] = config.broker;
     info!("mqtt: publishing to {}.{}.{}.{}:{} under {}", a, b, c, d, config.port, prefix.as_str());
     loop {
-        match connector.connect(config.broker, config.port).await {
-            Some(io) if config.tls => {
-                #[cfg(feature = "tls")]
-                match crate::tls::open::<_, _, crate::tls::BoardClock>(
-                    io,
-                    &mut *read,
-                    &mut *write,
-                    ca,
-                    &config.host,
-                    crate::tls::ModuleRng,
-                )
-                .await
-                {
-                    Ok(tls) => {
-                        let ended = serve(&mut session, tls, &settings, &mut module, &mut schedules).await;
-                        warn!("mqtt: the TLS connection to the broker ended ({})", ended.as_str());
-                        back_off = BACK_OFF_MIN;
-                    }
-                    Err(why) => {
-                        use crate::tls::Refused;
-                        let (n, text) = match why {
-                            Refused::NoTime => (mqtt::NO_TIME, "no time yet: a certificate cannot be checked"),
-                            Refused::Certificate => (mqtt::CERTIFICATE, "the broker's certificate was refused"),
-                            Refused::Handshake => (mqtt::HANDSHAKE, "the TLS handshake failed"),
-                        };
-                        DIAGNOSTICS.mqtt_event(n);
-                        warn!("mqtt: TLS: {}", text);
-                    }
+        if config.tls {
+            #[cfg(feature = "tls")]
+            match connector.connect_tls(config.broker, config.port, ca, &config.host, &mut *tls_buffer).await {
+                Ok(tls) => {
+                    let ended = serve(&mut session, tls, &settings, &mut module, &mut schedules).await;
+                    warn!("mqtt: the TLS connection to the broker ended ({})", ended.as_str());
+                    back_off = BACK_OFF_MIN;
                 }
-                #[cfg(not(feature = "tls"))]
-                let _ = (io, ca);
+                Err(None) => warn!("mqtt: the broker could not be reached"),
+                Err(Some(why)) => {
+                    use crate::tls::Refused;
+                    let (n, text) = match why {
+                        Refused::NoTime => (mqtt::NO_TIME, "no time yet: a certificate cannot be checked"),
+                        Refused::Certificate => (mqtt::CERTIFICATE, "the broker's certificate was refused"),
+                        Refused::Handshake => (mqtt::HANDSHAKE, "the TLS handshake failed"),
+                    };
+                    DIAGNOSTICS.mqtt_event(n);
+                    warn!("mqtt: TLS: {}", text);
+                }
             }
-            Some(io) => {
-                let ended = serve(&mut session, io, &settings, &mut module, &mut schedules).await;
-                warn!("mqtt: the connection to the broker ended ({})", ended.as_str());
-                back_off = BACK_OFF_MIN;
+            // `run` does not start sessions over TLS in an image without it.
+            #[cfg(not(feature = "tls"))]
+            let _ = (&tls_buffer, ca);
+        } else {
+            match connector.connect(config.broker, config.port).await {
+                Some(io) => {
+                    let ended = serve(&mut session, io, &settings, &mut module, &mut schedules).await;
+                    warn!("mqtt: the connection to the broker ended ({})", ended.as_str());
+                    back_off = BACK_OFF_MIN;
+                }
+                None => warn!("mqtt: the broker could not be reached"),
             }
-            None => warn!("mqtt: the broker could not be reached"),
         }
         DIAGNOSTICS.mqtt_state(mqtt::CONNECTING);
         DIAGNOSTICS.mqtt_event(mqtt::FAILURES);

@@ -171,6 +171,21 @@ pub enum Refused {
 /// A TLS connection to the broker, over `transport` (a TCP connection already open to it).
 pub type Tls<'b, T> = TlsConnection<'b, T, Aes128GcmSha256>;
 
+/// TLS to the broker named `host` on `io` (`None`: the broker was not reached), run by the
+/// caller's task, with the record buffers in `buffer` ([`TLS_BUFFER`](crate::service::TLS_BUFFER)
+/// bytes); the board's time of day ([`BoardClock`]) and randomness ([`ModuleRng`]). The
+/// simulator's way; the embassy-net boards run TLS off the main executor (`crate::relay`).
+pub async fn in_place<'b, T: Read + Write + 'b>(
+    io: Option<T>,
+    ca: &[u8],
+    host: &str,
+    buffer: &'b mut [u8],
+) -> Result<Tls<'b, T>, Option<Refused>> {
+    let io = io.ok_or(None)?;
+    let (read, write) = buffer.split_at_mut(buffer.len().saturating_sub(crate::service::TLS_WRITE));
+    open::<_, _, BoardClock>(io, read, write, ca, host, ModuleRng).await.map_err(Some)
+}
+
 /// Opens TLS on `transport` to the broker named `host`, its chain checked against `ca` (DER),
 /// with the record buffers `read` (up to 16 KiB: TLS's largest record) and `write`.
 pub async fn open<'b, T: Read + Write + 'b, R: CryptoRngCore, C: Clock>(

@@ -37,7 +37,7 @@ async fn main(spawner: Spawner) {
 #[cfg(all(target_os = "none", feature = "board-qemu"))]
 #[cortex_m_rt::entry]
 fn main() -> ! {
-    remodaq_board_qemu::executor::run(|spawner| remodaq_shared::app::spawn(spawner, main_task(spawner), "main"))
+    remodaq_board_qemu::executor::run(|_, main| remodaq_shared::app::spawn(main, main_task(main), "main"))
 }
 
 #[cfg(all(target_os = "none", feature = "board-qemu"))]
