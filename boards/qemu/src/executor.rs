@@ -113,8 +113,10 @@ extern "C" fn background_loop() -> ! {
     // SAFETY: stored by `run` before it called this, from the `&'static` it made; never freed.
     let executor = unsafe { &*BACKGROUND.load(Ordering::Acquire) };
     loop {
+        let started = crate::time::counter_us();
         // SAFETY: polled from thread mode only, never re-entered.
         unsafe { executor.poll() };
+        crate::time::background_poll(crate::time::counter_us().wrapping_sub(started));
         // Sleep unless something was woken meanwhile. Interrupts are masked while checking, so
         // a wake-up between the check and WFI still ends the WFI (a pending interrupt does).
         cortex_m::interrupt::disable();

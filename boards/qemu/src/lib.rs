@@ -326,10 +326,7 @@ async fn stack_task() -> ! {
     }
 }
 
-/// The painted stack (boards/stack.rs).
-pub mod stack {
-    include!("../../stack.rs");
-}
+pub mod stack;
 
 /// Logs go nowhere on this board (defmt needs a logger to link).
 #[defmt::global_logger]

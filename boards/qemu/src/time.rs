@@ -184,6 +184,19 @@ pub(crate) fn main_poll(took: u32) {
     }
 }
 
+/// A poll of the background executor that took `took` µs (with what preempted it: the main
+/// executor among the rest): said in the log if long ([`LONG_POLL_US`]), so that a test can tell
+/// when its work (MQTT's TLS handshake) ran and what the main executor did meanwhile.
+pub(crate) fn background_poll(took: u32) {
+    if (LONG_POLL_US..1 << 31).contains(&took) {
+        cortex_m_semihosting::hprintln!(
+            "qemu board: a poll of the background executor took {} us, at {} us",
+            took,
+            DRIVER.now()
+        );
+    }
+}
+
 /// The time of the last SysTick, µs.
 static LAST_TICK_US: Mutex<Cell<u64>> = Mutex::new(Cell::new(0));
 /// The longest critical section said in the log so far, µs.

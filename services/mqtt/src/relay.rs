@@ -30,8 +30,7 @@ use embassy_sync::signal::Signal;
 use embedded_io_async::{ErrorKind, ErrorType, Read, Write};
 use remodaq_shared::mqtt::{MAX_CA, MAX_HOST};
 
-use crate::service::TLS_BUFFER;
-use crate::tls::{BoardClock, ModuleRng, Refused};
+use crate::tls::{BoardClock, ModuleRng, Refused, BUFFER, WRITE};
 
 /// Encrypted bytes in each direction between the socket and the worker: at least a few records
 /// of the module's (a publication is one) in flight.
@@ -128,9 +127,9 @@ async fn stopped() {
 
 /// The worker: opens each requested link and carries its bytes, until asked to stop, for
 /// ever. Run it in a task of the board's background executor (preempted by the main one); its
-/// future holds TLS's record buffers ([`TLS_BUFFER`]): pin it where it is made.
+/// future holds TLS's record buffers ([`BUFFER`]): pin it where it is made.
 pub async fn work() -> ! {
-    let mut buffer = [0u8; TLS_BUFFER];
+    let mut buffer = [0u8; BUFFER];
     let mut host = heapless::String::<MAX_HOST>::new();
     let mut ca = heapless::Vec::<u8, MAX_CA>::new();
     loop {
@@ -142,7 +141,7 @@ pub async fn work() -> ! {
             host.clone_from(&r.host);
             ca.clone_from(&r.ca);
         });
-        let (read, write) = buffer.split_at_mut(TLS_BUFFER - crate::service::TLS_WRITE);
+        let (read, write) = buffer.split_at_mut(BUFFER - WRITE);
         // Made in place, as every large future here (it would be copied through the stack).
         let opening = pin!(crate::tls::open::<_, _, BoardClock>(Encrypted, read, write, &ca, &host, ModuleRng));
         if let Either::First(opened) = select(opening, stopped()).await {

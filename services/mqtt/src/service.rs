@@ -102,12 +102,12 @@ type Ca = heapless::Vec<u8, { remodaq_shared::mqtt::MAX_CA }>;
 #[cfg(not(feature = "tls"))]
 type Ca = heapless::Vec<u8, 0>;
 
-/// TLS's record buffers: 16 KiB + 256 B for reading (TLS's largest record, with its overhead),
-/// 4 KiB for writing (the module's records are small); none without TLS.
-pub const TLS_BUFFER: usize = if cfg!(feature = "tls") { 16_640 + TLS_WRITE } else { 0 };
-/// TLS's write buffer (the end of [`TLS_BUFFER`]).
-#[cfg_attr(not(feature = "tls"), allow(dead_code))]
-pub(crate) const TLS_WRITE: usize = 4_096;
+/// TLS's record buffers (`crate::tls::BUFFER`; none without TLS).
+#[cfg(feature = "tls")]
+pub const TLS_BUFFER: usize = crate::tls::BUFFER;
+/// TLS's record buffers (none without TLS).
+#[cfg(not(feature = "tls"))]
+pub const TLS_BUFFER: usize = 0;
 
 /// Serves MQTT for ever (see the module's documentation).
 pub async fn run<A: RegisterMap + SettingsAccess, F: NorFlash, C: Connector>(

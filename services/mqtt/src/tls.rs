@@ -11,8 +11,21 @@ use embedded_io_async::{Read, Write};
 use embedded_tls::pki::CertVerifier;
 use embedded_tls::{
     Aes128GcmSha256, Certificate, CertificateEntryRef, CertificateRef, CertificateVerifyRef, CryptoProvider,
-    CryptoRngCore, TlsCipherSuite, TlsClock, TlsConfig, TlsConnection, TlsContext, TlsError, TlsVerifier,
+    CryptoRngCore, MaxFragmentLength, TlsCipherSuite, TlsClock, TlsConfig, TlsConnection, TlsContext, TlsError,
+    TlsVerifier,
 };
+
+/// TLS's record buffers: [`READ`] for reading, then [`WRITE`] for writing.
+pub const BUFFER: usize = READ + WRITE;
+/// TLS's read buffer: a record of at most 4 KiB, which the module asks the broker for (the
+/// ClientHello's max_fragment_length, RFC 6066: OpenSSL's servers, mosquitto's among them, keep
+/// to it), with its overhead (header, tag, content type: 256 B at the most). TLS's own largest
+/// record, 16 KiB, would need 12 KiB more of the module's RAM, for a broker's records that are
+/// small (its certificates, acknowledgments, commands of at most 512 bytes).
+pub const READ: usize = 4_096 + 256;
+/// TLS's write buffer (the end of [`BUFFER`]): the module's records are small (a publication of
+/// at most about 350 bytes); a larger write goes as more records.
+pub const WRITE: usize = 2_048;
 
 /// The largest certificate message of the broker the verifier keeps, bytes (a P-256 server
 /// certificate and its chain).
@@ -172,8 +185,7 @@ pub enum Refused {
 pub type Tls<'b, T> = TlsConnection<'b, T, Aes128GcmSha256>;
 
 /// TLS to the broker named `host` on `io` (`None`: the broker was not reached), run by the
-/// caller's task, with the record buffers in `buffer` ([`TLS_BUFFER`](crate::service::TLS_BUFFER)
-/// bytes); the board's time of day ([`BoardClock`]) and randomness ([`ModuleRng`]). The
+/// caller's task, with the record buffers in `buffer` ([`BUFFER`] bytes); the board's time of day ([`BoardClock`]) and randomness ([`ModuleRng`]). The
 /// simulator's way; the embassy-net boards run TLS off the main executor (`crate::relay`).
 pub async fn in_place<'b, T: Read + Write + 'b>(
     io: Option<T>,
@@ -182,7 +194,7 @@ pub async fn in_place<'b, T: Read + Write + 'b>(
     buffer: &'b mut [u8],
 ) -> Result<Tls<'b, T>, Option<Refused>> {
     let io = io.ok_or(None)?;
-    let (read, write) = buffer.split_at_mut(buffer.len().saturating_sub(crate::service::TLS_WRITE));
+    let (read, write) = buffer.split_at_mut(buffer.len().saturating_sub(WRITE));
     open::<_, _, BoardClock>(io, read, write, ca, host, ModuleRng).await.map_err(Some)
 }
 
@@ -199,7 +211,7 @@ pub async fn open<'b, T: Read + Write + 'b, R: CryptoRngCore, C: Clock>(
     if C::now().is_none() {
         return Err(Refused::NoTime);
     }
-    let config = TlsConfig::new().with_server_name(host);
+    let config = TlsConfig::new().with_server_name(host).with_max_fragment_length(MaxFragmentLength::Bits12);
     let seen = Cell::new(0);
     let verifier =
         Checked { inner: CertVerifier::new(Certificate::X509(ca)), ca, seen: &seen, clock: core::marker::PhantomData };

@@ -137,7 +137,7 @@ fn attempt(broker: &Broker, ca: &str, host: &str, now: u64) -> Result<(), TlsRef
     let ca = std::fs::read(broker.dir.join(ca)).expect("the CA");
     let port = broker.port;
     futures_executor::block_on(async move {
-        let (mut read, mut write) = (vec![0u8; 16_640], vec![0u8; 4_096]);
+        let (mut read, mut write) = (vec![0u8; remodaq_mqtt::tls::READ], vec![0u8; remodaq_mqtt::tls::WRITE]);
         let io = tcp(port, Arc::default()).await;
         open::<_, _, TestClock>(io, &mut read, &mut write, &ca, host, rng()).await.map(|_| ())
     })
@@ -164,7 +164,7 @@ fn the_broker_is_checked_and_the_password_never_crosses_in_clear() {
     let (ca, port, link) = (std::fs::read(broker.dir.join("ca.der")).expect("the CA"), broker.port, seen.clone());
     std::thread::spawn(move || {
         futures_executor::block_on(async move {
-            let (mut read, mut write) = (vec![0u8; 16_640], vec![0u8; 4_096]);
+            let (mut read, mut write) = (vec![0u8; remodaq_mqtt::tls::READ], vec![0u8; remodaq_mqtt::tls::WRITE]);
             let io = tcp(port, link).await;
             let tls = open::<_, _, TestClock>(io, &mut read, &mut write, &ca, HOST, rng()).await.expect("TLS");
             let (mut rx, mut tx) = ([0u8; 1024], [0u8; 2048]);
