@@ -14,6 +14,13 @@ and session buffers), and the rest (the stack's socket for it).
 
 Prints one line per piece, then `mqtt-part: LABEL FLASH RAM SERVICE_CODE` for
 scripts/size-report.
+
+Usage: mqtt_part.py --tls LABEL WITH_TLS_ELF SHIPPED_ELF
+
+TLS's part of an STM32 image, which no image ships with yet (docs/mqtt.md "Sizes"): the image
+built with the feature `mqtt-tls` less the image as shipped; the code of embedded-tls and its
+cryptography, the TLS worker's pool (`tls_worker::POOL`: the record buffers, the CA's and the
+broker name's copies), the rest (the pipes to it, the request). Prints the lines only.
 """
 
 import re
@@ -35,7 +42,23 @@ def piece_of(path):
     return None
 
 
+def tls_part(label, with_tls, shipped):
+    (f1, r1), (f0, r0) = totals(with_tls), totals(shipped)
+    flash, ram = f1 - f0, r1 - r0
+    code = 0
+    for elf, sign in ((with_tls, 1), (shipped, -1)):
+        code += sign * sum(n for path, n in code_by_file(elf).items() if piece_of(path) == "tls")
+    worker = pool(with_tls, "tls_worker")
+    print(f"TLS part of {label}: flash {flash} B, RAM {ram} B (the image with the feature mqtt-tls less the image as shipped)")
+    print(f"  code: embedded-tls and its cryptography {code} B; the rest of the flash {flash - code} B")
+    print(f"  RAM: the TLS worker's pool {worker} B (record buffers, the CA's copy); the rest {ram - worker} B; "
+          f"beside them the worker's stack (the handshake's calls: about 30 KB under QEMU, docs/mqtt.md)")
+
+
 def main():
+    if sys.argv[1] == "--tls":
+        tls_part(*sys.argv[2:5])
+        return
     label, with_mqtt, without = sys.argv[1:4]
     (f1, r1), (f0, r0) = totals(with_mqtt), totals(without)
     flash, ram = f1 - f0, r1 - r0

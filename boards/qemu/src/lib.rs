@@ -2,8 +2,10 @@
 //! 25 MHz, SMSC LAN9118 Ethernet at 0x4020_0000 on IRQ 13, SysTick on the core clock. Only
 //! this crate differs from the STM32 board; the application code is the same.
 //!
-//! - Executor: Embassy's raw executor in a loop that sleeps with WFI (its stock WFE loop never
-//!   sleeps under QEMU and burns a host core).
+//! - Executors (`executor`): Embassy's raw executors, the main one polled from an interrupt, the
+//!   realtime one from another above it, the background one in thread mode on its own stack,
+//!   in a loop that sleeps with WFI (the stock WFE loop never sleeps under QEMU and burns a host
+//!   core).
 //! - Time: the FPGAIO's counter, made to count microseconds (QEMU derives it from its virtual
 //!   clock: no tick lost when the host is busy); SysTick at 1 kHz wakes embassy-time-queue-utils'
 //!   queue.
