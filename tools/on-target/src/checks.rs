@@ -121,7 +121,7 @@ pub async fn run(spawner: Spawner) {
     );
     report.check("time base: a 1 s timer", time_base().await);
     report.check(
-        "realtime executor: its 1 ms ticker keeps time while thread mode checks ed25519 signatures",
+        "realtime executor: its 1 ms ticker keeps time while the main executor checks ed25519 signatures",
         realtime(spawner).await,
     );
     board_checks(&mut report, spawner, board, resources).await;
@@ -320,7 +320,7 @@ static REALTIME_WAKES: AtomicU32 = AtomicU32::new(0);
 static REALTIME_MEASURING: core::sync::atomic::AtomicBool = core::sync::atomic::AtomicBool::new(false);
 /// The realtime ticker's period.
 const REALTIME_TICK: Duration = Duration::from_millis(1);
-/// How long thread mode computes without yielding in [`realtime`].
+/// How long the main executor computes without yielding in [`realtime`].
 const BUSY: Duration = Duration::from_millis(100);
 /// The 8350's margin: its output ring holds 6.4 ms more than the chunk it waits room for.
 const RING_SLACK_US: u32 = 6_400;
@@ -341,7 +341,7 @@ async fn realtime_ticker() -> ! {
     }
 }
 
-/// The realtime executor preempts thread mode: thread mode checks ed25519 signatures (what an
+/// The realtime executor preempts the main one (thread mode on the STM32, an interrupt below on QEMU): the main one checks ed25519 signatures (what an
 /// update's verification does, several ms each on the Cortex-M4) for [`BUSY`] without yielding,
 /// while a 1 ms ticker runs on the realtime executor. Its longest gap must stay within 2 ms on
 /// the STM32 (within the 8350 ring's 6.4 ms slack); under QEMU, whose clock is the wall clock of
@@ -365,7 +365,7 @@ async fn realtime(spawner: Spawner) -> Result<Verdict, &'static str> {
     REALTIME_MEASURING.store(false, Ordering::Relaxed);
     let (gap, wakes) = (REALTIME_GAP_US.load(Ordering::Relaxed), REALTIME_WAKES.load(Ordering::Relaxed));
     say!(
-        "on-target: thread mode busy {} ms ({} ed25519 checks, {} us each); the realtime ticker woke {} times, longest gap {} us",
+        "on-target: the main executor busy {} ms ({} ed25519 checks, {} us each); the realtime ticker woke {} times, longest gap {} us",
         busy.as_millis(),
         checks,
         busy.as_micros() / u64::from(checks.max(1)),
@@ -374,7 +374,7 @@ async fn realtime(spawner: Spawner) -> Result<Verdict, &'static str> {
     );
     let most = if cfg!(feature = "board-qemu") { busy.as_micros() as u32 / 4 } else { 2_000.min(RING_SLACK_US) };
     if wakes == 0 || gap > most {
-        return Err("the realtime ticker waited behind thread mode");
+        return Err("the realtime ticker waited behind the main executor");
     }
     Ok(Verdict::Passed)
 }
