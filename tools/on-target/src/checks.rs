@@ -341,8 +341,9 @@ async fn realtime_ticker() -> ! {
     }
 }
 
-/// The realtime executor preempts the main one (thread mode on the STM32, an interrupt below on QEMU): the main one checks ed25519 signatures (what an
-/// update's verification does, several ms each on the Cortex-M4) for [`BUSY`] without yielding,
+/// The realtime executor preempts the main one (thread mode on the STM32, an interrupt below it
+/// on QEMU): the main one checks ed25519 signatures (what an update's verification does, several
+/// ms each on the Cortex-M4) for [`BUSY`] without yielding,
 /// while a 1 ms ticker runs on the realtime executor. Its longest gap must stay within 2 ms on
 /// the STM32 (within the 8350 ring's 6.4 ms slack); under QEMU, whose clock is the wall clock of
 /// a shared PC, within a quarter of the busy time (on the main executor it would be all of it).
