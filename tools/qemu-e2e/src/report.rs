@@ -12,7 +12,7 @@ pub(crate) struct Report {
 pub(crate) fn checks_of(model: u16) -> u32 {
     match model {
         0x8318 => 12,
-        0x8350 => 28,
+        0x8350 => 29,
         _ => 0,
     }
 }
