@@ -310,15 +310,18 @@ fn within(off: &Latencies, on: &Latencies, how: &str, tail: bool) -> Result<(), 
     Ok(())
 }
 
+/// A span of the guest's time in QEMU's log: its length and its end, µs.
+type Span = (u64, u64);
+
 /// The polls of the main and the background executor that QEMU's log says took long (`a poll
 /// of the main executor took N us, at T us`, boards/qemu `time.rs`) in `log` from byte `from`
 /// on: the background's (the TLS handshake's arithmetic) as they are, and the main executor's
 /// during one of them, but those during which this PC stalled the machine (`the machine
 /// stalled`). Each (length, end), µs of the guest's clock.
-fn long_polls(log: &str, from: u64) -> (Vec<(u64, u64)>, Vec<(u64, u64)>) {
+fn long_polls(log: &str, from: u64) -> (Vec<Span>, Vec<Span>) {
     let text = std::fs::read(log).unwrap_or_default();
     let text = String::from_utf8_lossy(text.get(from as usize..).unwrap_or(&[]));
-    let spans = |prefix: &str| -> Vec<(u64, u64)> {
+    let spans = |prefix: &str| -> Vec<Span> {
         text.lines()
             .filter_map(|l| l.strip_prefix(prefix))
             .filter_map(|r| {
@@ -329,7 +332,7 @@ fn long_polls(log: &str, from: u64) -> (Vec<(u64, u64)>, Vec<(u64, u64)>) {
             })
             .collect()
     };
-    let overlap = |(a, at): (u64, u64), (b, bt): (u64, u64)| at.saturating_sub(a) < bt && bt.saturating_sub(b) < at;
+    let overlap = |(a, at): Span, (b, bt): Span| at.saturating_sub(a) < bt && bt.saturating_sub(b) < at;
     let stalls = spans("qemu board: the machine stalled ");
     let background = spans("qemu board: a poll of the background executor took ");
     let main = spans("qemu board: a poll of the main executor took ")
@@ -419,7 +422,7 @@ pub(crate) async fn mqtt_over_tls(modbus: SocketAddr, web: SocketAddr, log: &str
         }
     }
     let (background, main) = polls;
-    let lengths = |polls: &[(u64, u64)]| polls.iter().map(|p| p.0).collect::<Vec<_>>();
+    let lengths = |polls: &[Span]| polls.iter().map(|p| p.0).collect::<Vec<_>>();
     let longest = main.iter().map(|p| p.0).max().unwrap_or(0);
     println!(
         "  over TLS: online {:.1} s after the credentials were stored; the handshake's arithmetic, the background executor's polls of 3 ms or more: {:?} us; the main executor's polls of 3 ms or more during them, but during a stall of the machine: {} (the longest {:.1} ms: {:?} us)",
