@@ -159,7 +159,7 @@ pub(crate) async fn updates(
     println!("qemu-8350: v1 -> v2 in {:.1} s", started.elapsed().as_secs_f64());
     report.check("update: v1 -> v2 through the emulated NIC, v2 answers (Modbus, search) after the reset", v1_to_v2);
     report.check(
-        "update: after v2 (counter 2), A101 built with counter 1 is refused (status 8), nothing changed",
+        "update: after v2 (counter 2), A101 with counter 1 (v2 relabelled) is refused (status 8), nothing changed",
         refused_at(0xA101, "an older counter", &old, usize::MAX, &[8]).await,
     );
 
