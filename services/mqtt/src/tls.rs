@@ -185,8 +185,9 @@ pub enum Refused {
 pub type Tls<'b, T> = TlsConnection<'b, T, Aes128GcmSha256>;
 
 /// TLS to the broker named `host` on `io` (`None`: the broker was not reached), run by the
-/// caller's task, with the record buffers in `buffer` ([`BUFFER`] bytes); the board's time of day ([`BoardClock`]) and randomness ([`ModuleRng`]). The
-/// simulator's way; the embassy-net boards run TLS off the main executor (`crate::relay`).
+/// caller's task, with the record buffers in `buffer` ([`BUFFER`] bytes), the board's time of
+/// day ([`BoardClock`]) and randomness ([`ModuleRng`]). The simulator's way; the embassy-net
+/// boards run TLS off the main executor (`crate::relay`).
 pub async fn in_place<'b, T: Read + Write + 'b>(
     io: Option<T>,
     ca: &[u8],
