@@ -250,13 +250,12 @@ async fn sessions<A: RegisterMap, C: Connector>(
             #[cfg(not(feature = "tls"))]
             let _ = (&tls_buffer, ca);
         } else {
-            match connector.connect(config.broker, config.port).await {
-                Some(io) => {
-                    let ended = serve(&mut session, io, &settings, &mut module, &mut schedules).await;
-                    warn!("mqtt: the connection to the broker ended ({})", ended.as_str());
-                    back_off = BACK_OFF_MIN;
-                }
-                None => warn!("mqtt: the broker could not be reached"),
+            if let Some(io) = connector.connect(config.broker, config.port).await {
+                let ended = serve(&mut session, io, &settings, &mut module, &mut schedules).await;
+                warn!("mqtt: the connection to the broker ended ({})", ended.as_str());
+                back_off = BACK_OFF_MIN;
+            } else {
+                warn!("mqtt: the broker could not be reached");
             }
         }
         DIAGNOSTICS.mqtt_state(mqtt::CONNECTING);
