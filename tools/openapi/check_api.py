@@ -447,18 +447,27 @@ def seal(shared, context, data):
     return bytes(out)
 
 
+def sealed_body(module, label, plain):
+    """`{module, public, sealed}`: `plain` sealed for the module's offered key under `label`
+    with a key pair made here, as a client does (docs/web.md)."""
+    secret = os.urandom(32)
+    sealed = seal(x25519(secret, module), tag(label) + module, plain)
+    public = x25519(secret, (9).to_bytes(32, "little"))
+    return json.dumps({"module": module.hex(), "public": public.hex(), "sealed": sealed.hex()}).encode()
+
+
+def credential(password, iterations=4096):
+    """The encoded credential of `password` (protocol/src/auth.rs Credential::encode)."""
+    salt = os.urandom(16)
+    salted = hashlib.pbkdf2_hmac("sha256", password.encode(), salt, iterations, 32)
+    client_key = hmac.new(salted, b"Client Key", hashlib.sha256).digest()
+    return (salt + iterations.to_bytes(4, "big") + hashlib.sha256(client_key).digest()
+            + hmac.new(salted, b"Server Key", hashlib.sha256).digest())
+
+
 def change_password(c, new):
     """docs/web.md: the module's key (its proof checked), the credential sealed, stored."""
-    module = module_key(c)
-    salt, iterations, secret = os.urandom(16), 4096, os.urandom(32)
-    salted = hashlib.pbkdf2_hmac("sha256", new.encode(), salt, iterations, 32)
-    client_key = hmac.new(salted, b"Client Key", hashlib.sha256).digest()
-    credential = (salt + iterations.to_bytes(4, "big") + hashlib.sha256(client_key).digest()
-                  + hmac.new(salted, b"Server Key", hashlib.sha256).digest())
-    sealed = seal(x25519(secret, module), tag(b"RDAQ web new credential") + module, credential)
-    public = x25519(secret, (9).to_bytes(32, "little"))
-    body = json.dumps({"module": module.hex(), "public": public.hex(), "sealed": sealed.hex()}).encode()
-    c.signed("PUT", "/api/v1/password", raw=body)
+    c.signed("PUT", "/api/v1/password", raw=sealed_body(module_key(c), b"RDAQ web new credential", credential(new)))
 
 
 def module_key(c):
@@ -476,12 +485,9 @@ def module_key(c):
 def put_mqtt_credentials(c, user, password, expect=204):
     """docs/openapi.yaml MqttCredentials: the name and password laid out and sealed here, as
     a client does."""
-    module, secret = module_key(c), os.urandom(32)
     plain = (bytes([len(user)]) + user.encode().ljust(32, b"\0") + bytes([len(password)])
              + password.encode().ljust(64, b"\0"))
-    sealed = seal(x25519(secret, module), tag(b"RDAQ web mqtt credentials") + module, plain)
-    public = x25519(secret, (9).to_bytes(32, "little"))
-    body = json.dumps({"module": module.hex(), "public": public.hex(), "sealed": sealed.hex()}).encode()
+    body = sealed_body(module_key(c), b"RDAQ web mqtt credentials", plain)
     c.signed("PUT", "/api/v1/mqtt/credentials", raw=body, expect=expect)
 
 
@@ -528,15 +534,18 @@ def exercise_settings(c):
     c.signed("GET", "/api/v1/mqtt", expect=200)
     c.signed("PUT", "/api/v1/mqtt", raw=json.dumps(MQTT).encode(), expect=403)
     c.signed("PUT", "/api/v1/mqtt/ca", raw=json.dumps({"pem": CA_PEM}).encode(), expect=403)
-    # The password: no key asked for (409), junk, a credential that does not unseal (422).
+    # The password: no key asked for (409), junk, a credential the module does not take (422).
     junk = {"module": "00" * 32, "public": "11" * 32, "sealed": "22" * 84}
     c.signed("PUT", "/api/v1/password", raw=json.dumps(junk).encode(), expect=409)
     c.signed("PUT", "/api/v1/password", raw=b'{"public":"00"}', expect=400)
-    offer = json.loads(c.signed("POST", "/api/v1/password/key", expect=200)[1])
+    module = module_key(c)
     # Sealed for another key than the one offered (an older offer's): refused, the offer kept.
     c.signed("PUT", "/api/v1/password", raw=json.dumps(junk).encode(), expect=409)
-    junk["module"] = offer["public"]
-    c.signed("PUT", "/api/v1/password", raw=json.dumps(junk).encode(), expect=422)
+    # Sealed right, but 10 PBKDF2 iterations (under auth::MIN_ITERATIONS): refused. Not random
+    # bytes here: the seal has no tag, so junk unseals to an acceptable credential (iterations
+    # 4096..=10^7) once in about 430 tries, and would set a password nobody knows (a CI run did).
+    weak = sealed_body(module, b"RDAQ web new credential", credential("correct horse battery", 10))
+    c.signed("PUT", "/api/v1/password", raw=weak, expect=422)
     c.call("PUT", "/api/v1/password", raw=b"{}", expect=401)  # unsigned
     change_password(c, "correct horse battery")
     c.signed("GET", "/api/v1/access", expect=401)  # the session of the old password ended
