@@ -10,6 +10,8 @@
 #[cfg(any(test, feature = "testing"))]
 extern crate std;
 
+#[cfg(feature = "tls")]
+pub mod certificate;
 pub mod command;
 #[cfg(feature = "embassy-net")]
 pub mod embassy;

@@ -8,12 +8,11 @@ use core::cell::Cell;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::blocking_mutex::Mutex;
 use embedded_io_async::{Read, Write};
-use embedded_tls::pki::CertVerifier;
 use embedded_tls::{
-    Aes128GcmSha256, Certificate, CertificateEntryRef, CertificateRef, CertificateVerifyRef, CryptoProvider,
-    CryptoRngCore, MaxFragmentLength, TlsCipherSuite, TlsClock, TlsConfig, TlsConnection, TlsContext, TlsError,
-    TlsVerifier,
+    Aes128GcmSha256, CertificateEntryRef, CertificateRef, CertificateVerifyRef, CryptoProvider, CryptoRngCore,
+    MaxFragmentLength, SignatureScheme, TlsCipherSuite, TlsConfig, TlsConnection, TlsContext, TlsError, TlsVerifier,
 };
+use sha2::Digest;
 
 /// TLS's record buffers: [`READ`] for reading, then [`WRITE`] for writing.
 pub const BUFFER: usize = READ + WRITE;
@@ -26,10 +25,6 @@ pub const READ: usize = 4_096 + 256;
 /// TLS's write buffer (the end of [`BUFFER`]): the module's records are small (a publication of
 /// at most about 350 bytes); a larger write goes as more records.
 pub const WRITE: usize = 2_048;
-
-/// The largest certificate message of the broker the verifier keeps, bytes (a P-256 server
-/// certificate and its chain).
-pub const MAX_CHAIN: usize = 2048;
 
 /// The module's time for the certificates' validity: seconds since 1970 (SNTP), or `None`
 /// before it has one.
@@ -86,37 +81,34 @@ impl rand_core::RngCore for ModuleRng {
 
 impl embedded_tls::CryptoRng for ModuleRng {}
 
-/// embedded-tls's view of a [`Clock`].
-struct Validity<C>(core::marker::PhantomData<C>);
-
-impl<C: Clock> TlsClock for Validity<C> {
-    fn now() -> Option<u64> {
-        C::now()
-    }
-}
-
 /// What of the broker's identity the handshake showed ([`Checked`]).
 const CERTIFICATE: u8 = 1;
 const SIGNATURE: u8 = 2;
 
-/// The CA's verifier held to the handshake's order, which embedded-tls 0.19 does not enforce:
-/// it takes a server's Finished without its Certificate and CertificateVerify (the Finished
-/// proves only the key exchange, not who the broker is), and panics on a CertificateVerify
-/// without a Certificate (security review of issue #40). Here the broker's certificate is
-/// checked once, and only with a time of day; its signature only after it; `seen` says which
-/// passed, and [`open`] refuses a connection unless both did. The broker's certificate signed
-/// by the installed CA itself (the CA may follow it): embedded-tls does not check that an
-/// intermediate may sign others.
-struct Checked<'a, V, C> {
-    inner: V,
+/// The broker's identity checked (`crate::certificate`), held to the handshake's order, which
+/// embedded-tls 0.19 does not enforce: it takes a server's Finished without its Certificate and
+/// CertificateVerify (the Finished proves only the key exchange, not who the broker is)
+/// (security review of issue #40). Here the broker's certificate is checked once, and only with
+/// a time of day; its signature of the handshake only after it; `seen` says which passed, and
+/// [`open`] refuses a connection unless both did. The broker's certificate signed by the
+/// installed CA itself (the CA may follow it): no intermediate.
+struct Checked<'a, C> {
     ca: &'a [u8],
+    host: &'a str,
     seen: &'a Cell<u8>,
+    /// The broker's key and the transcript's hash up to its certificate, once that passed.
+    key: Option<(p256::ecdsa::VerifyingKey, [u8; 32])>,
     clock: core::marker::PhantomData<C>,
 }
 
-impl<V: TlsVerifier<Aes128GcmSha256>, C: Clock> TlsVerifier<Aes128GcmSha256> for Checked<'_, V, C> {
+impl<C: Clock> TlsVerifier<Aes128GcmSha256> for Checked<'_, C> {
     fn set_hostname_verification(&mut self, hostname: &str) -> Result<(), TlsError> {
-        self.inner.set_hostname_verification(hostname)
+        // The name given to `open`, which the configuration passes on.
+        if hostname == self.host {
+            Ok(())
+        } else {
+            Err(TlsError::InvalidCertificate)
+        }
     }
 
     fn verify_certificate(
@@ -126,33 +118,40 @@ impl<V: TlsVerifier<Aes128GcmSha256>, C: Clock> TlsVerifier<Aes128GcmSha256> for
     ) -> Result<(), TlsError> {
         // The broker's own certificate, and after it at most the installed CA itself (as an
         // OpenSSL server sends it): no intermediate.
-        let direct = match cert.entries.as_slice() {
-            [_] => true,
-            [_, CertificateEntryRef::X509(ca)] => *ca == self.ca,
-            _ => false,
+        let broker = match cert.entries.as_slice() {
+            [CertificateEntryRef::X509(broker)] => broker,
+            [CertificateEntryRef::X509(broker), CertificateEntryRef::X509(ca)] if *ca == self.ca => broker,
+            _ => return Err(TlsError::InvalidCertificate),
         };
-        if self.seen.get() != 0 || !direct || C::now().is_none() {
+        let now = C::now().ok_or(TlsError::InvalidCertificate)?;
+        if self.seen.get() != 0 {
             return Err(TlsError::InvalidCertificate);
         }
-        self.inner.verify_certificate(transcript, cert)?;
+        let key = crate::certificate::check(self.ca, broker, self.host, now).map_err(|_problem| {
+            remodaq_shared::warn!("mqtt: the broker's certificate refused: {}", _problem.what());
+            TlsError::InvalidCertificate
+        })?;
+        self.key = Some((key, transcript.clone().finalize().into()));
         self.seen.set(CERTIFICATE);
         Ok(())
     }
 
     fn verify_signature(&mut self, verify: CertificateVerifyRef) -> Result<(), TlsError> {
-        if self.seen.get() != CERTIFICATE {
+        let (key, transcript) = self.key.take().ok_or(TlsError::InvalidSignature)?;
+        if self.seen.get() != CERTIFICATE || verify.signature_scheme != SignatureScheme::EcdsaSecp256r1Sha256 {
             return Err(TlsError::InvalidSignature);
         }
-        self.inner.verify_signature(verify)?;
+        crate::certificate::handshake_signed(&key, &transcript, verify.signature)
+            .map_err(|_| TlsError::InvalidSignature)?;
         self.seen.set(CERTIFICATE | SIGNATURE);
         Ok(())
     }
 }
 
-/// The session's cryptography: randomness from the board, the CA's verifier.
+/// The session's cryptography: randomness from the board, the broker's identity checked.
 struct Provider<'a, R, C: Clock> {
     rng: R,
-    verifier: Checked<'a, CertVerifier<'a, Aes128GcmSha256, Validity<C>, MAX_CHAIN>, C>,
+    verifier: Checked<'a, C>,
 }
 
 impl<R: CryptoRngCore, C: Clock> CryptoProvider for Provider<'_, R, C> {
@@ -214,8 +213,7 @@ pub async fn open<'b, T: Read + Write + 'b, R: CryptoRngCore, C: Clock>(
     }
     let config = TlsConfig::new().with_server_name(host).with_max_fragment_length(MaxFragmentLength::Bits12);
     let seen = Cell::new(0);
-    let verifier =
-        Checked { inner: CertVerifier::new(Certificate::X509(ca)), ca, seen: &seen, clock: core::marker::PhantomData };
+    let verifier = Checked { ca, host, seen: &seen, key: None, clock: core::marker::PhantomData };
     let provider = Provider::<R, C> { rng, verifier };
     let mut tls = TlsConnection::new(transport, read, write);
     match tls.open(TlsContext::new(&config, provider)).await {

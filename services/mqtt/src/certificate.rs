@@ -1,0 +1,495 @@
+//! The broker's certificate checked against the CA certificate the user installed (docs/mqtt.md,
+//! "Decisions"): X.509 read in place from its DER bytes, no copy and no decoded structure, so
+//! that the check needs a few hundred bytes of stack where embedded-tls's `rustpki` verifier,
+//! which decodes both certificates into structures of every field, needed 22 KB and 27 KB of
+//! flash for the `der` crate's decoders (docs/mqtt.md, "Sizes").
+//!
+//! What is checked (RFC 5280 §4.1 and §6.1 for a path of one certificate under the trust anchor;
+//! RFC 6125 §6.4 for the name; RFC 8446 §4.4.3 for the handshake's signature):
+//! - the broker's certificate is signed by the installed CA's key with ECDSA P-256 SHA-256, and
+//!   its issuer is the CA's subject, byte for byte;
+//! - the module's time is within its validity;
+//! - no extension it marks critical is one this check does not know;
+//! - the host name the user gave for the broker is one of its DNS names (its subject's common
+//!   name only when it has none), a wildcard standing for one whole left-most label;
+//! - its key is a P-256 key, which signed the handshake's transcript (the server's
+//!   CertificateVerify, `ecdsa_secp256r1_sha256`).
+//!
+//! Anything else (an RSA or P-384 key, an encoding this reader does not take) is refused: the
+//! module's TLS is P-256 only, as the CA it documents.
+
+use p256::ecdsa::signature::Verifier;
+use p256::ecdsa::{Signature, VerifyingKey};
+
+/// ecdsa-with-SHA256 (RFC 5758 §3.2), the OID's content octets.
+const ECDSA_SHA256: &[u8] = &[0x2A, 0x86, 0x48, 0xCE, 0x3D, 0x04, 0x03, 0x02];
+/// id-ecPublicKey (RFC 5480 §2.1.1).
+const EC_PUBLIC_KEY: &[u8] = &[0x2A, 0x86, 0x48, 0xCE, 0x3D, 0x02, 0x01];
+/// secp256r1, prime256v1 (RFC 5480 §2.1.1.1).
+const P256: &[u8] = &[0x2A, 0x86, 0x48, 0xCE, 0x3D, 0x03, 0x01, 0x07];
+/// id-at-commonName (RFC 5280 Appendix A).
+const COMMON_NAME: &[u8] = &[0x55, 0x04, 0x03];
+/// id-ce-subjectAltName (RFC 5280 §4.2.1.6).
+const SUBJECT_ALT_NAME: &[u8] = &[0x55, 0x1D, 0x11];
+/// The extensions this check knows, so that one marked critical does not refuse the
+/// certificate: subjectKeyIdentifier, keyUsage, subjectAltName, basicConstraints,
+/// authorityKeyIdentifier, extKeyUsage (RFC 5280 §4.2.1; id-ce is 2.5.29).
+const KNOWN: [u8; 6] = [14, 15, 17, 19, 35, 37];
+
+/// DER's tags used here (X.690 §8).
+const BOOLEAN: u8 = 0x01;
+const INTEGER: u8 = 0x02;
+const BIT_STRING: u8 = 0x03;
+const OCTET_STRING: u8 = 0x04;
+const OID: u8 = 0x06;
+const UTC_TIME: u8 = 0x17;
+const GENERALIZED_TIME: u8 = 0x18;
+const SEQUENCE: u8 = 0x30;
+const SET: u8 = 0x31;
+/// `[0]` EXPLICIT, constructed: the certificate's version.
+const VERSION: u8 = 0xA0;
+/// `[3]` EXPLICIT, constructed: the certificate's extensions.
+const EXTENSIONS: u8 = 0xA3;
+/// GeneralName's dNSName, `[2]` IMPLICIT IA5String.
+const DNS_NAME: u8 = 0x82;
+
+/// Why a certificate was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Problem {
+    /// Not DER this reader takes, or not a certificate.
+    Encoding,
+    /// Not ECDSA P-256 with SHA-256, or not a P-256 key.
+    Algorithm,
+    /// The broker's certificate is not the CA's: another issuer, or a signature that fails.
+    Signature,
+    /// The module's time is outside the certificate's validity.
+    Time,
+    /// A critical extension this check does not know.
+    Critical,
+    /// The host name is not one of the certificate's names.
+    Name,
+}
+
+impl Problem {
+    /// What went wrong, for the log.
+    pub fn what(self) -> &'static str {
+        match self {
+            Problem::Encoding => "not a certificate this module reads",
+            Problem::Algorithm => "not ECDSA P-256 with SHA-256",
+            Problem::Signature => "not signed by the CA installed",
+            Problem::Time => "not valid at the module's time",
+            Problem::Critical => "a critical extension unknown to the module",
+            Problem::Name => "not the broker's host name",
+        }
+    }
+}
+
+/// A DER reader over a slice: each element read as its tag, its content and its whole encoding.
+#[derive(Clone, Copy)]
+struct Der<'a>(&'a [u8]);
+
+impl<'a> Der<'a> {
+    /// The next element: (tag, content, the element's whole bytes). Only single-byte tags and
+    /// definite lengths of at most two bytes, minimally encoded (a certificate is below 64 KiB).
+    fn next(&mut self) -> Result<(u8, &'a [u8], &'a [u8]), Problem> {
+        let all = self.0;
+        let (&tag, rest) = all.split_first().ok_or(Problem::Encoding)?;
+        if tag & 0x1F == 0x1F {
+            return Err(Problem::Encoding);
+        }
+        let (&first, rest) = rest.split_first().ok_or(Problem::Encoding)?;
+        let (len, rest) = match first {
+            0..=0x7F => (usize::from(first), rest),
+            0x81 => match rest {
+                [n @ 0x80..=0xFF, rest @ ..] => (usize::from(*n), rest),
+                _ => return Err(Problem::Encoding),
+            },
+            0x82 => match rest {
+                [hi @ 1..=0xFF, lo, rest @ ..] => (usize::from(*hi) << 8 | usize::from(*lo), rest),
+                _ => return Err(Problem::Encoding),
+            },
+            _ => return Err(Problem::Encoding),
+        };
+        if rest.len() < len {
+            return Err(Problem::Encoding);
+        }
+        let (content, after) = rest.split_at(len);
+        self.0 = after;
+        Ok((tag, content, &all[..all.len() - after.len()]))
+    }
+
+    /// The next element's content, which must have `tag`.
+    fn take(&mut self, tag: u8) -> Result<&'a [u8], Problem> {
+        match self.next()? {
+            (t, content, _) if t == tag => Ok(content),
+            _ => Err(Problem::Encoding),
+        }
+    }
+
+    /// The next element's content if it has `tag`; nothing read otherwise.
+    fn optional(&mut self, tag: u8) -> Result<Option<&'a [u8]>, Problem> {
+        match self.0.first() {
+            Some(&t) if t == tag => self.take(tag).map(Some),
+            _ => Ok(None),
+        }
+    }
+
+    fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+}
+
+/// What the checks read of a certificate (every field a slice of its DER bytes).
+#[derive(Clone, Copy)]
+pub struct Certificate<'a> {
+    /// The signed part, tbsCertificate, whole.
+    signed: &'a [u8],
+    /// The issuer's Name, whole.
+    issuer: &'a [u8],
+    /// The subject's Name, whole.
+    subject: &'a [u8],
+    /// notBefore and notAfter, seconds since 1970 (0 for any time before).
+    valid: (u64, u64),
+    /// The subject's public key: a P-256 point, SEC1-encoded.
+    key: &'a [u8],
+    /// The extensions' SEQUENCE content (empty without).
+    extensions: &'a [u8],
+    /// The signature, ECDSA-Sig-Value's DER.
+    signature: &'a [u8],
+}
+
+impl<'a> Certificate<'a> {
+    /// Reads `der`, a certificate signed with ECDSA P-256 SHA-256 whose key is a P-256 key.
+    pub fn read(der: &'a [u8]) -> Result<Self, Problem> {
+        let mut outer = Der(der);
+        let mut certificate = Der(outer.take(SEQUENCE)?);
+        if !outer.is_empty() {
+            return Err(Problem::Encoding);
+        }
+        let (tag, tbs, signed) = certificate.next()?;
+        if tag != SEQUENCE {
+            return Err(Problem::Encoding);
+        }
+        let algorithm = certificate.take(SEQUENCE)?;
+        let signature = match certificate.take(BIT_STRING)? {
+            [0, signature @ ..] => signature,
+            _ => return Err(Problem::Encoding),
+        };
+        if !certificate.is_empty() {
+            return Err(Problem::Encoding);
+        }
+        ecdsa_sha256(algorithm)?;
+
+        let mut tbs = Der(tbs);
+        // v3 (2) only: extensions and names as this check reads them.
+        if tbs.take(VERSION)? != [INTEGER, 1, 2] {
+            return Err(Problem::Encoding);
+        }
+        tbs.take(INTEGER)?;
+        if tbs.take(SEQUENCE)? != algorithm {
+            return Err(Problem::Algorithm);
+        }
+        let (_, _, issuer) = tbs.next()?;
+        let mut validity = Der(tbs.take(SEQUENCE)?);
+        let valid = (time(validity.next()?)?, time(validity.next()?)?);
+        if !validity.is_empty() {
+            return Err(Problem::Encoding);
+        }
+        let (_, _, subject) = tbs.next()?;
+        if issuer.first() != Some(&SEQUENCE) || subject.first() != Some(&SEQUENCE) {
+            return Err(Problem::Encoding);
+        }
+        let mut info = Der(tbs.take(SEQUENCE)?);
+        let mut key_algorithm = Der(info.take(SEQUENCE)?);
+        if key_algorithm.take(OID)? != EC_PUBLIC_KEY || key_algorithm.take(OID)? != P256 || !key_algorithm.is_empty() {
+            return Err(Problem::Algorithm);
+        }
+        let key = match info.take(BIT_STRING)? {
+            [0, key @ ..] => key,
+            _ => return Err(Problem::Encoding),
+        };
+        // Neither unique identifier (RFC 5280 §4.1.2.8: CAs should not make them) is taken.
+        let extensions = match tbs.optional(EXTENSIONS)? {
+            Some(explicit) => {
+                let mut explicit = Der(explicit);
+                let list = explicit.take(SEQUENCE)?;
+                if !explicit.is_empty() {
+                    return Err(Problem::Encoding);
+                }
+                list
+            }
+            None => &[],
+        };
+        if !tbs.is_empty() {
+            return Err(Problem::Encoding);
+        }
+        Ok(Certificate { signed, issuer, subject, valid, key, extensions, signature })
+    }
+
+    /// The subject's P-256 key.
+    pub fn key(&self) -> Result<VerifyingKey, Problem> {
+        VerifyingKey::from_sec1_bytes(self.key).map_err(|_| Problem::Algorithm)
+    }
+
+    /// Whether `issuer` (the CA) signed this certificate: its name is this one's issuer, and
+    /// its key's signature of the signed part holds.
+    pub fn signed_by(&self, issuer: &Certificate) -> Result<(), Problem> {
+        if self.issuer != issuer.subject {
+            return Err(Problem::Signature);
+        }
+        let signature = signature(self.signature).ok_or(Problem::Signature)?;
+        issuer.key()?.verify(self.signed, &signature).map_err(|_| Problem::Signature)
+    }
+
+    /// Whether `now` (seconds since 1970) is within the validity.
+    pub fn valid_at(&self, now: u64) -> Result<(), Problem> {
+        if (self.valid.0..=self.valid.1).contains(&now) {
+            Ok(())
+        } else {
+            Err(Problem::Time)
+        }
+    }
+
+    /// The extensions: each one's id (its OID's content), whether critical, and its value.
+    fn each_extension(
+        &self,
+        mut f: impl FnMut(&'a [u8], bool, &'a [u8]) -> Result<(), Problem>,
+    ) -> Result<(), Problem> {
+        let mut list = Der(self.extensions);
+        while !list.is_empty() {
+            let mut extension = Der(list.take(SEQUENCE)?);
+            let id = extension.take(OID)?;
+            let critical = match extension.optional(BOOLEAN)? {
+                None => false,
+                Some([0xFF]) => true,
+                Some(_) => return Err(Problem::Encoding),
+            };
+            let value = extension.take(OCTET_STRING)?;
+            if !extension.is_empty() {
+                return Err(Problem::Encoding);
+            }
+            f(id, critical, value)?;
+        }
+        Ok(())
+    }
+
+    /// No extension is critical that this check does not know.
+    pub fn no_unknown_critical(&self) -> Result<(), Problem> {
+        self.each_extension(|id, critical, _| match id {
+            [0x55, 0x1D, n] if KNOWN.contains(n) => Ok(()),
+            _ if critical => Err(Problem::Critical),
+            _ => Ok(()),
+        })
+    }
+
+    /// Whether `host` is one of this certificate's DNS names (RFC 6125 §6.4.4: its subject's
+    /// common name counts only when it has none).
+    pub fn names(&self, host: &str) -> Result<(), Problem> {
+        let mut dns_names = 0usize;
+        let mut matched = false;
+        self.each_extension(|id, _, value| {
+            if id == SUBJECT_ALT_NAME {
+                let mut outer = Der(value);
+                let mut names = Der(outer.take(SEQUENCE)?);
+                while !names.is_empty() {
+                    if let (DNS_NAME, name, _) = names.next()? {
+                        dns_names += 1;
+                        matched |= name_matches(name, host.as_bytes());
+                    }
+                }
+            }
+            Ok(())
+        })?;
+        if dns_names == 0 {
+            matched = self.common_name()?.is_some_and(|name| name_matches(name, host.as_bytes()));
+        }
+        if matched {
+            Ok(())
+        } else {
+            Err(Problem::Name)
+        }
+    }
+
+    /// The subject's last common name, if it has one.
+    fn common_name(&self) -> Result<Option<&'a [u8]>, Problem> {
+        let mut name = Der(self.subject);
+        let mut rdns = Der(name.take(SEQUENCE)?);
+        let mut found = None;
+        while !rdns.is_empty() {
+            let mut set = Der(rdns.take(SET)?);
+            while !set.is_empty() {
+                let mut attribute = Der(set.take(SEQUENCE)?);
+                if attribute.take(OID)? == COMMON_NAME {
+                    found = Some(attribute.next()?.1);
+                }
+            }
+        }
+        Ok(found)
+    }
+}
+
+/// An AlgorithmIdentifier's content that must be ecdsa-with-SHA256 with no parameters.
+fn ecdsa_sha256(algorithm: &[u8]) -> Result<(), Problem> {
+    let mut algorithm = Der(algorithm);
+    if algorithm.take(OID)? == ECDSA_SHA256 && algorithm.is_empty() {
+        Ok(())
+    } else {
+        Err(Problem::Algorithm)
+    }
+}
+
+/// An ECDSA-Sig-Value's DER (RFC 5480 §2.2.3: `SEQUENCE { r INTEGER, s INTEGER }`) as a P-256
+/// signature.
+pub fn signature(der: &[u8]) -> Option<Signature> {
+    let mut outer = Der(der);
+    let mut value = Der(outer.take(SEQUENCE).ok()?);
+    let mut bytes = [0u8; 64];
+    for half in bytes.chunks_exact_mut(32) {
+        let integer = value.take(INTEGER).ok()?;
+        // Positive and minimal: a leading zero only before a byte with its top bit set.
+        let magnitude = match integer {
+            [0, rest @ ..] if rest.first().is_some_and(|b| b & 0x80 != 0) => rest,
+            [first, ..] if first & 0x80 == 0 && *first != 0 => integer,
+            _ => return None,
+        };
+        let start = half.len().checked_sub(magnitude.len())?;
+        half[start..].copy_from_slice(magnitude);
+    }
+    if !value.is_empty() || !outer.is_empty() {
+        return None;
+    }
+    Signature::from_slice(&bytes).ok()
+}
+
+/// A validity time (RFC 5280 §4.1.2.5: UTCTime `YYMMDDHHMMSSZ` through 2049, GeneralizedTime
+/// `YYYYMMDDHHMMSSZ` after) as seconds since 1970 (0 for any time before).
+fn time((tag, text, _): (u8, &[u8], &[u8])) -> Result<u64, Problem> {
+    let (year, rest) = match (tag, text.len()) {
+        (UTC_TIME, 13) => {
+            let yy = two(&text[..2])?;
+            (if yy >= 50 { 1900 + yy } else { 2000 + yy }, &text[2..])
+        }
+        (GENERALIZED_TIME, 15) => (two(&text[..2])? * 100 + two(&text[2..4])?, &text[4..]),
+        _ => return Err(Problem::Encoding),
+    };
+    let [m0, m1, d0, d1, h0, h1, i0, i1, s0, s1, b'Z'] = *rest else {
+        return Err(Problem::Encoding);
+    };
+    let (month, day) = (two(&[m0, m1])?, two(&[d0, d1])?);
+    let (hour, minute, second) = (two(&[h0, h1])?, two(&[i0, i1])?, two(&[s0, s1])?);
+    if !(1..=12).contains(&month) || !(1..=31).contains(&day) || hour > 23 || minute > 59 || second > 59 {
+        return Err(Problem::Encoding);
+    }
+    let seconds = days_from_1970(year, month, day) * 86_400 + i64::from(hour * 3600 + minute * 60 + second);
+    Ok(u64::try_from(seconds).unwrap_or(0))
+}
+
+/// Two decimal digits.
+fn two(digits: &[u8]) -> Result<u32, Problem> {
+    match digits {
+        [a @ b'0'..=b'9', b @ b'0'..=b'9'] => Ok(u32::from(a - b'0') * 10 + u32::from(b - b'0')),
+        _ => Err(Problem::Encoding),
+    }
+}
+
+/// Days from 1970-01-01 to a date of the proleptic Gregorian calendar (the civil-from-days
+/// inverse of H. Hinnant's "chrono-Compatible Low-Level Date Algorithms").
+fn days_from_1970(year: u32, month: u32, day: u32) -> i64 {
+    let year = i64::from(year) - i64::from(month <= 2);
+    let era = year.div_euclid(400);
+    let year_of_era = year - era * 400;
+    let month = i64::from(month);
+    let day_of_year = (153 * (if month > 2 { month - 3 } else { month + 9 }) + 2) / 5 + i64::from(day) - 1;
+    let day_of_era = year_of_era * 365 + year_of_era / 4 - year_of_era / 100 + day_of_year;
+    era * 146_097 + day_of_era - 719_468
+}
+
+/// RFC 6125 §6.4.3: ASCII case ignored; a `*` only as the whole left-most label, standing for
+/// exactly one label of the host, and only above two labels of the name (not `*.test`).
+fn name_matches(name: &[u8], host: &[u8]) -> bool {
+    match name.strip_prefix(b"*.") {
+        Some(rest) => {
+            let Some(dot) = host.iter().position(|&b| b == b'.') else { return false };
+            dot > 0 && rest.contains(&b'.') && host[dot + 1..].eq_ignore_ascii_case(rest)
+        }
+        None => !name.is_empty() && name.eq_ignore_ascii_case(host),
+    }
+}
+
+/// The broker's certificate checked against `ca` for `host` at `now` (seconds since 1970):
+/// the broker's key, once it passed.
+pub fn check(ca: &[u8], broker: &[u8], host: &str, now: u64) -> Result<VerifyingKey, Problem> {
+    let ca = Certificate::read(ca)?;
+    let broker = Certificate::read(broker)?;
+    broker.signed_by(&ca)?;
+    broker.valid_at(now)?;
+    broker.no_unknown_critical()?;
+    broker.names(host)?;
+    broker.key()
+}
+
+/// TLS 1.3's CertificateVerify (RFC 8446 §4.4.3): `signature` (DER, ecdsa_secp256r1_sha256) of
+/// 64 spaces, the server's context string, a zero byte and the transcript's hash `transcript`,
+/// by `key`.
+pub fn handshake_signed(key: &VerifyingKey, transcript: &[u8; 32], signature: &[u8]) -> Result<(), Problem> {
+    const CONTEXT: &[u8] = b"TLS 1.3, server CertificateVerify\x00";
+    let mut message = [0x20u8; 64 + CONTEXT.len() + 32];
+    message[64..64 + CONTEXT.len()].copy_from_slice(CONTEXT);
+    message[64 + CONTEXT.len()..].copy_from_slice(transcript);
+    let signature = self::signature(signature).ok_or(Problem::Signature)?;
+    key.verify(&message, &signature).map_err(|_| Problem::Signature)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Expected values from `date -u -d @N` (GNU coreutils), not from this code.
+    #[test]
+    fn validity_times_are_read_as_utc_seconds() {
+        let utc = |s: &str| time((UTC_TIME, s.as_bytes(), &[]));
+        let generalized = |s: &str| time((GENERALIZED_TIME, s.as_bytes(), &[]));
+        // date -u -d @1796515200: Sun Dec  6 00:00:00 UTC 2026
+        assert_eq!(utc("261206000000Z"), Ok(1_796_515_200));
+        // date -u -d @2524607999: Fri Dec 31 23:59:59 UTC 2049
+        assert_eq!(utc("491231235959Z"), Ok(2_524_607_999));
+        // date -u -d @951782400: Tue Feb 29 00:00:00 UTC 2000
+        assert_eq!(utc("000229000000Z"), Ok(951_782_400));
+        // date -u -d @2556144000: Sun Jan  1 00:00:00 UTC 2051
+        assert_eq!(generalized("20510101000000Z"), Ok(2_556_144_000));
+        // 1950 to 1969: before 1970, 0.
+        assert_eq!(utc("500101000000Z"), Ok(0));
+        for bad in ["261206000000", "2612060000000", "261306000000Z", "261206240000Z", "26120600000+Z"] {
+            assert_eq!(utc(bad), Err(Problem::Encoding), "{bad}");
+        }
+    }
+
+    #[test]
+    fn a_wildcard_stands_for_one_left_most_label() {
+        assert!(name_matches(b"broker.test", b"Broker.TEST"));
+        assert!(name_matches(b"*.plant.test", b"broker.plant.test"));
+        assert!(!name_matches(b"*.plant.test", b"a.broker.plant.test"));
+        assert!(!name_matches(b"*.plant.test", b"plant.test"));
+        assert!(!name_matches(b"*.plant.test", b".plant.test"));
+        assert!(!name_matches(b"*.test", b"broker.test"));
+        assert!(!name_matches(b"b*.plant.test", b"broker.plant.test"));
+        assert!(!name_matches(b"", b""));
+    }
+
+    #[test]
+    fn the_reader_refuses_what_it_does_not_take() {
+        // A length past the end, a long form where the short one fits, a multi-byte tag.
+        for junk in [&[0x30, 0x05, 0x02][..], &[0x30, 0x81, 0x05, 0, 0, 0, 0, 0], &[0x1F, 0x01, 0x00], &[]] {
+            assert!(Der(junk).next().is_err(), "{junk:?}");
+        }
+        assert!(Certificate::read(&[0x30, 0x00]).is_err());
+        // ECDSA-Sig-Value: a negative r, a non-minimal one, 33 bytes of magnitude.
+        assert!(signature(&[0x30, 0x06, 0x02, 0x01, 0x80, 0x02, 0x01, 0x01]).is_none());
+        assert!(signature(&[0x30, 0x07, 0x02, 0x02, 0x00, 0x01, 0x02, 0x01, 0x01]).is_none());
+        let mut long = [0u8; 41];
+        long[..5].copy_from_slice(&[0x30, 39, 0x02, 34, 0x00]);
+        long[5..38].fill(0x80);
+        long[38..].copy_from_slice(&[0x02, 0x01, 0x01]);
+        assert!(signature(&long).is_none());
+    }
+}
