@@ -205,7 +205,7 @@ impl<'a> Certificate<'a> {
             return Err(Problem::Algorithm);
         }
         let key = match info.take(BIT_STRING)? {
-            [0, key @ ..] => key,
+            [0, key @ ..] if info.is_empty() => key,
             _ => return Err(Problem::Encoding),
         };
         // Neither unique identifier (RFC 5280 §4.1.2.8: CAs should not make them) is taken.
@@ -259,8 +259,9 @@ impl<'a> Certificate<'a> {
         while !list.is_empty() {
             let mut extension = Der(list.take(SEQUENCE)?);
             let id = extension.take(OID)?;
+            // DER leaves FALSE out (X.690 §11.5); some CAs write it all the same.
             let critical = match extension.optional(BOOLEAN)? {
-                None => false,
+                None | Some([0x00]) => false,
                 Some([0xFF]) => true,
                 Some(_) => return Err(Problem::Encoding),
             };
