@@ -19,6 +19,8 @@ fuzz_target!(|data: &[u8]| {
         let _ = certificate.valid_at(0);
         let _ = certificate.valid_at(u64::MAX);
         let _ = certificate.no_unknown_critical();
+        let _ = certificate.serves_tls(false);
+        let _ = certificate.serves_tls(true);
         let _ = certificate.names("broker.test");
         let _ = certificate.names("mqtt.plant.test");
         let _ = certificate.signed_by(&certificate);

@@ -9,7 +9,9 @@
 //! - the broker's certificate is signed by the installed CA's key with ECDSA P-256 SHA-256, and
 //!   its issuer is the CA's subject, byte for byte;
 //! - the module's time is within its validity;
-//! - no extension it marks critical is one this check does not know;
+//! - no extension it marks critical is one this check does not know, none comes twice;
+//! - it is a TLS server's: not a CA's (but for the very certificate installed as the CA, a
+//!   self-signed broker's), its key usage and extended key usage, where given, a server's;
 //! - the host name the user gave for the broker is one of its DNS names (its subject's common
 //!   name only when it has none), a wildcard standing for one whole left-most label;
 //! - its key is a P-256 key, which signed the handshake's transcript (the server's
@@ -52,6 +54,14 @@ const VERSION: u8 = 0xA0;
 const EXTENSIONS: u8 = 0xA3;
 /// GeneralName's dNSName, `[2]` IMPLICIT IA5String.
 const DNS_NAME: u8 = 0x82;
+/// GeneralName's uniformResourceIdentifier, `[6]` IMPLICIT IA5String.
+const URI: u8 = 0x86;
+/// GeneralName's otherName, `[0]` IMPLICIT, constructed (an SRV name among others).
+const OTHER_NAME: u8 = 0xA0;
+/// id-kp-serverAuth (RFC 5280 §4.2.1.12).
+const SERVER_AUTH: &[u8] = &[0x2B, 0x06, 0x01, 0x05, 0x05, 0x07, 0x03, 0x01];
+/// anyExtendedKeyUsage (RFC 5280 §4.2.1.12).
+const ANY_PURPOSE: &[u8] = &[0x55, 0x1D, 0x25, 0x00];
 
 /// Why a certificate was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -64,8 +74,10 @@ pub enum Problem {
     Signature,
     /// The module's time is outside the certificate's validity.
     Time,
-    /// A critical extension this check does not know.
+    /// A critical extension this check does not know, or one twice.
     Critical,
+    /// A certificate not for a TLS server: a CA's, or its key's usage another.
+    Purpose,
     /// The host name is not one of the certificate's names.
     Name,
 }
@@ -79,6 +91,7 @@ impl Problem {
             Problem::Signature => "not signed by the CA installed",
             Problem::Time => "not valid at the module's time",
             Problem::Critical => "a critical extension unknown to the module",
+            Problem::Purpose => "not a TLS server's certificate",
             Problem::Name => "not the broker's host name",
         }
     }
@@ -274,34 +287,92 @@ impl<'a> Certificate<'a> {
         Ok(())
     }
 
-    /// No extension is critical that this check does not know.
+    /// No extension is critical that this check does not know, and none comes twice (RFC 5280
+    /// §4.2).
     pub fn no_unknown_critical(&self) -> Result<(), Problem> {
-        self.each_extension(|id, critical, _| match id {
-            [0x55, 0x1D, n] if KNOWN.contains(n) => Ok(()),
-            _ if critical => Err(Problem::Critical),
-            _ => Ok(()),
+        self.each_extension(|id, critical, _| {
+            let mut seen = 0;
+            self.each_extension(|other, _, _| {
+                seen += usize::from(other == id);
+                Ok(())
+            })?;
+            match id {
+                _ if seen > 1 => Err(Problem::Encoding),
+                [0x55, 0x1D, n] if KNOWN.contains(n) => Ok(()),
+                _ if critical => Err(Problem::Critical),
+                _ => Ok(()),
+            }
+        })
+    }
+
+    /// Whether the certificate may be a TLS server's (RFC 5280 §4.2.1.3, §4.2.1.9, §4.2.1.12;
+    /// RFC 8446 §4.4.2.2): not a CA's (unless `is_the_ca`: the very certificate the user
+    /// installed, a self-signed broker's); a key usage, if it says, for digital signatures; an
+    /// extended key usage, if it says, for a TLS server (or any).
+    pub fn serves_tls(&self, is_the_ca: bool) -> Result<(), Problem> {
+        self.each_extension(|id, _, value| {
+            let mut value = Der(value);
+            match id {
+                [0x55, 0x1D, 19] => {
+                    let mut constraints = Der(value.take(SEQUENCE)?);
+                    if constraints.optional(BOOLEAN)? == Some(&[0xFF]) && !is_the_ca {
+                        return Err(Problem::Purpose);
+                    }
+                }
+                [0x55, 0x1D, 15] => match value.take(BIT_STRING)? {
+                    [_, first, ..] if first & 0x80 != 0 => {}
+                    _ => return Err(Problem::Purpose),
+                },
+                [0x55, 0x1D, 37] => {
+                    let mut purposes = Der(value.take(SEQUENCE)?);
+                    let mut server = false;
+                    while !purposes.is_empty() {
+                        server |= matches!(purposes.take(OID)?, SERVER_AUTH | ANY_PURPOSE);
+                    }
+                    if !server {
+                        return Err(Problem::Purpose);
+                    }
+                }
+                _ => return Ok(()),
+            }
+            if value.is_empty() {
+                Ok(())
+            } else {
+                Err(Problem::Encoding)
+            }
         })
     }
 
     /// Whether `host` is one of this certificate's DNS names (RFC 6125 §6.4.4: its subject's
-    /// common name counts only when it has none).
+    /// common name counts only when it has no DNS, URI or other name, its addresses aside). An
+    /// address is no host name here: the broker's TLS name is a name (docs/mqtt.md).
     pub fn names(&self, host: &str) -> Result<(), Problem> {
-        let mut dns_names = 0usize;
+        if host.parse::<core::net::Ipv4Addr>().is_ok() {
+            return Err(Problem::Name);
+        }
+        let mut identifiers = 0usize;
         let mut matched = false;
         self.each_extension(|id, _, value| {
             if id == SUBJECT_ALT_NAME {
                 let mut outer = Der(value);
                 let mut names = Der(outer.take(SEQUENCE)?);
+                if !outer.is_empty() {
+                    return Err(Problem::Encoding);
+                }
                 while !names.is_empty() {
-                    if let (DNS_NAME, name, _) = names.next()? {
-                        dns_names += 1;
-                        matched |= name_matches(name, host.as_bytes());
+                    match names.next()? {
+                        (DNS_NAME, name, _) => {
+                            identifiers += 1;
+                            matched |= name_matches(name, host.as_bytes());
+                        }
+                        (URI | OTHER_NAME, _, _) => identifiers += 1,
+                        _ => {}
                     }
                 }
             }
             Ok(())
         })?;
-        if dns_names == 0 {
+        if identifiers == 0 {
             matched = self.common_name()?.is_some_and(|name| name_matches(name, host.as_bytes()));
         }
         if matched {
@@ -322,6 +393,9 @@ impl<'a> Certificate<'a> {
                 let mut attribute = Der(set.take(SEQUENCE)?);
                 if attribute.take(OID)? == COMMON_NAME {
                     found = Some(attribute.next()?.1);
+                    if !attribute.is_empty() {
+                        return Err(Problem::Encoding);
+                    }
                 }
             }
         }
@@ -378,7 +452,14 @@ fn time((tag, text, _): (u8, &[u8], &[u8])) -> Result<u64, Problem> {
     };
     let (month, day) = (two(&[m0, m1])?, two(&[d0, d1])?);
     let (hour, minute, second) = (two(&[h0, h1])?, two(&[i0, i1])?, two(&[s0, s1])?);
-    if !(1..=12).contains(&month) || !(1..=31).contains(&day) || hour > 23 || minute > 59 || second > 59 {
+    let leap = year % 4 == 0 && (year % 100 != 0 || year % 400 == 0);
+    let days = match month {
+        2 if leap => 29,
+        2 => 28,
+        4 | 6 | 9 | 11 => 30,
+        _ => 31,
+    };
+    if !(1..=12).contains(&month) || !(1..=days).contains(&day) || hour > 23 || minute > 59 || second > 59 {
         return Err(Problem::Encoding);
     }
     let seconds = days_from_1970(year, month, day) * 86_400 + i64::from(hour * 3600 + minute * 60 + second);
@@ -419,12 +500,13 @@ fn name_matches(name: &[u8], host: &[u8]) -> bool {
 
 /// The broker's certificate checked against `ca` for `host` at `now` (seconds since 1970):
 /// the broker's key, once it passed.
-pub fn check(ca: &[u8], broker: &[u8], host: &str, now: u64) -> Result<VerifyingKey, Problem> {
-    let ca = Certificate::read(ca)?;
-    let broker = Certificate::read(broker)?;
+pub fn check(ca_der: &[u8], broker_der: &[u8], host: &str, now: u64) -> Result<VerifyingKey, Problem> {
+    let ca = Certificate::read(ca_der)?;
+    let broker = Certificate::read(broker_der)?;
     broker.signed_by(&ca)?;
     broker.valid_at(now)?;
     broker.no_unknown_critical()?;
+    broker.serves_tls(broker_der == ca_der)?;
     broker.names(host)?;
     broker.key()
 }
@@ -460,7 +542,18 @@ mod tests {
         assert_eq!(generalized("20510101000000Z"), Ok(2_556_144_000));
         // 1950 to 1969: before 1970, 0.
         assert_eq!(utc("500101000000Z"), Ok(0));
-        for bad in ["261206000000", "2612060000000", "261306000000Z", "261206240000Z", "26120600000+Z"] {
+        // No 31 February, 29 February only in a leap year (2100 is none, 2000 was).
+        assert_eq!(generalized("21000229000000Z"), Err(Problem::Encoding));
+        for bad in [
+            "261206000000",
+            "2612060000000",
+            "261306000000Z",
+            "261206240000Z",
+            "26120600000+Z",
+            "270231000000Z",
+            "270229000000Z",
+            "260431000000Z",
+        ] {
             assert_eq!(utc(bad), Err(Problem::Encoding), "{bad}");
         }
     }

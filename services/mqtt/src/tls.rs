@@ -7,7 +7,7 @@ use core::cell::Cell;
 
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::blocking_mutex::Mutex;
-use embedded_io_async::{Read, Write};
+use embedded_io_async::{Error as _, Read, Write};
 use embedded_tls::{
     Aes128GcmSha256, CertificateEntryRef, CertificateRef, CertificateVerifyRef, CryptoProvider, CryptoRngCore,
     MaxFragmentLength, SignatureScheme, TlsCipherSuite, TlsConfig, TlsConnection, TlsContext, TlsError, TlsVerifier,
@@ -31,6 +31,17 @@ pub const WRITE: usize = 2_048;
 pub trait Clock {
     /// Now, or `None`.
     fn now() -> Option<u64>;
+}
+
+/// The earliest time the certificates' validity is checked against: 2026-01-01 00:00 UTC
+/// (`date -u -d 2026-01-01 +%s`), the year of this firmware. An earlier time is taken as none
+/// (no TLS): whoever answers in the time server's place (SNTP has no authentication) cannot set
+/// the module's clock back before it to bring a certificate expired earlier back to life.
+pub const EARLIEST: u64 = 1_767_225_600;
+
+/// `C`'s time, if it is one to check a certificate against ([`EARLIEST`]).
+fn now<C: Clock>() -> Option<u64> {
+    C::now().filter(|t| *t >= EARLIEST)
 }
 
 /// A board's time of day: ms since 1970, or `None` before it has one.
@@ -123,7 +134,7 @@ impl<C: Clock> TlsVerifier<Aes128GcmSha256> for Checked<'_, C> {
             [CertificateEntryRef::X509(broker), CertificateEntryRef::X509(ca)] if *ca == self.ca => broker,
             _ => return Err(TlsError::InvalidCertificate),
         };
-        let now = C::now().ok_or(TlsError::InvalidCertificate)?;
+        let now = now::<C>().ok_or(TlsError::InvalidCertificate)?;
         if self.seen.get() != 0 {
             return Err(TlsError::InvalidCertificate);
         }
@@ -181,7 +192,83 @@ pub enum Refused {
 }
 
 /// A TLS connection to the broker, over `transport` (a TCP connection already open to it).
-pub type Tls<'b, T> = TlsConnection<'b, T, Aes128GcmSha256>;
+pub type Tls<'b, T> = TlsConnection<'b, Guarded<T>, Aes128GcmSha256>;
+
+/// The broker's bytes on their way to embedded-tls, their records' headers read as they pass:
+/// an encrypted record (`application_data`, RFC 8446 §5.2) shorter than the AEAD's tag and the
+/// inner content type (17 bytes) ends the connection before embedded-tls sees it. embedded-tls
+/// 0.19 panics on one of exactly 16 bytes (a tag with nothing under it: the plaintext's last
+/// byte unwrapped, `connection.rs` `decrypt_record`), which whoever holds the handshake's keys
+/// can send (a man in the middle, before the certificate is checked): a reset of the module at
+/// each attempt (security review of this round).
+pub struct Guarded<T> {
+    inner: T,
+    /// The record header being read, and how many of its bytes came.
+    header: [u8; 5],
+    have: usize,
+    /// The bytes of the current record's body still to come.
+    body: usize,
+}
+
+impl<T> Guarded<T> {
+    /// `inner`'s bytes, guarded from its first record on.
+    pub fn new(inner: T) -> Self {
+        Guarded { inner, header: [0; 5], have: 0, body: 0 }
+    }
+
+    /// Follows the records through `bytes`: `false` at a record no TLS 1.3 peer sends.
+    fn pass(&mut self, mut bytes: &[u8]) -> bool {
+        while !bytes.is_empty() {
+            if self.body > 0 {
+                let n = self.body.min(bytes.len());
+                self.body -= n;
+                bytes = &bytes[n..];
+                continue;
+            }
+            self.header[self.have] = bytes[0];
+            self.have += 1;
+            bytes = &bytes[1..];
+            if self.have == self.header.len() {
+                self.have = 0;
+                self.body = usize::from(u16::from_be_bytes([self.header[3], self.header[4]]));
+                if self.header[0] == APPLICATION_DATA && self.body < MIN_ENCRYPTED {
+                    return false;
+                }
+            }
+        }
+        true
+    }
+}
+
+/// TLS's content type of an encrypted record.
+const APPLICATION_DATA: u8 = 23;
+/// The shortest encrypted record: the inner content type and AES-GCM's 16-byte tag.
+const MIN_ENCRYPTED: usize = 17;
+
+// A guarded read's error: the transport's kind, or `InvalidData` for a refused record.
+impl<T: embedded_io_async::ErrorType> embedded_io_async::ErrorType for Guarded<T> {
+    type Error = embedded_io_async::ErrorKind;
+}
+
+impl<T: Read> Read for Guarded<T> {
+    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
+        let n = self.inner.read(buf).await.map_err(|e| e.kind())?;
+        if self.pass(buf.get(..n).unwrap_or_default()) {
+            Ok(n)
+        } else {
+            Err(embedded_io_async::ErrorKind::InvalidData)
+        }
+    }
+}
+
+impl<T: Write> Write for Guarded<T> {
+    async fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
+        self.inner.write(buf).await.map_err(|e| e.kind())
+    }
+    async fn flush(&mut self) -> Result<(), Self::Error> {
+        self.inner.flush().await.map_err(|e| e.kind())
+    }
+}
 
 /// TLS to the broker named `host` on `io` (`None`: the broker was not reached), run by the
 /// caller's task, with the record buffers in `buffer` ([`BUFFER`] bytes), the board's time of
@@ -208,14 +295,14 @@ pub async fn open<'b, T: Read + Write + 'b, R: CryptoRngCore, C: Clock>(
     host: &str,
     rng: R,
 ) -> Result<Tls<'b, T>, Refused> {
-    if C::now().is_none() {
+    if now::<C>().is_none() {
         return Err(Refused::NoTime);
     }
     let config = TlsConfig::new().with_server_name(host).with_max_fragment_length(MaxFragmentLength::Bits12);
     let seen = Cell::new(0);
     let verifier = Checked { ca, host, seen: &seen, key: None, clock: core::marker::PhantomData };
     let provider = Provider::<R, C> { rng, verifier };
-    let mut tls = TlsConnection::new(transport, read, write);
+    let mut tls = TlsConnection::new(Guarded::new(transport), read, write);
     match tls.open(TlsContext::new(&config, provider)).await {
         // Nothing of the application's is written before this: a broker that did not show its
         // certificate and prove it holds its key gets no credentials.
@@ -225,5 +312,56 @@ pub async fn open<'b, T: Read + Write + 'b, R: CryptoRngCore, C: Clock>(
             Err(Refused::Certificate)
         }
         Err(_) => Err(Refused::Handshake),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    struct Later;
+
+    impl Clock for Later {
+        fn now() -> Option<u64> {
+            Some(EARLIEST + 1)
+        }
+    }
+
+    /// `Checked` holds the handshake's order: no signature before a certificate passed, none
+    /// after one was refused; nothing marked seen.
+    #[test]
+    fn no_signature_is_taken_without_a_certificate_that_passed() {
+        let seen = Cell::new(0);
+        let mut checked =
+            Checked::<Later> { ca: &[], host: "broker.test", seen: &seen, key: None, clock: core::marker::PhantomData };
+        let verify =
+            || CertificateVerifyRef { signature_scheme: SignatureScheme::EcdsaSecp256r1Sha256, signature: &[] };
+        assert!(matches!(checked.verify_signature(verify()), Err(TlsError::InvalidSignature)));
+        let mut certificate = CertificateRef::with_context(&[]);
+        assert!(certificate.entries.push(CertificateEntryRef::X509(&[0x30, 0x00])).is_ok());
+        assert!(matches!(
+            checked.verify_certificate(&sha2::Sha256::new(), certificate),
+            Err(TlsError::InvalidCertificate)
+        ));
+        assert!(matches!(checked.verify_signature(verify()), Err(TlsError::InvalidSignature)));
+        assert_eq!(seen.get(), 0);
+    }
+
+    /// RFC 8446 §5.2's records: a header of type, version and length, then the body.
+    #[test]
+    fn an_encrypted_record_shorter_than_its_tag_and_type_is_refused() {
+        let mut g = Guarded::new(());
+        // A handshake record of 2 bytes, then application data of 17 (the shortest there is).
+        assert!(g.pass(&[22, 3, 3, 0, 2, 1, 2]));
+        let mut record = std::vec![23, 3, 3, 0, 17];
+        record.extend_from_slice(&[0xAA; 17]);
+        assert!(g.pass(&record));
+        // Its header split over three reads, its body over two: still followed.
+        assert!(g.pass(&[23, 3]) && g.pass(&[3, 0]) && g.pass(&[20, 0]) && g.pass(&[0; 19]));
+        // 16 bytes: a tag alone (embedded-tls 0.19 panics on it once decrypted); and 0.
+        assert!(!g.pass(&[23, 3, 3, 0, 16]));
+        assert!(!Guarded::new(()).pass(&[23, 3, 3, 0, 0]));
+        // An alert in clear of 2 bytes, a change_cipher_spec of 1: not encrypted, passed on.
+        assert!(Guarded::new(()).pass(&[21, 3, 3, 0, 2, 2, 40, 20, 3, 3, 0, 1, 1]));
     }
 }

@@ -50,7 +50,9 @@ fn issue(dir: &Path, name: &str, subject: &str, ext: &str, by: &str, rsa: bool) 
     let csr = format!("{name}.csr");
     openssl(dir, &["req", "-new", "-key", &key, "-subj", subject, "-out", &csr]);
     let extfile = format!("{name}.ext");
-    std::fs::write(dir.join(&extfile), format!("basicConstraints=CA:FALSE\n{ext}")).expect("ext");
+    let ext =
+        if ext.contains("basicConstraints") { ext.to_string() } else { format!("basicConstraints=CA:FALSE\n{ext}") };
+    std::fs::write(dir.join(&extfile), ext).expect("ext");
     let pem = format!("{name}.pem");
     let (ca, ca_key) = (format!("{by}.pem"), format!("{by}.key"));
     openssl(
@@ -92,7 +94,7 @@ fn a_broker_certificate_is_taken_only_from_the_ca_for_its_name_and_time() {
     let ca_der = ca(&d, "ca", false);
     let other = ca(&d, "other", false);
     let broker = issue(&d, "broker", "/CN=broker.test", "subjectAltName=DNS:broker.test\n", "ca", false);
-    let now = now();
+    let now = now() + 60; // a minute on: openssl may stamp notBefore a second after this
     assert!(check(&ca_der, &broker, "broker.test", now).is_ok());
     assert!(check(&ca_der, &broker, "BROKER.Test", now).is_ok(), "ASCII case ignored");
     assert_eq!(check(&ca_der, &broker, "other.test", now).err(), Some(Problem::Name));
@@ -137,13 +139,16 @@ fn a_broker_certificate_is_taken_only_from_the_ca_for_its_name_and_time() {
 fn names_follow_rfc_6125() {
     let d = dir("names");
     let ca_der = ca(&d, "ca", false);
-    let now = now();
-    // The common name counts only without DNS names.
+    let now = now() + 60; // a minute on: openssl may stamp notBefore a second after this
+                          // The common name counts only without DNS names.
     let cn_only = issue(&d, "cn", "/CN=broker.test", "", "ca", false);
     assert!(check(&ca_der, &cn_only, "broker.test", now).is_ok());
     let both = issue(&d, "both", "/CN=broker.test", "subjectAltName=DNS:mqtt.test\n", "ca", false);
     assert_eq!(check(&ca_der, &both, "broker.test", now).err(), Some(Problem::Name));
     assert!(check(&ca_der, &both, "mqtt.test", now).is_ok());
+    // A URI is an identifier too: the common name no longer counts beside it.
+    let uri = issue(&d, "uri", "/CN=broker.test", "subjectAltName=URI:mqtts://mqtt.test\n", "ca", false);
+    assert_eq!(check(&ca_der, &uri, "broker.test", now).err(), Some(Problem::Name));
     // An address is no DNS name; the DNS names beside it still count.
     let ip = issue(&d, "ip", "/CN=broker.test", "subjectAltName=IP:192.0.2.5,DNS:mqtt.test\n", "ca", false);
     assert_eq!(check(&ca_der, &ip, "192.0.2.5", now).err(), Some(Problem::Name));
@@ -162,7 +167,7 @@ fn only_p256_and_known_critical_extensions_are_taken() {
     let d = dir("algorithms");
     let ca_der = ca(&d, "ca", false);
     let rsa_ca = ca(&d, "rsaca", true);
-    let now = now();
+    let now = now() + 60; // a minute on: openssl may stamp notBefore a second after this
     let san = "subjectAltName=DNS:broker.test\n";
     let rsa_key = issue(&d, "rsakey", "/CN=broker.test", san, "ca", true);
     assert_eq!(check(&ca_der, &rsa_key, "broker.test", now).err(), Some(Problem::Algorithm), "an RSA key");
@@ -192,7 +197,7 @@ fn the_handshake_signature_is_the_certificate_keys() {
     std::fs::write(d.join("message"), &message).expect("message");
     openssl(&d, &["dgst", "-sha256", "-sign", "broker.key", "-out", "signature", "message"]);
     let signature = std::fs::read(d.join("signature")).expect("signature");
-    let key = check(&ca_der, &broker, "broker.test", now()).expect("the broker's certificate");
+    let key = check(&ca_der, &broker, "broker.test", now() + 60).expect("the broker's certificate");
     assert_eq!(handshake_signed(&key, &transcript, &signature), Ok(()));
     let mut other = transcript;
     other[0] ^= 1;
@@ -200,5 +205,49 @@ fn the_handshake_signature_is_the_certificate_keys() {
     // The CA's key did not sign it.
     let ca_key = Certificate::read(&ca_der).and_then(|c| c.key()).expect("the CA's key");
     assert_eq!(handshake_signed(&ca_key, &transcript, &signature), Err(Problem::Signature));
+    let _ = std::fs::remove_dir_all(d);
+}
+
+/// A TLS server's certificate only (RFC 5280 §4.2.1.3, 4.2.1.9, 4.2.1.12; RFC 8446 §4.4.2.2):
+/// not a CA's unless it is the very one installed (a self-signed broker's); its key usage, where
+/// given, for signatures; its extended key usage, where given, a server's.
+#[test]
+fn only_a_tls_servers_certificate_is_taken() {
+    let d = dir("purpose");
+    let ca_der = ca(&d, "ca", false);
+    let now = now() + 60; // a minute on: openssl may stamp notBefore a second after this
+    let san = "subjectAltName=DNS:broker.test\n";
+    for (name, ext, expected) in [
+        ("ca-true", "basicConstraints=critical,CA:TRUE\n", Some(Problem::Purpose)),
+        ("encipher", "keyUsage=critical,keyEncipherment\n", Some(Problem::Purpose)),
+        ("client", "extendedKeyUsage=clientAuth\n", Some(Problem::Purpose)),
+        ("server", "keyUsage=critical,digitalSignature\nextendedKeyUsage=serverAuth,clientAuth\n", None),
+    ] {
+        let broker = issue(&d, name, "/CN=broker.test", &format!("{san}{ext}"), "ca", false);
+        assert_eq!(check(&ca_der, &broker, "broker.test", now).err(), expected, "{name}");
+    }
+    // A self-signed broker's certificate (openssl's `req -x509`: CA:TRUE) installed as the CA.
+    openssl(&d, &["ecparam", "-name", "prime256v1", "-genkey", "-noout", "-out", "self.key"]);
+    openssl(
+        &d,
+        &[
+            "req",
+            "-x509",
+            "-new",
+            "-key",
+            "self.key",
+            "-subj",
+            "/CN=broker.test",
+            "-addext",
+            "subjectAltName=DNS:broker.test",
+            "-days",
+            "2",
+            "-out",
+            "self.pem",
+        ],
+    );
+    let own = der(&d, "self.pem");
+    assert!(check(&own, &own, "broker.test", now).is_ok());
+    assert_eq!(check(&own, &own, "other.test", now).err(), Some(Problem::Name));
     let _ = std::fs::remove_dir_all(d);
 }

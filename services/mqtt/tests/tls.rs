@@ -153,6 +153,8 @@ fn the_broker_is_checked_and_the_password_never_crosses_in_clear() {
     assert_eq!(attempt(&broker, "ca.der", "other.test", now), Err(TlsRefused::Certificate), "another name");
     assert_eq!(attempt(&broker, "ca.der", HOST, now + 2 * 86_400), Err(TlsRefused::Certificate), "expired");
     assert_eq!(attempt(&broker, "ca.der", HOST, 0), Err(TlsRefused::NoTime), "no time");
+    let before = remodaq_mqtt::tls::EARLIEST - 1;
+    assert_eq!(attempt(&broker, "ca.der", HOST, before), Err(TlsRefused::NoTime), "a time before this firmware's year");
 
     // The right CA, name and time: a session with the user's password, online, a point.
     let sub = Subscriber::with_args(
