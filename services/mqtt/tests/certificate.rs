@@ -22,31 +22,37 @@ fn dir(name: &str) -> PathBuf {
     dir
 }
 
-/// A self-signed CA `name` (P-256 unless `rsa`), valid two days; its DER.
-fn ca(dir: &Path, name: &str, rsa: bool) -> Vec<u8> {
+/// A key `name.key`: P-256, or RSA.
+fn key(dir: &Path, name: &str, rsa: bool) -> String {
     let key = format!("{name}.key");
     if rsa {
         openssl(dir, &["genrsa", "-out", &key, "2048"]);
     } else {
         openssl(dir, &["ecparam", "-name", "prime256v1", "-genkey", "-noout", "-out", &key]);
     }
+    key
+}
+
+/// A self-signed certificate `name` (openssl's `req -x509`: CA:TRUE) for `subject`, valid two
+/// days, with `more` of openssl's arguments; its DER.
+fn self_signed(dir: &Path, name: &str, subject: &str, rsa: bool, more: &[&str]) -> Vec<u8> {
+    let key = key(dir, name, rsa);
     let pem = format!("{name}.pem");
-    openssl(
-        dir,
-        &["req", "-x509", "-new", "-key", &key, "-subj", &format!("/CN=rdaq {name}"), "-days", "2", "-out", &pem],
-    );
+    let mut args = vec!["req", "-x509", "-new", "-key", &key, "-subj", subject, "-days", "2", "-out", &pem];
+    args.extend_from_slice(more);
+    openssl(dir, &args);
     der(dir, &pem)
+}
+
+/// A CA `name` (P-256 unless `rsa`), self-signed as `rdaq NAME`; its DER.
+fn ca(dir: &Path, name: &str, rsa: bool) -> Vec<u8> {
+    self_signed(dir, name, &format!("/CN=rdaq {name}"), rsa, &[])
 }
 
 /// A certificate `name` for `subject`, with the extensions `ext` (openssl's extfile lines),
 /// signed by the CA `by`, valid one day; its DER.
 fn issue(dir: &Path, name: &str, subject: &str, ext: &str, by: &str, rsa: bool) -> Vec<u8> {
-    let key = format!("{name}.key");
-    if rsa {
-        openssl(dir, &["genrsa", "-out", &key, "2048"]);
-    } else {
-        openssl(dir, &["ecparam", "-name", "prime256v1", "-genkey", "-noout", "-out", &key]);
-    }
+    let key = key(dir, name, rsa);
     let csr = format!("{name}.csr");
     openssl(dir, &["req", "-new", "-key", &key, "-subj", subject, "-out", &csr]);
     let extfile = format!("{name}.ext");
@@ -84,8 +90,9 @@ fn der(dir: &Path, pem: &str) -> Vec<u8> {
     std::fs::read(dir.join(out)).expect("DER")
 }
 
-fn now() -> u64 {
-    SystemTime::now().duration_since(UNIX_EPOCH).expect("after 1970").as_secs()
+/// A minute from now: openssl may stamp a certificate's notBefore a second after a test began.
+fn soon() -> u64 {
+    SystemTime::now().duration_since(UNIX_EPOCH).expect("after 1970").as_secs() + 60
 }
 
 #[test]
@@ -94,7 +101,7 @@ fn a_broker_certificate_is_taken_only_from_the_ca_for_its_name_and_time() {
     let ca_der = ca(&d, "ca", false);
     let other = ca(&d, "other", false);
     let broker = issue(&d, "broker", "/CN=broker.test", "subjectAltName=DNS:broker.test\n", "ca", false);
-    let now = now() + 60; // a minute on: openssl may stamp notBefore a second after this
+    let now = soon();
     assert!(check(&ca_der, &broker, "broker.test", now).is_ok());
     assert!(check(&ca_der, &broker, "BROKER.Test", now).is_ok(), "ASCII case ignored");
     assert_eq!(check(&ca_der, &broker, "other.test", now).err(), Some(Problem::Name));
@@ -104,14 +111,7 @@ fn a_broker_certificate_is_taken_only_from_the_ca_for_its_name_and_time() {
 
     // Signed by another CA that took the first one's name: its signature fails.
     let d2 = dir("impostor");
-    let impostor_ca = {
-        openssl(&d2, &["ecparam", "-name", "prime256v1", "-genkey", "-noout", "-out", "ca.key"]);
-        openssl(
-            &d2,
-            &["req", "-x509", "-new", "-key", "ca.key", "-subj", "/CN=rdaq ca", "-days", "2", "-out", "ca.pem"],
-        );
-        der(&d2, "ca.pem")
-    };
+    let impostor_ca = ca(&d2, "ca", false);
     assert_ne!(impostor_ca, ca_der);
     let forged = issue(&d2, "broker", "/CN=broker.test", "subjectAltName=DNS:broker.test\n", "ca", false);
     assert_eq!(check(&ca_der, &forged, "broker.test", now).err(), Some(Problem::Signature), "same issuer name");
@@ -139,8 +139,8 @@ fn a_broker_certificate_is_taken_only_from_the_ca_for_its_name_and_time() {
 fn names_follow_rfc_6125() {
     let d = dir("names");
     let ca_der = ca(&d, "ca", false);
-    let now = now() + 60; // a minute on: openssl may stamp notBefore a second after this
-                          // The common name counts only without DNS names.
+    let now = soon();
+    // The common name counts only without DNS names.
     let cn_only = issue(&d, "cn", "/CN=broker.test", "", "ca", false);
     assert!(check(&ca_der, &cn_only, "broker.test", now).is_ok());
     let both = issue(&d, "both", "/CN=broker.test", "subjectAltName=DNS:mqtt.test\n", "ca", false);
@@ -167,7 +167,7 @@ fn only_p256_and_known_critical_extensions_are_taken() {
     let d = dir("algorithms");
     let ca_der = ca(&d, "ca", false);
     let rsa_ca = ca(&d, "rsaca", true);
-    let now = now() + 60; // a minute on: openssl may stamp notBefore a second after this
+    let now = soon();
     let san = "subjectAltName=DNS:broker.test\n";
     let rsa_key = issue(&d, "rsakey", "/CN=broker.test", san, "ca", true);
     assert_eq!(check(&ca_der, &rsa_key, "broker.test", now).err(), Some(Problem::Algorithm), "an RSA key");
@@ -197,7 +197,7 @@ fn the_handshake_signature_is_the_certificate_keys() {
     std::fs::write(d.join("message"), &message).expect("message");
     openssl(&d, &["dgst", "-sha256", "-sign", "broker.key", "-out", "signature", "message"]);
     let signature = std::fs::read(d.join("signature")).expect("signature");
-    let key = check(&ca_der, &broker, "broker.test", now() + 60).expect("the broker's certificate");
+    let key = check(&ca_der, &broker, "broker.test", soon()).expect("the broker's certificate");
     assert_eq!(handshake_signed(&key, &transcript, &signature), Ok(()));
     let mut other = transcript;
     other[0] ^= 1;
@@ -215,7 +215,7 @@ fn the_handshake_signature_is_the_certificate_keys() {
 fn only_a_tls_servers_certificate_is_taken() {
     let d = dir("purpose");
     let ca_der = ca(&d, "ca", false);
-    let now = now() + 60; // a minute on: openssl may stamp notBefore a second after this
+    let now = soon();
     let san = "subjectAltName=DNS:broker.test\n";
     for (name, ext, expected) in [
         ("ca-true", "basicConstraints=critical,CA:TRUE\n", Some(Problem::Purpose)),
@@ -227,26 +227,7 @@ fn only_a_tls_servers_certificate_is_taken() {
         assert_eq!(check(&ca_der, &broker, "broker.test", now).err(), expected, "{name}");
     }
     // A self-signed broker's certificate (openssl's `req -x509`: CA:TRUE) installed as the CA.
-    openssl(&d, &["ecparam", "-name", "prime256v1", "-genkey", "-noout", "-out", "self.key"]);
-    openssl(
-        &d,
-        &[
-            "req",
-            "-x509",
-            "-new",
-            "-key",
-            "self.key",
-            "-subj",
-            "/CN=broker.test",
-            "-addext",
-            "subjectAltName=DNS:broker.test",
-            "-days",
-            "2",
-            "-out",
-            "self.pem",
-        ],
-    );
-    let own = der(&d, "self.pem");
+    let own = self_signed(&d, "self", "/CN=broker.test", false, &["-addext", "subjectAltName=DNS:broker.test"]);
     assert!(check(&own, &own, "broker.test", now).is_ok());
     assert_eq!(check(&own, &own, "other.test", now).err(), Some(Problem::Name));
     let _ = std::fs::remove_dir_all(d);
