@@ -194,13 +194,18 @@ pub enum Refused {
 /// A TLS connection to the broker, over `transport` (a TCP connection already open to it).
 pub type Tls<'b, T> = TlsConnection<'b, Guarded<T>, Aes128GcmSha256>;
 
-/// The broker's bytes on their way to embedded-tls, their records' headers read as they pass:
-/// an encrypted record (`application_data`, RFC 8446 §5.2) shorter than the AEAD's tag and the
-/// inner content type (17 bytes) ends the connection before embedded-tls sees it. embedded-tls
-/// 0.19 panics on one of exactly 16 bytes (a tag with nothing under it: the plaintext's last
-/// byte unwrapped, `connection.rs` `decrypt_record`), which whoever holds the handshake's keys
-/// can send (a man in the middle, before the certificate is checked): a reset of the module at
-/// each attempt (security review of this round).
+/// The broker's bytes on their way to embedded-tls, their records' headers read as they pass
+/// (RFC 8446 §5): two kinds of record that no TLS 1.3 server sends, and on which embedded-tls
+/// 0.19 panics, end the connection before it sees them (reviews of this round, reading its
+/// source; a panic is a reset of the module):
+/// - an encrypted record (`application_data`) shorter than the AEAD's tag and the inner content
+///   type, 17 bytes: on one of 16 (a tag over nothing) `decrypt_record` unwraps the last byte
+///   of an empty plaintext; whoever holds the handshake's keys can send it (a man in the
+///   middle, before the certificate is checked);
+/// - a handshake record in clear after the first (the ServerHello; embedded-tls does no
+///   HelloRetryRequest, and every later handshake message is encrypted): once the connection
+///   is open, its reader meets any handshake message but a NewSessionTicket with
+///   `unimplemented!()`, and 11 bytes injected into the TCP stream, no key needed, make one.
 pub struct Guarded<T> {
     inner: T,
     /// The record header being read, and how many of its bytes came.
@@ -208,12 +213,14 @@ pub struct Guarded<T> {
     have: usize,
     /// The bytes of the current record's body still to come.
     body: usize,
+    /// Whether the handshake record in clear (the ServerHello) came.
+    hello: bool,
 }
 
 impl<T> Guarded<T> {
     /// `inner`'s bytes, guarded from its first record on.
     pub fn new(inner: T) -> Self {
-        Guarded { inner, header: [0; 5], have: 0, body: 0 }
+        Guarded { inner, header: [0; 5], have: 0, body: 0, hello: false }
     }
 
     /// Follows the records through `bytes`: `false` at a record no TLS 1.3 peer sends.
@@ -231,8 +238,11 @@ impl<T> Guarded<T> {
             if self.have == self.header.len() {
                 self.have = 0;
                 self.body = usize::from(u16::from_be_bytes([self.header[3], self.header[4]]));
-                if self.header[0] == APPLICATION_DATA && self.body < MIN_ENCRYPTED {
-                    return false;
+                match self.header[0] {
+                    APPLICATION_DATA if self.body < MIN_ENCRYPTED => return false,
+                    HANDSHAKE if self.hello => return false,
+                    HANDSHAKE => self.hello = true,
+                    _ => {}
                 }
             }
         }
@@ -242,6 +252,8 @@ impl<T> Guarded<T> {
 
 /// TLS's content type of an encrypted record.
 const APPLICATION_DATA: u8 = 23;
+/// TLS's content type of a handshake record in clear.
+const HANDSHAKE: u8 = 22;
 /// The shortest encrypted record: the inner content type and AES-GCM's 16-byte tag.
 const MIN_ENCRYPTED: usize = 17;
 
@@ -363,5 +375,18 @@ mod tests {
         assert!(!Guarded::new(()).pass(&[23, 3, 3, 0, 0]));
         // An alert in clear of 2 bytes, a change_cipher_spec of 1: not encrypted, passed on.
         assert!(Guarded::new(()).pass(&[21, 3, 3, 0, 2, 2, 40, 20, 3, 3, 0, 1, 1]));
+    }
+
+    /// One handshake record in clear, the ServerHello; another (here the review's 11 bytes, an
+    /// EncryptedExtensions in clear) ends the connection, even split over reads.
+    #[test]
+    fn a_second_handshake_record_in_clear_is_refused() {
+        let mut g = Guarded::new(());
+        assert!(g.pass(&[22, 3, 3, 0, 4, 2, 0, 0, 0]));
+        assert!(g.pass(&[20, 3, 3, 0, 1, 1, 23, 3, 3, 0, 17]) && g.pass(&[0; 17]));
+        assert!(!g.pass(&[22, 3, 3, 0, 6, 8, 0, 0, 0, 0, 0]));
+        let mut g = Guarded::new(());
+        assert!(g.pass(&[22, 3, 3, 0, 1, 2]) && g.pass(&[22, 3]));
+        assert!(!g.pass(&[3, 0, 6]));
     }
 }
