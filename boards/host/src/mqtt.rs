@@ -42,7 +42,7 @@ struct StdConnector;
 
 impl Connector for StdConnector {
     type Io<'a> = FromFutures<Async<TcpStream>>;
-    type Tls<'a> = remodaq_mqtt::tls::Tls<'a, Self::Io<'a>>;
+    type Tls<'a> = remodaq_mqtt::tls::Tls<'a, remodaq_mqtt::tls::Whole<Self::Io<'a>, { remodaq_mqtt::tls::WHOLE }>>;
 
     async fn connect(&mut self, broker: [u8; 4], port: u16) -> Option<Self::Io<'_>> {
         let broker = SocketAddr::V4(SocketAddrV4::new(broker.into(), port));

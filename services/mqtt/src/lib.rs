@@ -21,6 +21,8 @@ pub mod config {
     pub use remodaq_shared::mqtt::*;
 }
 pub mod points;
+#[cfg(feature = "tls")]
+pub mod records;
 #[cfg(all(feature = "tls", feature = "embassy-net"))]
 pub mod relay;
 pub mod schedule;

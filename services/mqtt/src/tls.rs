@@ -7,7 +7,7 @@ use core::cell::Cell;
 
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::blocking_mutex::Mutex;
-use embedded_io_async::{Error as _, Read, Write};
+use embedded_io_async::{Read, Write};
 use embedded_tls::{
     Aes128GcmSha256, CertificateEntryRef, CertificateRef, CertificateVerifyRef, CryptoProvider, CryptoRngCore,
     MaxFragmentLength, SignatureScheme, TlsCipherSuite, TlsConfig, TlsConnection, TlsContext, TlsError, TlsVerifier,
@@ -25,6 +25,8 @@ pub const READ: usize = 4_096 + 256;
 /// TLS's write buffer (the end of [`BUFFER`]): the module's records are small (a publication of
 /// at most about 350 bytes); a larger write goes as more records.
 pub const WRITE: usize = 2_048;
+/// The longest record the simulator's [`Whole`] holds: a header and [`READ`].
+pub const WHOLE: usize = 5 + READ;
 
 /// The module's time for the certificates' validity: seconds since 1970 (SNTP), or `None`
 /// before it has one.
@@ -194,105 +196,20 @@ pub enum Refused {
 /// A TLS connection to the broker, over `transport` (a TCP connection already open to it).
 pub type Tls<'b, T> = TlsConnection<'b, Guarded<T>, Aes128GcmSha256>;
 
-/// The broker's bytes on their way to embedded-tls, their records' headers read as they pass
-/// (RFC 8446 §5): two kinds of record that no TLS 1.3 server sends, and on which embedded-tls
-/// 0.19 panics, end the connection before it sees them (reviews of this round, reading its
-/// source; a panic is a reset of the module):
-/// - an encrypted record (`application_data`) shorter than the AEAD's tag and the inner content
-///   type, 17 bytes: on one of 16 (a tag over nothing) `decrypt_record` unwraps the last byte
-///   of an empty plaintext; whoever holds the handshake's keys can send it (a man in the
-///   middle, before the certificate is checked);
-/// - a handshake record in clear after the first (the ServerHello; embedded-tls does no
-///   HelloRetryRequest, and every later handshake message is encrypted): once the connection
-///   is open, its reader meets any handshake message but a NewSessionTicket with
-///   `unimplemented!()`, and 11 bytes injected into the TCP stream, no key needed, make one.
-pub struct Guarded<T> {
-    inner: T,
-    /// The record header being read, and how many of its bytes came.
-    header: [u8; 5],
-    have: usize,
-    /// The bytes of the current record's body still to come.
-    body: usize,
-    /// Whether the handshake record in clear (the ServerHello) came.
-    hello: bool,
-}
-
-impl<T> Guarded<T> {
-    /// `inner`'s bytes, guarded from its first record on.
-    pub fn new(inner: T) -> Self {
-        Guarded { inner, header: [0; 5], have: 0, body: 0, hello: false }
-    }
-
-    /// Follows the records through `bytes`: `false` at a record no TLS 1.3 peer sends.
-    fn pass(&mut self, mut bytes: &[u8]) -> bool {
-        while !bytes.is_empty() {
-            if self.body > 0 {
-                let n = self.body.min(bytes.len());
-                self.body -= n;
-                bytes = &bytes[n..];
-                continue;
-            }
-            self.header[self.have] = bytes[0];
-            self.have += 1;
-            bytes = &bytes[1..];
-            if self.have == self.header.len() {
-                self.have = 0;
-                self.body = usize::from(u16::from_be_bytes([self.header[3], self.header[4]]));
-                match self.header[0] {
-                    APPLICATION_DATA if self.body < MIN_ENCRYPTED => return false,
-                    HANDSHAKE if self.hello => return false,
-                    HANDSHAKE => self.hello = true,
-                    _ => {}
-                }
-            }
-        }
-        true
-    }
-}
-
-/// TLS's content type of an encrypted record.
-const APPLICATION_DATA: u8 = 23;
-/// TLS's content type of a handshake record in clear.
-const HANDSHAKE: u8 = 22;
-/// The shortest encrypted record: the inner content type and AES-GCM's 16-byte tag.
-const MIN_ENCRYPTED: usize = 17;
-
-// A guarded read's error: the transport's kind, or `InvalidData` for a refused record.
-impl<T: embedded_io_async::ErrorType> embedded_io_async::ErrorType for Guarded<T> {
-    type Error = embedded_io_async::ErrorKind;
-}
-
-impl<T: Read> Read for Guarded<T> {
-    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
-        let n = self.inner.read(buf).await.map_err(|e| e.kind())?;
-        if self.pass(buf.get(..n).unwrap_or_default()) {
-            Ok(n)
-        } else {
-            Err(embedded_io_async::ErrorKind::InvalidData)
-        }
-    }
-}
-
-impl<T: Write> Write for Guarded<T> {
-    async fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
-        self.inner.write(buf).await.map_err(|e| e.kind())
-    }
-    async fn flush(&mut self) -> Result<(), Self::Error> {
-        self.inner.flush().await.map_err(|e| e.kind())
-    }
-}
+pub use crate::records::{Guarded, Whole};
 
 /// TLS to the broker named `host` on `io` (`None`: the broker was not reached), run by the
 /// caller's task, with the record buffers in `buffer` ([`BUFFER`] bytes), the board's time of
 /// day ([`BoardClock`]) and randomness ([`ModuleRng`]). The simulator's way; the embassy-net
 /// boards run TLS off the main executor (`crate::relay`).
+/// The broker's bytes in whole records ([`Whole`]): the session drops reads at each look.
 pub async fn in_place<'b, T: Read + Write + 'b>(
     io: Option<T>,
     ca: &[u8],
     host: &str,
     buffer: &'b mut [u8],
-) -> Result<Tls<'b, T>, Option<Refused>> {
-    let io = io.ok_or(None)?;
+) -> Result<Tls<'b, Whole<T, WHOLE>>, Option<Refused>> {
+    let io = Whole::new(io.ok_or(None)?);
     let (read, write) = buffer.split_at_mut(buffer.len().saturating_sub(WRITE));
     open::<_, _, BoardClock>(io, read, write, ca, host, ModuleRng).await.map_err(Some)
 }
@@ -357,36 +274,5 @@ mod tests {
         ));
         assert!(matches!(checked.verify_signature(verify()), Err(TlsError::InvalidSignature)));
         assert_eq!(seen.get(), 0);
-    }
-
-    /// RFC 8446 §5.2's records: a header of type, version and length, then the body.
-    #[test]
-    fn an_encrypted_record_shorter_than_its_tag_and_type_is_refused() {
-        let mut g = Guarded::new(());
-        // A handshake record of 2 bytes, then application data of 17 (the shortest there is).
-        assert!(g.pass(&[22, 3, 3, 0, 2, 1, 2]));
-        let mut record = std::vec![23, 3, 3, 0, 17];
-        record.extend_from_slice(&[0xAA; 17]);
-        assert!(g.pass(&record));
-        // Its header split over three reads, its body over two: still followed.
-        assert!(g.pass(&[23, 3]) && g.pass(&[3, 0]) && g.pass(&[20, 0]) && g.pass(&[0; 19]));
-        // 16 bytes: a tag alone (embedded-tls 0.19 panics on it once decrypted); and 0.
-        assert!(!g.pass(&[23, 3, 3, 0, 16]));
-        assert!(!Guarded::new(()).pass(&[23, 3, 3, 0, 0]));
-        // An alert in clear of 2 bytes, a change_cipher_spec of 1: not encrypted, passed on.
-        assert!(Guarded::new(()).pass(&[21, 3, 3, 0, 2, 2, 40, 20, 3, 3, 0, 1, 1]));
-    }
-
-    /// One handshake record in clear, the ServerHello; another (here the review's 11 bytes, an
-    /// EncryptedExtensions in clear) ends the connection, even split over reads.
-    #[test]
-    fn a_second_handshake_record_in_clear_is_refused() {
-        let mut g = Guarded::new(());
-        assert!(g.pass(&[22, 3, 3, 0, 4, 2, 0, 0, 0]));
-        assert!(g.pass(&[20, 3, 3, 0, 1, 1, 23, 3, 3, 0, 17]) && g.pass(&[0; 17]));
-        assert!(!g.pass(&[22, 3, 3, 0, 6, 8, 0, 0, 0, 0, 0]));
-        let mut g = Guarded::new(());
-        assert!(g.pass(&[22, 3, 3, 0, 1, 2]) && g.pass(&[22, 3]));
-        assert!(!g.pass(&[3, 0, 6]));
     }
 }

@@ -16,7 +16,7 @@ use remodaq_mqtt::command::Command;
 use remodaq_mqtt::schedule::Point;
 use remodaq_mqtt::session::{serve, Module, Payload, PointTopic, Reading, Refused, Settings};
 use remodaq_mqtt::testing::{tls_broker, Broker, Subscriber, HOST, PASSWORD, USER};
-use remodaq_mqtt::tls::{open, Clock, Refused as TlsRefused};
+use remodaq_mqtt::tls::{open, Clock, Refused as TlsRefused, Whole};
 use remodaq_mqtt::topics::Kind;
 
 /// The module's time, as the test sets it (seconds since 1970; 0: none yet).
@@ -167,7 +167,8 @@ fn the_broker_is_checked_and_the_password_never_crosses_in_clear() {
     std::thread::spawn(move || {
         futures_executor::block_on(async move {
             let (mut read, mut write) = (vec![0u8; remodaq_mqtt::tls::READ], vec![0u8; remodaq_mqtt::tls::WRITE]);
-            let io = tcp(port, link).await;
+            // Whole records, as the simulator's (`tls::in_place`): the session drops reads.
+            let io = Whole::<_, { remodaq_mqtt::tls::WHOLE }>::new(tcp(port, link).await);
             let tls = open::<_, _, TestClock>(io, &mut read, &mut write, &ca, HOST, rng()).await.expect("TLS");
             let (mut rx, mut tx) = ([0u8; 1024], [0u8; 2048]);
             let config = ConfigBuilder::new(Buffers::new(&mut rx, &mut tx))
