@@ -14,6 +14,8 @@ use embedded_tls::{
 };
 use sha2::Digest;
 
+pub use crate::records::{Guarded, Whole};
+
 /// TLS's record buffers: [`READ`] for reading, then [`WRITE`] for writing.
 pub const BUFFER: usize = READ + WRITE;
 /// TLS's read buffer: a record of at most 4 KiB, which the module asks the broker for (the
@@ -196,13 +198,11 @@ pub enum Refused {
 /// A TLS connection to the broker, over `transport` (a TCP connection already open to it).
 pub type Tls<'b, T> = TlsConnection<'b, Guarded<T>, Aes128GcmSha256>;
 
-pub use crate::records::{Guarded, Whole};
-
 /// TLS to the broker named `host` on `io` (`None`: the broker was not reached), run by the
 /// caller's task, with the record buffers in `buffer` ([`BUFFER`] bytes), the board's time of
-/// day ([`BoardClock`]) and randomness ([`ModuleRng`]). The simulator's way; the embassy-net
+/// day ([`BoardClock`]) and randomness ([`ModuleRng`]), the broker's bytes in whole records
+/// ([`Whole`]: the session drops a read at each look). The simulator's way; the embassy-net
 /// boards run TLS off the main executor (`crate::relay`).
-/// The broker's bytes in whole records ([`Whole`]): the session drops reads at each look.
 pub async fn in_place<'b, T: Read + Write + 'b>(
     io: Option<T>,
     ca: &[u8],
