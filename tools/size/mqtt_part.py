@@ -18,8 +18,8 @@ scripts/size-report.
 Usage: mqtt_part.py --tls LABEL WITH_TLS_ELF SHIPPED_ELF
 
 TLS's part of an STM32 image, which no image ships with yet (docs/mqtt.md "Sizes"): the image
-built with the feature `mqtt-tls` less the image as shipped; the code of embedded-tls and its
-cryptography, the TLS worker's pool (`tls_worker::POOL`: the record buffers, the CA's and the
+built with the feature `mqtt-tls` less the image as shipped; the code of embedded-tls, its
+cryptography and our certificate check and record guards, the TLS worker's pool (`tls_worker::POOL`: the record buffers, the CA's and the
 broker name's copies), the rest (the pipes to it, the request). Prints the lines only.
 """
 
@@ -35,7 +35,8 @@ TLS_CRATES = ("embedded-tls", "p256", "elliptic-curve", "primeorder", "aes-gcm",
 def piece_of(path):
     if re.search(r"/minimq-[0-9][^/]*/", path):
         return "client"
-    if any(re.search(rf"/{c}-[0-9][^/]*/", path) for c in TLS_CRATES) or path.endswith("services/mqtt/src/tls.rs"):
+    if any(re.search(rf"/{c}-[0-9][^/]*/", path) for c in TLS_CRATES) or path.endswith(
+            ("services/mqtt/src/tls.rs", "services/mqtt/src/certificate.rs", "services/mqtt/src/records.rs")):
         return "tls"
     if "services/mqtt/src/" in path or path.endswith("shared/src/mqtt.rs"):
         return "service"
@@ -50,7 +51,7 @@ def tls_part(label, with_tls, shipped):
         code += sign * sum(n for path, n in code_by_file(elf).items() if piece_of(path) == "tls")
     worker = pool(with_tls, "tls_worker")
     print(f"TLS part of {label}: flash {flash} B, RAM {ram} B (the image with the feature mqtt-tls less the image as shipped)")
-    print(f"  code: embedded-tls and its cryptography {code} B; the rest of the flash {flash - code} B")
+    print(f"  code: embedded-tls, its cryptography and the certificate check {code} B; the rest of the flash {flash - code} B")
     print(f"  RAM: the TLS worker's pool {worker} B (record buffers, the CA's copy); the rest {ram - worker} B; "
           f"beside them the worker's stack (the handshake's calls: 12.8 KB under QEMU, docs/mqtt.md)")
 
