@@ -85,7 +85,7 @@ async fn latencies(modbus: SocketAddr, log: &str) -> Result<Latencies, String> {
 /// the current values; MQTT set off: `offline` (the will, the module closing its connection) at
 /// once.
 ///
-/// The check on the measure: the median and the 99th percentile with MQTT on within 1.5x off.
+/// The check on the measure: the median with MQTT on within 1.5x off, or 0.1 ms ([`within`]).
 /// The worsts are printed (the issue's figure, worst within 1.5x off): under QEMU the worst of
 /// 1000 is this PC's as much as the firmware's (off alone gave 1.0 to 3.8 ms over six runs
 /// here: `load.rs` says more), so it is reported, not counted.
@@ -344,14 +344,24 @@ fn published_least(topics: &[String], prefix: &str) -> (usize, String) {
         .unwrap_or_default()
 }
 
-/// The check on a measure: the median with MQTT publishing (`on`) within 1.5x off's.
+/// The check on a measure: the median with MQTT publishing (`on`) within 1.5x off's, or at
+/// most [`SLACK`] above it. Under QEMU a request's median is 0.07 to 0.17 ms from run to run on
+/// this PC, so 1.5x of a low one is 35 µs: two runs of December 2026 failed by that (0.068 ->
+/// 0.107 ms plain, 0.085 -> 0.134 ms over TLS) where the other runs seen were within 0.8x-1.3x
+/// (docs/mqtt.md, "Never in the way"). A stall the issue is about (the handshake's 37.9 ms) is
+/// a hundred times the slack.
 fn within(off: &Latencies, on: &Latencies, how: &str) -> Result<(), String> {
     let (off, on) = (off.median(), on.median());
-    if on.as_secs_f64() > off.as_secs_f64() * 1.5 {
-        return Err(format!("the median with MQTT publishing{how}, {on:?}, is over 1.5x off's, {off:?}"));
+    if on > off.mul_f64(1.5) && on > off + SLACK {
+        return Err(format!(
+            "the median with MQTT publishing{how}, {on:?}, is over 1.5x off's, {off:?}, and more than {SLACK:?} above it"
+        ));
     }
     Ok(())
 }
+
+/// How far the median with MQTT publishing may be above off's whatever the ratio ([`within`]).
+const SLACK: Duration = Duration::from_micros(100);
 
 /// A span of the guest's time in QEMU's log: its length and its end, µs.
 type Span = (u64, u64);
@@ -392,7 +402,7 @@ fn long_polls(log: &str, from: u64) -> (Vec<Span>, Vec<Span>) {
 /// executor of 3 ms or more while the background executor computed the handshake (QEMU's log:
 /// the issue's figure, the longest stall, printed); the background executor's stack within its
 /// own; 1000 Modbus requests with MQTT off (`measured_off`, the plain check's, when given), then
-/// 1000 while MQTT publishes over TLS, the median within 1.5x (the 99th percentile and the worsts
+/// 1000 while MQTT publishes over TLS, the median within 1.5x or 0.1 ms ([`within`]; the 99th percentile and the worsts
 /// printed: docs/mqtt.md, "Never in the way"); set off at the end.
 pub(crate) async fn mqtt_over_tls(
     modbus: SocketAddr,
