@@ -349,7 +349,7 @@ fn published_least(topics: &[String], prefix: &str) -> (usize, String) {
 /// this PC, so 1.5x of a low one is 35 µs: two runs of December 2026 failed by that (0.068 ->
 /// 0.107 ms plain, 0.085 -> 0.134 ms over TLS) where the other runs seen were within 0.8x-1.3x
 /// (docs/mqtt.md, "Never in the way"). A stall the issue is about (the handshake's 37.9 ms) is
-/// a hundred times the slack.
+/// 379 times the slack.
 fn within(off: &Latencies, on: &Latencies, how: &str) -> Result<(), String> {
     let (off, on) = (off.median(), on.median());
     if on > off.mul_f64(1.5) && on > off + SLACK {
