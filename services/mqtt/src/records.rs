@@ -16,12 +16,12 @@ use embedded_io_async::{Error as _, Read, Write};
 /// - a handshake record in clear after the first (the ServerHello; embedded-tls does no
 ///   HelloRetryRequest, and every later handshake message is encrypted): once the connection
 ///   is open, its reader meets any handshake message but a NewSessionTicket with
-///   `unimplemented!()`, and 11 bytes injected into the TCP stream, no key needed, make one.
+///   an `unimplemented` panic, and 11 bytes injected into the TCP stream, no key needed, make one.
 #[derive(Clone)]
 pub struct Guarded<T> {
     inner: T,
     /// The record header being read, and how many of its bytes came.
-    header: [u8; 5],
+    header: [u8; HEADER],
     have: usize,
     /// The bytes of the current record's body still to come.
     body: usize,
@@ -32,7 +32,7 @@ pub struct Guarded<T> {
 impl<T> Guarded<T> {
     /// `inner`'s bytes, guarded from its first record on.
     pub fn new(inner: T) -> Self {
-        Guarded { inner, header: [0; 5], have: 0, body: 0, hello: false }
+        Guarded { inner, header: [0; HEADER], have: 0, body: 0, hello: false }
     }
 
     /// Follows the records through `bytes`: `false` at a record no TLS 1.3 peer sends.
@@ -49,7 +49,7 @@ impl<T> Guarded<T> {
             bytes = &bytes[1..];
             if self.have == self.header.len() {
                 self.have = 0;
-                self.body = usize::from(u16::from_be_bytes([self.header[3], self.header[4]]));
+                self.body = body_length(&self.header);
                 match self.header[0] {
                     APPLICATION_DATA if self.body < MIN_ENCRYPTED => return false,
                     HANDSHAKE if self.hello => return false,
@@ -60,6 +60,14 @@ impl<T> Guarded<T> {
         }
         true
     }
+}
+
+/// A record header's bytes: content type, version, body length.
+const HEADER: usize = 5;
+
+/// The body length a record header gives (RFC 8446 §5.1: its last two bytes, big-endian).
+fn body_length(header: &[u8; HEADER]) -> usize {
+    usize::from(u16::from_be_bytes([header[3], header[4]]))
 }
 
 /// TLS's content type of an encrypted record.
@@ -119,8 +127,10 @@ impl<T, const N: usize> Whole<T, N> {
 
     /// Moves `ready` past every whole record that came.
     fn find_records(&mut self) {
-        while let Some(header) = self.buf.get(self.ready..self.ready + 5).filter(|_| self.ready + 5 <= self.end) {
-            let record = 5 + usize::from(u16::from_be_bytes([header[3], header[4]]));
+        while let Some(Ok(header)) =
+            self.buf[..self.end].get(self.ready..self.ready + HEADER).map(<&[u8; HEADER]>::try_from)
+        {
+            let record = HEADER + body_length(header);
             if self.ready + record > self.end {
                 break;
             }

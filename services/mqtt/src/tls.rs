@@ -152,8 +152,9 @@ impl<C: Clock> TlsVerifier<Aes128GcmSha256> for Checked<'_, C> {
     }
 
     fn verify_signature(&mut self, verify: CertificateVerifyRef) -> Result<(), TlsError> {
+        // The key is there only after the certificate passed, and taken once.
         let (key, transcript) = self.key.take().ok_or(TlsError::InvalidSignature)?;
-        if self.seen.get() != CERTIFICATE || verify.signature_scheme != SignatureScheme::EcdsaSecp256r1Sha256 {
+        if verify.signature_scheme != SignatureScheme::EcdsaSecp256r1Sha256 {
             return Err(TlsError::InvalidSignature);
         }
         crate::certificate::handshake_signed(&key, &transcript, verify.signature)
