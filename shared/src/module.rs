@@ -108,21 +108,30 @@ where
     F: NorFlash,
 {
     let mut store = store.lock().await;
-    let mut settings = *store.get();
-    let out = change(&mut settings).map_err(UpdateError::Refused)?;
-    if settings != *store.get() {
-        // A change that changes nothing never reaches the flash; a write beyond the budget
-        // neither.
-        take_budget(&mut store, draw).map_err(UpdateError::Store)?;
-        // From the flash write to the map's update, a connection's deadline waits (finding 15c:
-        // a request dropped in between left the flash with the change and RAM without it).
-        let _under_way = CommitUnderWay::begin();
-        store.commit(settings).await.map_err(UpdateError::Store)?;
-        // Uncontended (the map's lock is never held across an await), taken without a wait.
-        match map.try_lock() {
-            Ok(mut map) => map.committed(&settings),
-            Err(_) => map.lock().await.committed(&settings),
+    // The changed settings are handed to the store (`stage`) in a block without an await, so
+    // that this future, which every connection task that may commit holds, keeps no copy of
+    // them through the flash write (issue #40: the STM32's RAM).
+    let out = {
+        let mut settings = *store.get();
+        let out = change(&mut settings).map_err(UpdateError::Refused)?;
+        if settings == *store.get() {
+            // A change that changes nothing never reaches the flash.
+            return Ok(out);
         }
+        // A write beyond the budget neither.
+        take_budget(&mut store, draw).map_err(UpdateError::Store)?;
+        store.stage(settings);
+        out
+    };
+    // From the flash write to the map's update, a connection's deadline waits (finding 15c:
+    // a request dropped in between left the flash with the change and RAM without it).
+    let _under_way = CommitUnderWay::begin();
+    store.commit_staged().await.map_err(UpdateError::Store)?;
+    // The settings committed are the store's now. Uncontended (the map's lock is never held
+    // across an await), taken without a wait.
+    match map.try_lock() {
+        Ok(mut map) => map.committed(store.get()),
+        Err(_) => map.lock().await.committed(store.get()),
     }
     Ok(out)
 }

@@ -250,10 +250,15 @@ impl Retained {
 pub struct SettingsStore<F: NorFlash, S: Schema> {
     map: MapStorage<u8, F, Cache<Uncached, Uncached, Uncached, u8>>,
     buf: Buffer,
-    /// A raw record being written (here rather than in the caller's future: a web connection's
-    /// task would otherwise hold it).
-    raw: [u8; MAX_RAW + 2],
+    /// The record being written: a service's raw record from [`Self::fill_raw_record`] to its
+    /// commit, or a record encoded for a commit. Here rather than in the caller's future, which
+    /// every connection task that may commit (ten Modbus slots, the web console's, discovery)
+    /// would otherwise hold through the flash write (issue #40: the STM32's RAM).
+    scratch: [u8; MAX_RAW + 2],
     current: S,
+    /// The settings a commit is writing ([`Self::stage`], [`Self::commit_staged`]), put in force
+    /// once durable; here for the same reason as `scratch`.
+    staged: S,
     /// The commit budget of Modbus writes.
     writes: crate::budget::Budget,
     /// The commit budget of authenticated changes.
@@ -271,8 +276,9 @@ impl<F: NorFlash, S: Schema> SettingsStore<F, S> {
         let mut store = Self {
             map: MapStorage::new(flash, config, Cache::new_uncached()),
             buf: Buffer([0; BUF_LEN]),
-            raw: [0; MAX_RAW + 2],
+            scratch: [0; MAX_RAW + 2],
             current: S::defaults(),
+            staged: S::defaults(),
             // Full, as after a power-on; the start-up sets them for its reset cause (`resume`).
             writes: crate::budget::Budget::new(COMMIT_BURST, COMMIT_REFILL_MS),
             admin: crate::budget::Budget::new(ADMIN_BURST, ADMIN_REFILL_MS),
@@ -403,17 +409,34 @@ impl<F: NorFlash, S: Schema> SettingsStore<F, S> {
 
     /// Commits `value` to flash, then puts it in force. On error the old value stays in force.
     /// (The outcome also sets or clears the diagnostics' settings-store-fault bit.)
-    pub async fn commit(&mut self, value: S) -> Result<(), StoreError> {
-        let result = self.store(value).await;
+    pub fn commit(&mut self, value: S) -> impl core::future::Future<Output = Result<(), StoreError>> + '_ {
+        // Staged before the future is made, so that the future holds no copy of `value`.
+        self.stage(value);
+        self.commit_staged()
+    }
+
+    /// Takes `value` for [`Self::commit_staged`]: [`Self::commit`] in two steps, so that a
+    /// caller's future holds no copy of the settings while the flash is written.
+    pub fn stage(&mut self, value: S) {
+        self.staged = value;
+    }
+
+    /// Commits the settings [`Self::stage`] took, as [`Self::commit`] does.
+    pub async fn commit_staged(&mut self) -> Result<(), StoreError> {
+        let result = self.store_staged().await;
         crate::diagnostics::DIAGNOSTICS.committed(&result);
         result
     }
 
     async fn store(&mut self, value: S) -> Result<(), StoreError> {
-        let mut record = [0u8; MAX_RECORD];
-        let len = encode_record(&value, &mut record).ok_or(StoreError::TooLarge)?;
-        self.store_record(RECORD_KEY, &record[..len]).await?;
-        self.current = value;
+        self.stage(value);
+        self.store_staged().await
+    }
+
+    async fn store_staged(&mut self) -> Result<(), StoreError> {
+        let len = encode_record(&self.staged, &mut self.scratch[..MAX_RECORD]).ok_or(StoreError::TooLarge)?;
+        Self::store_in(&mut self.map, &mut self.buf, RECORD_KEY, &self.scratch[..len]).await?;
+        self.current = self.staged.clone();
         Ok(())
     }
 
@@ -467,9 +490,8 @@ impl<F: NorFlash, S: Schema> SettingsStore<F, S> {
         if key == RECORD_KEY {
             return Err(StoreError::TooLarge);
         }
-        let mut record = [0u8; MAX_RECORD];
-        let len = encode_record(value, &mut record).ok_or(StoreError::TooLarge)?;
-        let result = self.store_record(key, &record[..len]).await;
+        let len = encode_record(value, &mut self.scratch[..MAX_RECORD]).ok_or(StoreError::TooLarge)?;
+        let result = Self::store_in(&mut self.map, &mut self.buf, key, &self.scratch[..len]).await;
         crate::diagnostics::DIAGNOSTICS.committed(&result);
         result
     }
@@ -488,7 +510,7 @@ impl<F: NorFlash, S: Schema> SettingsStore<F, S> {
     /// how many, or `None` when its input was not usable; then [`Self::commit_raw_record`]
     /// commits it, read back by [`Self::raw_record`] with `version`.
     pub fn fill_raw_record(&mut self, version: u8, fill: impl FnOnce(&mut [u8]) -> Option<usize>) -> Option<usize> {
-        let (head, body) = self.raw.split_at_mut(2);
+        let (head, body) = self.scratch.split_at_mut(2);
         let len = fill(body).filter(|n| *n <= MAX_RAW)?;
         head.copy_from_slice(&[MAGIC, version]);
         Some(len)
@@ -500,7 +522,7 @@ impl<F: NorFlash, S: Schema> SettingsStore<F, S> {
         if key == RECORD_KEY || len > MAX_RAW {
             return Err(StoreError::TooLarge);
         }
-        let result = Self::store_in(&mut self.map, &mut self.buf, key, &self.raw[..2 + len]).await;
+        let result = Self::store_in(&mut self.map, &mut self.buf, key, &self.scratch[..2 + len]).await;
         crate::diagnostics::DIAGNOSTICS.committed(&result);
         result
     }

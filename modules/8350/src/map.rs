@@ -342,20 +342,26 @@ impl<F: NorFlash, R: RawMutex> RegisterMap for Map8350<'_, F, R> {
     /// Persisted settings are committed to flash (without the map's lock) before anything
     /// reaches the outputs, so a failed commit (exception 04) changes nothing.
     async fn write<R2: RawMutex>(map: &Mutex<R2, Self>, start: u16, values: &WriteValues<'_>) -> Result<(), Exception> {
-        let (store, io, settings) = {
-            let m = map.lock().await;
-            (m.store, m.io, m.settings)
+        let (store, io) = {
+            // Decided in this block, which has no await: the copy of the settings and the plan
+            // are not kept in the future through the commit (every Modbus slot's task holds
+            // one: issue #40, the STM32's RAM).
+            let (store, io, settings) = {
+                let m = map.lock().await;
+                (m.store, m.io, m.settings)
+            };
+            if values.table() == Table::Bits {
+                return Self::write_bits(io, start, values);
+            }
+            let plan = Self::plan(io, &settings, start, values)?;
+            if plan.settings == settings {
+                return Self::apply_live(io, &plan);
+            }
+            if plan.moves_output && io::with(io, |s| s.watchdog.tripped()) {
+                return Err(TRIPPED);
+            }
+            (store, io)
         };
-        if values.table() == Table::Bits {
-            return Self::write_bits(io, start, values);
-        }
-        let plan = Self::plan(io, &settings, start, values)?;
-        if plan.settings == settings {
-            return Self::apply_live(io, &plan);
-        }
-        if plan.moves_output && io::with(io, |s| s.watchdog.tripped()) {
-            return Err(TRIPPED);
-        }
         // Planned again on the latest settings, under the store's lock.
         // Within the commit budget (flash wear): beyond it, exception 04 and nothing changes.
         let plan = write_update(map, store, |s| {
