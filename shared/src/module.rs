@@ -108,21 +108,10 @@ where
     F: NorFlash,
 {
     let mut store = store.lock().await;
-    // The changed settings are handed to the store (`stage`) in a block without an await, so
-    // that this future, which every connection task that may commit holds, keeps no copy of
-    // them through the flash write (issue #40: the STM32's RAM).
-    let out = {
-        let mut settings = *store.get();
-        let out = change(&mut settings).map_err(UpdateError::Refused)?;
-        if settings == *store.get() {
-            // A change that changes nothing never reaches the flash.
-            return Ok(out);
-        }
-        // A write beyond the budget neither.
-        take_budget(&mut store, draw).map_err(UpdateError::Store)?;
-        store.stage(settings);
-        out
-    };
+    let (out, staged) = stage(&mut store, change, draw)?;
+    if !staged {
+        return Ok(out);
+    }
     // From the flash write to the map's update, a connection's deadline waits (finding 15c:
     // a request dropped in between left the flash with the change and RAM without it).
     let _under_way = CommitUnderWay::begin();
@@ -134,6 +123,35 @@ where
         Err(_) => map.lock().await.committed(store.get()),
     }
     Ok(out)
+}
+
+/// The first half of [`commit_within`], without an await: `change` applied to a copy of the
+/// settings in force, and the result handed to the store (`SettingsStore::stage`) when it
+/// changes them, drawn from `draw`'s budget; with whether it did. In a function of its own, so
+/// that neither the future of [`commit_within`] (which every connection task that may commit
+/// holds through the flash write) nor the frame of the task's poll, where that future is
+/// inlined, keeps the copy (issue #40: the STM32's RAM; inlined, the web console's task's poll
+/// frame grew by 4.6 KB).
+#[inline(never)]
+fn stage<F, S, T, E>(
+    store: &mut SettingsStore<F, S>,
+    change: impl FnOnce(&mut S) -> Result<T, E>,
+    draw: Draw,
+) -> Result<(T, bool), UpdateError<E>>
+where
+    F: NorFlash,
+    S: Schema + Copy,
+{
+    let mut settings = *store.get();
+    let out = change(&mut settings).map_err(UpdateError::Refused)?;
+    if settings == *store.get() {
+        // A change that changes nothing never reaches the flash.
+        return Ok((out, false));
+    }
+    // A write beyond the budget neither.
+    take_budget(store, draw).map_err(UpdateError::Store)?;
+    store.stage(settings);
+    Ok((out, true))
 }
 
 /// One commit from `draw`'s budget, or [`StoreError::Budget`] when it is spent (logged and

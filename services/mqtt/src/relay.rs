@@ -142,11 +142,16 @@ pub async fn work() -> ! {
             ca.clone_from(&r.ca);
         });
         let (read, write) = buffer.split_at_mut(BUFFER - WRITE);
-        // Made in place, as every large future here (it would be copied through the stack).
-        let opening = pin!(crate::tls::open::<_, _, BoardClock>(Encrypted, read, write, &ca, &host, ModuleRng));
-        if let Either::First(opened) = select(opening, stopped()).await {
+        // The connection stays here; the futures handle it by reference. Made in place, as
+        // every large future here (either would be copied through the stack).
+        let mut tls = crate::tls::connection(Encrypted, read, write);
+        let opened = {
+            let opening = pin!(crate::tls::handshake::<_, _, BoardClock>(&mut tls, &ca, &host, ModuleRng));
+            select(opening, stopped()).await
+        };
+        if let Either::First(opened) = opened {
             match opened {
-                Ok(mut tls) => {
+                Ok(()) => {
                     set_state(State::Open);
                     TO_MAIN.signal(());
                     let (reader, writer) = tls.split();

@@ -216,7 +216,8 @@ pub async fn in_place<'b, T: Read + Write + 'b>(
 }
 
 /// Opens TLS on `transport` to the broker named `host`, its chain checked against `ca` (DER),
-/// with the record buffers `read` (up to 16 KiB: TLS's largest record) and `write`.
+/// with the record buffers `read` (up to 16 KiB: TLS's largest record) and `write`: a
+/// [`connection`] and its [`handshake`].
 pub async fn open<'b, T: Read + Write + 'b, R: CryptoRngCore, C: Clock>(
     transport: T,
     read: &'b mut [u8],
@@ -225,6 +226,27 @@ pub async fn open<'b, T: Read + Write + 'b, R: CryptoRngCore, C: Clock>(
     host: &str,
     rng: R,
 ) -> Result<Tls<'b, T>, Refused> {
+    let mut tls = connection(transport, read, write);
+    handshake::<_, _, C>(&mut tls, ca, host, rng).await?;
+    Ok(tls)
+}
+
+/// A TLS connection on `transport` with the record buffers `read` and `write`, not open yet
+/// ([`handshake`]). Made where it stays (the worker's future): the connection is 1.3 KB, and
+/// returned through the handshake's futures by value it was copied through the worker's stack
+/// at each (issue #40: its stack).
+pub fn connection<'b, T: Read + Write + 'b>(transport: T, read: &'b mut [u8], write: &'b mut [u8]) -> Tls<'b, T> {
+    TlsConnection::new(Guarded::new(transport), read, write)
+}
+
+/// The handshake of `tls` ([`connection`]) with the broker named `host`, its chain checked
+/// against `ca` (DER).
+pub async fn handshake<'b, T: Read + Write + 'b, R: CryptoRngCore, C: Clock>(
+    tls: &mut Tls<'b, T>,
+    ca: &[u8],
+    host: &str,
+    rng: R,
+) -> Result<(), Refused> {
     if now::<C>().is_none() {
         return Err(Refused::NoTime);
     }
@@ -232,11 +254,10 @@ pub async fn open<'b, T: Read + Write + 'b, R: CryptoRngCore, C: Clock>(
     let seen = Cell::new(0);
     let verifier = Checked { ca, host, seen: &seen, key: None, clock: core::marker::PhantomData };
     let provider = Provider::<R, C> { rng, verifier };
-    let mut tls = TlsConnection::new(Guarded::new(transport), read, write);
     match tls.open(TlsContext::new(&config, provider)).await {
         // Nothing of the application's is written before this: a broker that did not show its
         // certificate and prove it holds its key gets no credentials.
-        Ok(()) if seen.get() == CERTIFICATE | SIGNATURE => Ok(tls),
+        Ok(()) if seen.get() == CERTIFICATE | SIGNATURE => Ok(()),
         Ok(()) => Err(Refused::Certificate),
         Err(TlsError::InvalidCertificate | TlsError::InvalidSignature | TlsError::DecodeError) => {
             Err(Refused::Certificate)

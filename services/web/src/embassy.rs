@@ -50,7 +50,9 @@ pub async fn serve<E: Effects, A: RegisterMap + SettingsAccess, F: NorFlash>(
         socket.set_timeout(Some(WEB_IDLE));
         let from = peer(&socket);
         // picoserve closes the connection (or aborts it on an error or a timeout).
-        let served = serve_connection(map, store, identity, from, socket, &mut buffer).await;
+        // Made in place: awaited by value, its 5.7 KB would be copied through the task's poll
+        // frame (issue #40: the stack).
+        let served = core::pin::pin!(serve_connection(map, store, identity, from, socket, &mut buffer)).await;
         if served.result.is_err() {
             debug!("web: a connection ended in an error or a timeout");
         }
