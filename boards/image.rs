@@ -165,36 +165,44 @@ async fn start(spawner: Spawner) {
     for _ in 0..remodaq_shared::sockets::WEB_CONNECTIONS {
         spawn(spawner, web(app), "web");
     }
-    #[cfg(all(target_os = "none", feature = "mqtt-tls", not(feature = "board-qemu")))]
-    spawn(spawner, tls_worker(), "tls");
 }
 
-#[cfg(not(all(target_os = "none", feature = "board-qemu")))]
+#[cfg(not(target_os = "none"))]
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
     start(spawner).await;
 }
 
-/// The QEMU board runs its own executors (`remodaq_board_qemu::executor`): the main one polled
-/// from an interrupt, the background one in thread mode on its own stack (MQTT's TLS worker).
-#[cfg(all(target_os = "none", feature = "board-qemu"))]
+/// The target boards run their own executors (`remodaq_board_qemu::executor`,
+/// `remodaq_board_stm32::executor`): the main one polled from an interrupt, the background one
+/// in thread mode, below it (MQTT's TLS worker).
+#[cfg(target_os = "none")]
 #[cortex_m_rt::entry]
 fn main() -> ! {
-    remodaq_board_qemu::executor::run(|_background, main| {
-        remodaq_shared::app::spawn(main, main_task(main), "main");
+    #[cfg(feature = "board-qemu")]
+    use {remodaq_board_qemu::executor::run, remodaq_shared::app::spawn as spawn_main};
+    #[cfg(not(feature = "board-qemu"))]
+    use {remodaq_board_stm32::executor::run, remodaq_shared::app::spawn_send as spawn_main};
+    run(|_background, main| {
+        spawn_main(main, main_task(), "main");
         #[cfg(feature = "mqtt-tls")]
         remodaq_shared::app::spawn(_background, tls_worker(), "tls");
     })
 }
 
-#[cfg(all(target_os = "none", feature = "board-qemu"))]
+/// The start-up, then the tasks' spawning, on the main executor.
+#[cfg(target_os = "none")]
 #[embassy_executor::task]
-async fn main_task(spawner: Spawner) {
+async fn main_task() {
+    // The main executor's `Spawner` (an interrupt executor gives a `SendSpawner` only, whose
+    // tasks' arguments must be `Send`; embassy-executor 0.10 names this the case that needs it).
+    // SAFETY: awaited in a task of an embassy executor, with the context it polls it with.
+    let spawner = unsafe { Spawner::for_current_executor() }.await;
     start(spawner).await;
 }
 
-/// MQTT's TLS worker (`remodaq_mqtt::relay`): on the QEMU board its background executor, which
-/// every other task preempts; on the STM32 board (no such executor yet) the main one.
+/// MQTT's TLS worker (`remodaq_mqtt::relay`), on the board's background executor, which every
+/// other task preempts.
 #[cfg(all(target_os = "none", feature = "mqtt-tls"))]
 #[embassy_executor::task]
 async fn tls_worker() -> ! {

@@ -1,9 +1,10 @@
 // The stack's high-water mark (issue #39), for the boards on cortex-m-rt (the STM32 and QEMU
 // boards include this file): the free stack is painted at start, and the mark is the lowest
 // word no longer holding the paint. cortex-m-rt's link.x bounds the stack: `_stack_start` (its
-// top, the initial MSP) down to `_stack_end` (the end of the statics, `.uninit`). Every task
-// of the thread-mode executor and every interrupt handler (the realtime executor among them)
-// runs on this one stack.
+// top, the initial MSP) down to `_stack_end` (the end of the statics, `.uninit`). Every
+// interrupt handler (the main and realtime executors among them) runs on this one stack, and so
+// does thread mode (the background executor) on the STM32 board; the QEMU board's thread mode
+// has a stack of its own.
 
 /// What the free stack is painted with.
 const STACK_PAINT: u32 = 0x5AC3_A53C;

@@ -11,7 +11,7 @@ include!("../../boards/image.rs");
 
 /// The 8350's I/O loop (input capture drained every 2 ms, output pattern refilled every 6.4 ms),
 /// on the board's realtime executor: it preempts the Modbus, discovery and update tasks, so an
-/// update's signature check cannot make the outputs run dry (docs/design.md, "Two executors").
+/// update's signature check cannot make the outputs run dry (docs/design.md, "Three executors").
 #[embassy_executor::task]
 async fn application(state: &'static <Module as remodaq_shared::board::Module>::State, io: Io) -> ! {
     use remodaq_shared::board::{Board as _, RunsRealtime as _};

@@ -144,7 +144,7 @@ pub trait Runs<Io>: Module {
 }
 
 /// A module's time-critical I/O loop over the I/O resources `Io` of a board: it needs only the
-/// live state (no register map, no lock a thread-mode task may hold), so it runs on the board's
+/// live state (no register map, no lock a main-executor task may hold), so it runs on the board's
 /// realtime executor ([`Board::realtime`]). The 8350's: its output pattern is refilled every
 /// 6.4 ms and its input capture drained every 2 ms.
 #[allow(async_fn_in_trait)]

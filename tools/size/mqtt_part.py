@@ -3,22 +3,24 @@
 
 Usage: mqtt_part.py LABEL WITH_ELF WITHOUT_ELF
 
-The part is the difference between the image as shipped (feature `mqtt`, the default) and the
-same image built without it (`--no-default-features --features board-stm32,web`), counted as
+The part is the difference between the image as shipped (feature `mqtt-tls`, the default: MQTT
+over TLS) and the same image built without MQTT (`--no-default-features --features
+board-stm32,web`), counted as
 scripts/size-report counts an image (web_part.py's `totals`). Then what each piece adds: code by
 the source file each instruction came from (web_part.py's `code_by_file`), in the image with
-MQTT less the same files' in the image without: the client (minimq), TLS (embedded-tls and its cryptography: none while the
-embassy-net boards connect in plain TCP), the service (services/mqtt/src, the settings' record
+MQTT less the same files' in the image without: the client (minimq), TLS (embedded-tls, its
+cryptography, our certificate check and record guards), the service (services/mqtt/src, the settings' record
 in shared/src/mqtt.rs); RAM: the MQTT task's pool (the static named `mqtt::POOL`: its socket
 and session buffers), and the rest (the stack's socket for it).
 
 Prints one line per piece, then `mqtt-part: LABEL FLASH RAM SERVICE_CODE` for
 scripts/size-report.
 
-Usage: mqtt_part.py --tls LABEL WITH_TLS_ELF SHIPPED_ELF
+Usage: mqtt_part.py --tls LABEL WITH_TLS_ELF WITHOUT_TLS_ELF
 
-TLS's part of an STM32 image, which no image ships with yet (docs/mqtt.md "Sizes"): the image
-built with the feature `mqtt-tls` less the image as shipped; the code of embedded-tls, its
+TLS's part of an STM32 image (docs/mqtt.md "Sizes"): the image as shipped (feature `mqtt-tls`)
+less the same image built with MQTT in plain TCP only (`--no-default-features --features
+board-stm32,web,mqtt`); the code of embedded-tls, its
 cryptography and our certificate check and record guards, the TLS worker's pool (`tls_worker::POOL`: the record buffers, the CA's and the
 broker name's copies), the rest (the pipes to it, the request). Prints the lines only.
 """
@@ -43,17 +45,17 @@ def piece_of(path):
     return None
 
 
-def tls_part(label, with_tls, shipped):
-    (f1, r1), (f0, r0) = totals(with_tls), totals(shipped)
+def tls_part(label, with_tls, without):
+    (f1, r1), (f0, r0) = totals(with_tls), totals(without)
     flash, ram = f1 - f0, r1 - r0
     code = 0
-    for elf, sign in ((with_tls, 1), (shipped, -1)):
+    for elf, sign in ((with_tls, 1), (without, -1)):
         code += sign * sum(n for path, n in code_by_file(elf).items() if piece_of(path) == "tls")
     worker = pool(with_tls, "tls_worker")
-    print(f"TLS part of {label}: flash {flash} B, RAM {ram} B (the image with the feature mqtt-tls less the image as shipped)")
+    print(f"TLS part of {label}: flash {flash} B, RAM {ram} B (the image with MQTT over TLS less the image with plain MQTT only)")
     print(f"  code: embedded-tls, its cryptography and the certificate check {code} B; the rest of the flash {flash - code} B")
     print(f"  RAM: the TLS worker's pool {worker} B (record buffers, the CA's copy); the rest {ram - worker} B; "
-          f"beside them the worker's stack (the handshake's calls: 12.8 KB under QEMU, docs/mqtt.md)")
+          f"the worker's stack is the main stack (the handshake's calls: 8.4 KB under QEMU, docs/mqtt.md)")
 
 
 def main():

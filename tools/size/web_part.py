@@ -79,8 +79,8 @@ def piece_of(path):
         return "server"
     if path.endswith("services/web/src/service/router.rs"):
         return "router"
-    # The API's readers and writers that live in shared for another service's sake (MQTT, which
-    # no STM32 image has yet): the flat JSON reader, the points' formatter, the write requests.
+    # The API's readers and writers that live in shared for another service's sake (MQTT's too):
+    # the flat JSON reader, the points' formatter, the write requests.
     if "services/web/src/" in path or path.endswith(
         ("protocol/src/web.rs", "shared/src/json.rs", "shared/src/points.rs", "shared/src/modbus/request.rs")
     ):

@@ -6,6 +6,7 @@
 
 pub mod analog;
 mod ccm;
+pub mod executor;
 pub mod x32;
 /// The painted stack (boards/stack.rs): its high-water mark for the on-target check.
 pub mod stack {
@@ -371,10 +372,11 @@ impl Board for Stm32Board {
 
     /// The realtime executor: polled from the UART4 interrupt (no UART is used on this board,
     /// so only the executor's pender requests it: NVIC STIR, PM0214 §4.3.10), at priority 8 of
-    /// 16 (the F429 implements 4 priority bits, PM0214 §4.3.7): it preempts thread mode, where
-    /// the main executor runs, and is preempted by the drivers' interrupts (embassy-stm32 0.6
-    /// leaves them, the DMA's and TIM2's time driver included, at priority 0), which only wake
-    /// tasks. Set before `start`, which unmasks it (embassy-executor 0.10 `InterruptExecutor`).
+    /// 16 (the F429 implements 4 priority bits, PM0214 §4.3.7): it preempts the main executor
+    /// (UART5's interrupt at 15, [`executor`]) and the background one (thread mode), and is
+    /// preempted by the drivers' interrupts (embassy-stm32 0.6 leaves them, the DMA's and
+    /// TIM2's time driver included, at priority 0), which only wake tasks. Set before `start`,
+    /// which unmasks it (embassy-executor 0.10 `InterruptExecutor`).
     fn realtime(_: Spawner) -> SendSpawner {
         use embassy_stm32::interrupt::{InterruptExt, Priority};
         interrupt::UART4.set_priority(Priority::P8);

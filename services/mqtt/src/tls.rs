@@ -105,7 +105,7 @@ const SIGNATURE: u8 = 2;
 /// CertificateVerify (the Finished proves only the key exchange, not who the broker is)
 /// (security review of issue #40). Here the broker's certificate is checked once, and only with
 /// a time of day; its signature of the handshake only after it; `seen` says which passed, and
-/// [`open`] refuses a connection unless both did. The broker's certificate signed by the
+/// [`handshake`] refuses a connection unless both did. The broker's certificate signed by the
 /// installed CA itself (the CA may follow it): no intermediate.
 struct Checked<'a, C> {
     ca: &'a [u8],

@@ -28,20 +28,27 @@ mod checks;
 #[cfg(target_os = "none")]
 use embassy_executor::Spawner;
 
-#[cfg(all(target_os = "none", not(feature = "board-qemu")))]
-#[embassy_executor::main]
-async fn main(spawner: Spawner) {
-    checks::run(spawner).await
-}
-
-#[cfg(all(target_os = "none", feature = "board-qemu"))]
+/// The board's executors (`remodaq_board_stm32::executor`, `remodaq_board_qemu::executor`), as
+/// the firmware images run them: the checks on the main one, the background one's busy task
+/// beside them (`checks::background_busy`).
+#[cfg(target_os = "none")]
 #[cortex_m_rt::entry]
 fn main() -> ! {
-    remodaq_board_qemu::executor::run(|_, main| remodaq_shared::app::spawn(main, main_task(main), "main"))
+    #[cfg(feature = "board-qemu")]
+    use {remodaq_board_qemu::executor::run, remodaq_shared::app::spawn as spawn_main};
+    #[cfg(not(feature = "board-qemu"))]
+    use {remodaq_board_stm32::executor::run, remodaq_shared::app::spawn_send as spawn_main};
+    run(|background, main| {
+        spawn_main(main, main_task(), "main");
+        remodaq_shared::app::spawn(background, checks::background_busy(), "background");
+    })
 }
 
-#[cfg(all(target_os = "none", feature = "board-qemu"))]
+#[cfg(target_os = "none")]
 #[embassy_executor::task]
-async fn main_task(spawner: Spawner) {
+async fn main_task() {
+    // SAFETY: awaited in a task of an embassy executor, with the context it polls it with (the
+    // main executor is an interrupt executor, which gives a `SendSpawner` only).
+    let spawner = unsafe { Spawner::for_current_executor() }.await;
     checks::run(spawner).await
 }

@@ -15,6 +15,7 @@ use crate::client::{connect, write, STEP};
 use crate::discovery::PASSWORD;
 use crate::load::{Latencies, StallWatch};
 use crate::modbus::burst;
+use crate::stacks::{background_stack, shares_the_plan};
 
 /// The topics' prefix the test sets.
 const PREFIX: &str = "test/qemu";
@@ -539,6 +540,7 @@ pub(crate) async fn mqtt_over_tls(
             background.0, background.1
         ));
     }
+    shares_the_plan(background.0, log)?;
     let least = (secs * 1000.0 / f64::from(PERIOD_MS)).floor() as usize - 1;
     if slowest.0 < least {
         return Err(format!(
@@ -547,19 +549,4 @@ pub(crate) async fn mqtt_over_tls(
         ));
     }
     within(&off, &on, " over TLS")
-}
-
-/// The background executor's stack as QEMU's log says it at the most (`the background executor's
-/// stack used N of M bytes`): (N, M), or zeros.
-fn background_stack(log: &str) -> (u64, u64) {
-    let text = std::fs::read(log).unwrap_or_default();
-    String::from_utf8_lossy(&text)
-        .lines()
-        .filter_map(|l| l.strip_prefix("qemu board: the background executor's stack used "))
-        .filter_map(|r| {
-            let mut words = r.split(' ');
-            Some((words.next()?.parse().ok()?, words.nth(1)?.parse().ok()?))
-        })
-        .max()
-        .unwrap_or((0, 0))
 }
