@@ -9,11 +9,15 @@
 //!   for tens of ms.
 //!
 //! Neither UART4 nor UART5 is used on this board, so only the executors' pender requests their
-//! interrupts (NVIC STIR, PM0214 §4.3.10; embassy-executor 0.10 `platform/cortex_m.rs`, whose
+//! interrupts (NVIC STIR, PM0214 §4.3.8; embassy-executor 0.10 `platform/cortex_m.rs`, whose
 //! `__pender` sends a thread-mode wake as SEV and an interrupt executor's as a software
-//! request of its interrupt). The F429 implements 4 priority bits (PM0214 §4.3.7): 0 the most
-//! urgent, 15 the least; embassy-stm32 0.6 leaves the drivers' interrupts (Ethernet, DMA, the
-//! flash, TIM2's time driver) at 0.
+//! request of its interrupt). The F429 implements 4 priority bits (PM0214 §4.3.7), all of them
+//! preemption bits (PRIGROUP at its reset value, §4.4.5, which neither embassy-stm32 0.6 nor
+//! cortex-m-rt changes): 0 the most urgent, 15 the least. embassy-stm32 0.6 leaves the drivers'
+//! interrupts (Ethernet, DMA, the flash, the RNG, TIM2's time driver) at 0, and must: the board's
+//! `init`, on the main executor, waits with `embassy_time::block_for` (the PHY's reset, up to
+//! 3.2 s), whose time moves only while TIM2's overflow handler preempts it. No driver here may
+//! bind UART4 or UART5 (`bind_interrupts!` would clash with these handlers: a link error).
 //!
 //! One stack for all (the main stack, MSP): thread mode and every handler run on it (ARMv7-M
 //! ARM B1.4.4: CONTROL.SPSEL is left 0), so the TLS worker's deepest calls add to those of
@@ -42,7 +46,7 @@ unsafe fn UART5() {
 
 /// Starts the main executor, hands `init` the background executor's spawner and the main one's,
 /// then runs the background executor in thread mode, forever. What `init` spawns on the main
-/// executor runs at once (its interrupt preempts thread mode), before `init` returns.
+/// executor may start before `init` returns (its interrupt preempts thread mode).
 pub fn run(init: impl FnOnce(Spawner, SendSpawner)) -> ! {
     static BACKGROUND: StaticCell<Executor> = StaticCell::new();
     // Its priority set before `start`, which unmasks it (embassy-executor 0.10

@@ -371,7 +371,7 @@ impl Board for Stm32Board {
     }
 
     /// The realtime executor: polled from the UART4 interrupt (no UART is used on this board,
-    /// so only the executor's pender requests it: NVIC STIR, PM0214 §4.3.10), at priority 8 of
+    /// so only the executor's pender requests it: NVIC STIR, PM0214 §4.3.8), at priority 8 of
     /// 16 (the F429 implements 4 priority bits, PM0214 §4.3.7): it preempts the main executor
     /// (UART5's interrupt at 15, [`executor`]) and the background one (thread mode), and is
     /// preempted by the drivers' interrupts (embassy-stm32 0.6 leaves them, the DMA's and

@@ -15,6 +15,7 @@ use crate::client::{connect, write, STEP};
 use crate::discovery::PASSWORD;
 use crate::load::{Latencies, StallWatch};
 use crate::modbus::burst;
+use crate::qemu::Qemu;
 use crate::stacks::{background_stack, shares_the_plan};
 
 /// The topics' prefix the test sets.
@@ -404,12 +405,14 @@ fn long_polls(log: &str, from: u64) -> (Vec<Span>, Vec<Span>) {
 /// the issue's figure, the longest stall, printed); the background executor's stack within its
 /// own; 1000 Modbus requests with MQTT off (`measured_off`, the plain check's, when given), then
 /// 1000 while MQTT publishes over TLS, the median within 1.5x or 0.1 ms ([`within`]; the 99th percentile and the worsts
-/// printed: docs/mqtt.md, "Never in the way"); set off at the end.
+/// printed: docs/mqtt.md, "Never in the way"); the module lost ([`offline_when_lost`]); set off
+/// at the end.
 pub(crate) async fn mqtt_over_tls(
     modbus: SocketAddr,
     web: SocketAddr,
     log: &str,
     measured_off: Option<Latencies>,
+    qemu: &Qemu,
 ) -> Result<(), String> {
     use remodaq_mqtt::testing::{make_pki, HOST, PASSWORD as BROKER_PASSWORD, USER};
     const TLS_PREFIX: &str = "test/qemu-tls";
@@ -525,6 +528,7 @@ pub(crate) async fn mqtt_over_tls(
         off.stalled,
         on.stalled
     );
+    let sub = offline_when_lost(qemu, sub, format!("{TLS_PREFIX}/status")).await?;
     put(web, settings(false, port, 0)).await?;
     drop(sub);
     drop(broker);
@@ -549,4 +553,38 @@ pub(crate) async fn mqtt_over_tls(
         ));
     }
     within(&off, &on, " over TLS")
+}
+
+/// The module lost (QEMU stopped, [`Qemu::signal`]): the broker publishes its will, `offline` on
+/// `status`, within 1.5 keep-alives (MQTT 5 §3.1.2.10), plus the broker's own look at its
+/// clients' keep-alives (Debian's mosquitto 2.0: up to 5 s, docs/mqtt.md) and a second for this
+/// PC; then QEMU runs on.
+async fn offline_when_lost(qemu: &Qemu, sub: Subscriber, status: String) -> Result<Subscriber, String> {
+    use remodaq_mqtt::service::KEEP_ALIVE_S;
+    let limit = Duration::from_millis(1_500 * u64::from(KEEP_ALIVE_S) + 6_000);
+    sub.pending_topics();
+    qemu.signal(true)?;
+    let lost = Instant::now();
+    let waited = tokio::task::spawn_blocking(move || {
+        while lost.elapsed() < limit + Duration::from_secs(5) {
+            if let Some((_, p)) = sub.next_on(&status, Duration::from_secs(1)) {
+                if p.contains(r#""state":"offline""#) {
+                    return (sub, Some(lost.elapsed()));
+                }
+            }
+        }
+        (sub, None)
+    })
+    .await;
+    qemu.signal(false)?;
+    let (sub, offline) = waited.map_err(|e| e.to_string())?;
+    let Some(after) = offline else { return Err(format!("the module lost: no offline within {limit:?}")) };
+    println!(
+        "  the module lost (QEMU stopped): offline {:.1} s after (at most 1.5 keep-alives of {KEEP_ALIVE_S} s, the broker's 5 s and 1 s)",
+        after.as_secs_f64()
+    );
+    if after > limit {
+        return Err(format!("the module lost: offline {after:?} after, over {limit:?}"));
+    }
+    Ok(sub)
 }

@@ -6,6 +6,18 @@ use std::process::{Child, Command, Stdio};
 
 pub(crate) struct Qemu(Child);
 
+impl Qemu {
+    /// Stops QEMU (SIGSTOP) or lets it run on (SIGCONT): the module lost, its sockets open and
+    /// silent, as a module whose power failed behind a switch (the check of the will).
+    pub(crate) fn signal(&self, stop: bool) -> Result<(), String> {
+        let signal = if stop { "-STOP" } else { "-CONT" };
+        match Command::new("kill").args([signal, &self.0.id().to_string()]).status() {
+            Ok(status) if status.success() => Ok(()),
+            other => Err(format!("kill {signal} QEMU: {other:?}")),
+        }
+    }
+}
+
 impl Drop for Qemu {
     fn drop(&mut self) {
         let _ = self.0.kill();
