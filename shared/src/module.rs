@@ -128,10 +128,9 @@ where
 /// The first half of [`commit_within`], without an await: `change` applied to a copy of the
 /// settings in force, and the result handed to the store (`SettingsStore::stage`) when it
 /// changes them, drawn from `draw`'s budget; with whether it did. In a function of its own, so
-/// that neither the future of [`commit_within`] (which every connection task that may commit
-/// holds through the flash write) nor the frame of the task's poll, where that future is
-/// inlined, keeps the copy (issue #40: the STM32's RAM; inlined, the web console's task's poll
-/// frame grew by 4.6 KB).
+/// that the copy is in this function's frame while it runs, neither in the future of
+/// [`commit_within`] (which every connection task that may commit holds through the flash write:
+/// issue #40, the STM32's RAM) nor in the poll frame of the task it is inlined into.
 #[inline(never)]
 fn stage<F, S, T, E>(
     store: &mut SettingsStore<F, S>,
