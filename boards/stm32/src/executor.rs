@@ -1,4 +1,4 @@
-//! The board's three executors, by priority (docs/design.md, "Executors"):
+//! The board's three executors, by priority (docs/design.md, "Three executors"):
 //! - the realtime one ([`crate::Stm32Board`]'s `Board::realtime`: UART4's interrupt at priority
 //!   8), the 8350's I/O loop;
 //! - the main one, polled from UART5's interrupt at the lowest priority ([`MAIN_PRIORITY`]): the

@@ -351,9 +351,7 @@ async fn realtime(spawner: Spawner) -> Result<Verdict, &'static str> {
     spawn_send(B::realtime(spawner), realtime_ticker(), "realtime ticker");
     Timer::after(Duration::from_millis(20)).await;
     REALTIME_MEASURING.store(true, Ordering::Relaxed);
-    let start = Instant::now();
-    let checks = busy();
-    let busy = start.elapsed();
+    let (checks, busy) = busy();
     REALTIME_MEASURING.store(false, Ordering::Relaxed);
     let (gap, wakes) = (REALTIME_GAP_US.load(Ordering::Relaxed), REALTIME_WAKES.load(Ordering::Relaxed));
     say!(
@@ -368,8 +366,9 @@ async fn realtime(spawner: Spawner) -> Result<Verdict, &'static str> {
 }
 
 /// Checks ed25519 signatures (what an update's verification does, several ms each on the
-/// Cortex-M4) for [`BUSY`] without yielding: how many (0 when a valid one was refused).
-fn busy() -> u32 {
+/// Cortex-M4) for [`BUSY`] without yielding (the key and the signature made first): how many (0
+/// when a valid one was refused), and how long the checks took.
+fn busy() -> (u32, Duration) {
     let keypair = salty::Keypair::from(&[0x42; 32]);
     let message = [0x5A_u8; 82];
     let signature = keypair.sign(&message);
@@ -377,11 +376,11 @@ fn busy() -> u32 {
     let mut checks = 0u32;
     while start.elapsed() < BUSY {
         if keypair.public.verify(&message, &signature).is_err() {
-            return 0;
+            return (0, start.elapsed());
         }
         checks += 1;
     }
-    checks
+    (checks, start.elapsed())
 }
 
 /// The verdict on a ticker that woke `wakes` times, its longest gap `gap` µs, while another
@@ -401,7 +400,7 @@ fn kept_time(checks: u32, wakes: u32, gap: u64, busy: Duration, behind: &'static
 
 /// Asks the background executor's task to compute ([`busy`]), and its answer.
 static BACKGROUND_GO: Signal<CriticalSectionRawMutex, ()> = Signal::new();
-static BACKGROUND_DONE: Signal<CriticalSectionRawMutex, u32> = Signal::new();
+static BACKGROUND_DONE: Signal<CriticalSectionRawMutex, (u32, Duration)> = Signal::new();
 
 /// On the board's background executor (thread mode, below the main one: where MQTT's TLS worker
 /// runs): [`busy`] at each [`BACKGROUND_GO`], as the worker computes a handshake's P-256.
@@ -421,7 +420,7 @@ async fn background() -> Result<Verdict, &'static str> {
     let start = Instant::now();
     let mut ticker = embassy_time::Ticker::every(REALTIME_TICK);
     let (mut last, mut gap, mut wakes) = (start, 0u64, 0u32);
-    let checks = loop {
+    let (checks, busy) = loop {
         match select(ticker.next(), BACKGROUND_DONE.wait()).await {
             Either::First(()) => {
                 let now = Instant::now();
@@ -430,10 +429,9 @@ async fn background() -> Result<Verdict, &'static str> {
                     return Err("the background executor's task did not finish: it did not run");
                 }
             }
-            Either::Second(checks) => break checks,
+            Either::Second(done) => break done,
         }
     };
-    let busy = start.elapsed();
     say!(
         "on-target: the background executor busy {} ms ({} ed25519 checks); the main executor's ticker woke {} times, longest gap {} us",
         busy.as_millis(),
