@@ -134,6 +134,7 @@ pub(crate) extern "C" fn main_interrupt() {
     let executor = MAIN.load(Ordering::Acquire);
     if !executor.is_null() {
         let started = crate::time::counter_us();
+        crate::trace::poll_begins();
         // SAFETY: the executor is 'static (`run`); this handler is its only poller and an
         // interrupt does not preempt itself, so the poll is never re-entered.
         unsafe { (*executor).poll() };

@@ -26,6 +26,7 @@ pub mod executor;
 pub mod flash;
 mod irq;
 mod time;
+mod trace;
 
 use core::sync::atomic::{AtomicBool, Ordering};
 

@@ -176,10 +176,13 @@ pub(crate) fn counter_us() -> u32 {
 pub(crate) fn main_poll(took: u32) {
     // A poll across `start`, which sets the counter going from 0, wraps: it says nothing.
     if (LONG_POLL_US..1 << 31).contains(&took) {
+        let (longest, task) = crate::trace::longest();
         cortex_m_semihosting::hprintln!(
-            "qemu board: a poll of the main executor took {} us, at {} us",
+            "qemu board: a poll of the main executor took {} us, at {} us; its longest task poll {} us, the task at {:#010x}",
             took,
-            DRIVER.now()
+            DRIVER.now(),
+            longest,
+            task
         );
     }
 }
