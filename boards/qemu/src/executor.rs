@@ -138,7 +138,7 @@ pub(crate) extern "C" fn main_interrupt() {
         // SAFETY: the executor is 'static (`run`); this handler is its only poller and an
         // interrupt does not preempt itself, so the poll is never re-entered.
         unsafe { (*executor).poll() };
-        crate::time::main_poll(crate::time::counter_us().wrapping_sub(started));
+        crate::time::main_poll(crate::time::counter_us().wrapping_sub(started), crate::trace::longest());
     }
 }
 

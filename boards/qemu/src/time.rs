@@ -170,13 +170,13 @@ pub(crate) fn counter_us() -> u32 {
     fpgaio_read(COUNTER)
 }
 
-/// A poll of the main executor that took `took` µs: said in the log if long ([`LONG_POLL_US`]).
+/// A poll of the main executor that took `took` µs: said in the log if long ([`LONG_POLL_US`]),
+/// with its longest task poll, µs, and that task's address (`crate::trace::longest`).
 /// The time includes what preempted it (interrupts, the realtime executor) and any stall of
 /// the machine by this PC, which the log's stall lines say.
-pub(crate) fn main_poll(took: u32) {
+pub(crate) fn main_poll(took: u32, (longest, task): (u32, u32)) {
     // A poll across `start`, which sets the counter going from 0, wraps: it says nothing.
     if (LONG_POLL_US..1 << 31).contains(&took) {
-        let (longest, task) = crate::trace::longest();
         cortex_m_semihosting::hprintln!(
             "qemu board: a poll of the main executor took {} us, at {} us; its longest task poll {} us, the task at {:#010x}",
             took,

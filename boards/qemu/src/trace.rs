@@ -3,28 +3,33 @@
 //! its address (`llvm-nm -C` of the image gives the pool it lies in), beside the poll's length
 //! (`crate::time::main_poll`): what to split when Modbus waits behind a task (issue #40, the
 //! worst latency under QEMU). Only the main executor's tasks are timed: their hooks run in its
-//! interrupt ([`crate::executor::MAIN_IRQ`]), told from the others' by the active exception.
+//! interrupt, told from the others' by the active exception (the one [`poll_begins`] saw).
 
 use core::sync::atomic::{AtomicU32, Ordering};
 
 /// When the task being polled began (µs, the board's counter), and which.
 static STARTED: AtomicU32 = AtomicU32::new(0);
 static TASK: AtomicU32 = AtomicU32::new(0);
+/// The exception the main executor's poll runs in (SCB ICSR VECTACTIVE, ARMv7-M ARM B3.2.4).
+static MAIN_EXCEPTION: AtomicU32 = AtomicU32::new(u32::MAX);
 /// The longest task poll of the current executor poll: its length (µs) and its task.
 static LONGEST_US: AtomicU32 = AtomicU32::new(0);
 static LONGEST_TASK: AtomicU32 = AtomicU32::new(0);
 
-/// Whether the code runs in the main executor's interrupt (SCB ICSR VECTACTIVE, ARMv7-M ARM
-/// B3.2.4: exception number 16 + the IRQ).
-fn in_main() -> bool {
-    matches!(
-        cortex_m::peripheral::SCB::vect_active(),
-        cortex_m::peripheral::scb::VectActive::Interrupt { irqn } if u16::from(irqn) == crate::executor::MAIN_IRQ
-    )
+/// The active exception's number (0 in thread mode).
+fn active() -> u32 {
+    // SAFETY: a read of ICSR (0xE000_ED04), which has no side effect.
+    unsafe { (*cortex_m::peripheral::SCB::PTR).icsr.read() & 0x1FF }
 }
 
-/// Before a poll of the main executor: no task timed yet.
+/// Whether the code runs in the main executor's interrupt.
+fn in_main() -> bool {
+    active() == MAIN_EXCEPTION.load(Ordering::Relaxed)
+}
+
+/// Before a poll of the main executor, from its interrupt: no task timed yet.
 pub(crate) fn poll_begins() {
+    MAIN_EXCEPTION.store(active(), Ordering::Relaxed);
     LONGEST_US.store(0, Ordering::Relaxed);
     LONGEST_TASK.store(0, Ordering::Relaxed);
 }
