@@ -12,7 +12,7 @@ const PLAN_STACK: usize = 32 * 1024;
 /// would have run into the statics below it), and within [`PLAN_STACK`].
 pub(crate) fn stack_mark(model: &str, log: &str) -> Result<(), String> {
     let text = std::fs::read_to_string(log).map_err(|e| format!("QEMU's log {log}: {e}"))?;
-    let Some((most, size)) = highest_stack_mark(&text) else {
+    let Some((most, size)) = highest(&text, MAIN_MARK) else {
         return Err("no stack high-water mark in QEMU's log".into());
     };
     println!(
@@ -27,32 +27,40 @@ pub(crate) fn stack_mark(model: &str, log: &str) -> Result<(), String> {
     }
 }
 
-/// The highest of the main stack's high-water marks in QEMU's log `text` (`stack high-water
-/// mark N of M bytes`): (N, M).
-fn highest_stack_mark(text: &str) -> Option<(usize, usize)> {
+/// What comes before the main stack's high-water mark in QEMU's log (`... N of M bytes`).
+const MAIN_MARK: &str = "stack high-water mark ";
+/// What comes before the background executor's (`... N of M bytes at the most`).
+const BACKGROUND_MARK: &str = "the background executor's stack used ";
+
+/// The highest of the marks that follow `mark` in QEMU's log `text` (`N of M`): (N, M).
+fn highest(text: &str, mark: &str) -> Option<(usize, usize)> {
     text.lines()
         .filter_map(|l| {
-            let mut words = l.split("stack high-water mark ").nth(1)?.split(' ');
+            let mut words = l.split(mark).nth(1)?.split(' ');
             Some((words.next()?.parse().ok()?, words.nth(1)?.parse().ok()?))
         })
         .max()
+}
+
+/// QEMU's log at `log` (empty when it cannot be read).
+fn read_log(log: &str) -> String {
+    String::from_utf8_lossy(&std::fs::read(log).unwrap_or_default()).into_owned()
 }
 
 /// The STM32 board runs the background executor on the main stack (`remodaq_board_stm32::
 /// executor`), where its deepest calls may come on top of the deepest of the main side's: the
 /// two high-water marks the QEMU board measures apart (`background` bytes, and the main stack's
 /// in `log`) must fit the memory plan's stack together.
-pub(crate) fn shares_the_plan(background: u64, log: &str) -> Result<(), String> {
-    let text = std::fs::read(log).unwrap_or_default();
-    let Some((main, _)) = highest_stack_mark(&String::from_utf8_lossy(&text)) else {
+pub(crate) fn shares_the_plan(background: usize, log: &str) -> Result<(), String> {
+    let Some((main, _)) = highest(&read_log(log), MAIN_MARK) else {
         return Err("no stack high-water mark in QEMU's log".into());
     };
-    let both = main as u64 + background;
+    let both = main + background;
     println!(
         "  the main stack's high-water mark {main} bytes, with the background's {both} bytes (the memory plan's stack {}, one stack on the STM32)",
         PLAN_STACK
     );
-    if both > PLAN_STACK as u64 {
+    if both > PLAN_STACK {
         return Err(format!(
             "the main stack's high-water mark and the background executor's, {both} bytes, over the memory plan's {}",
             PLAN_STACK
@@ -63,17 +71,8 @@ pub(crate) fn shares_the_plan(background: u64, log: &str) -> Result<(), String> 
 
 /// The background executor's stack as QEMU's log says it at the most (`the background executor's
 /// stack used N of M bytes`): (N, M), or zeros.
-pub(crate) fn background_stack(log: &str) -> (u64, u64) {
-    let text = std::fs::read(log).unwrap_or_default();
-    String::from_utf8_lossy(&text)
-        .lines()
-        .filter_map(|l| l.strip_prefix("qemu board: the background executor's stack used "))
-        .filter_map(|r| {
-            let mut words = r.split(' ');
-            Some((words.next()?.parse().ok()?, words.nth(1)?.parse().ok()?))
-        })
-        .max()
-        .unwrap_or((0, 0))
+pub(crate) fn background_stack(log: &str) -> (usize, usize) {
+    highest(&read_log(log), BACKGROUND_MARK).unwrap_or((0, 0))
 }
 
 #[cfg(test)]
