@@ -27,10 +27,14 @@ pub fn paint_stack() {
     }
 }
 
+/// The main stack's bottom and top, as the linker places them.
+pub fn main_stack() -> (usize, usize) {
+    (core::ptr::addr_of!(_stack_end) as usize, core::ptr::addr_of!(_stack_start) as usize)
+}
+
 /// The most stack used since [`paint_stack`] (bytes from its top), and the stack's size.
 pub fn stack_high_water() -> (usize, usize) {
-    let bottom = core::ptr::addr_of!(_stack_end) as usize;
-    let top = core::ptr::addr_of!(_stack_start) as usize;
+    let (bottom, top) = main_stack();
     // SAFETY: the stack region the linker defines.
     (unsafe { high_water(bottom, top) }, top - bottom)
 }

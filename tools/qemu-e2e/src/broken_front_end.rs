@@ -51,7 +51,7 @@ pub(crate) async fn broken_front_end(report: &mut Report, image: &str) {
         report.check(REVERTED, Err("no free ports".into()));
         return;
     };
-    let qemu = match start_qemu_with(image, &ports, Some(FRONT_END_FAULT)) {
+    let qemu = match start_qemu_with(image, &ports, Some(FRONT_END_FAULT), false) {
         Ok(q) => q,
         Err(e) => {
             report.check(REVERTED, Err(e));

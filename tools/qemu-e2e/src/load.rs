@@ -219,6 +219,7 @@ impl WebLoad {
         let all = |f: fn(&Block) -> &Latencies| Latencies {
             took: blocks.iter().flat_map(|b| f(b).took.iter().copied()).collect(),
             stalled: blocks.iter().map(|b| f(b).stalled).sum(),
+            guest: None,
         };
         Self {
             alone_block_worst: worsts(|b| &b.alone),
@@ -260,6 +261,8 @@ impl std::fmt::Display for WebLoad {
 pub(crate) struct Latencies {
     took: Vec<Duration>,
     pub(crate) stalled: usize,
+    /// The guest's own measure of the same requests, when it gave one (`crate::guest`).
+    pub(crate) guest: Option<crate::guest::Guest>,
 }
 
 impl Latencies {

@@ -13,6 +13,7 @@ use tokio_modbus::client::{Reader as _, Writer as _};
 
 use crate::client::{connect, write, STEP};
 use crate::discovery::PASSWORD;
+use crate::guest::compared;
 use crate::load::{Latencies, StallWatch};
 use crate::modbus::burst;
 use crate::qemu::Qemu;
@@ -72,11 +73,14 @@ async fn latencies(modbus: SocketAddr, log: &str) -> Result<Latencies, String> {
     let mut stalls = StallWatch::new(log);
     let mut measured = Latencies::default();
     let mut pace = tokio::time::interval(PACE);
+    let from = std::fs::metadata(log).map_or(0, |m| m.len());
     for _ in 0..REQUESTS {
         pace.tick().await;
         let took = burst(&mut stream, 1).await?;
         measured.add(took, stalls.since());
     }
+    drop(stream);
+    measured.guest = crate::guest::figures(log, from, REQUESTS).await;
     Ok(measured)
 }
 
@@ -91,12 +95,7 @@ async fn latencies(modbus: SocketAddr, log: &str) -> Result<Latencies, String> {
 /// The worsts are printed (the figure, worst within 1.5x off): under QEMU the worst of
 /// 1000 is this PC's as much as the firmware's (off alone gave 1.0 to 3.8 ms over six runs
 /// here: `load.rs` says more), so it is reported, not counted.
-pub(crate) async fn mqtt_publishing(
-    modbus: SocketAddr,
-    web: SocketAddr,
-    log: &str,
-    measured_off: &mut Option<Latencies>,
-) -> Result<(), String> {
+pub(crate) async fn mqtt_publishing(modbus: SocketAddr, web: SocketAddr, log: &str) -> Result<(), String> {
     let broker = tokio::task::spawn_blocking(Broker::start).await.map_err(|e| e.to_string())?;
     let port = broker.port;
     let off = latencies(modbus, log).await?;
@@ -265,6 +264,7 @@ pub(crate) async fn mqtt_publishing(
         on.stalled,
         on.worst().as_secs_f64() / off.worst().as_secs_f64().max(1e-9)
     );
+    println!("  the same measured in the guest (its wall clock): {}", compared(off.guest, on.guest));
     offline?;
     // Every point at least once per period (the measure's edges: one publication less); DI0 at
     // every look of 10 ms (the same less a tenth for this PC's scheduling of QEMU).
@@ -281,10 +281,7 @@ pub(crate) async fn mqtt_publishing(
     // The median counted, the 99 % printed: with the main executor polled from an interrupt
     // (this stop), the 99 % publishing ranged from 1.09x to 1.9x off's over eight runs under QEMU,
     // where off's alone ranges from 0.37 to 0.69 ms (docs/mqtt.md, "Never in the way").
-    let verdict = within(&off, &on, "");
-    // The TLS check's "off" (the same module, just before): 2 s less.
-    *measured_off = Some(off);
-    verdict
+    within(&off, &on, "")
 }
 
 /// A time server (SNTP, RFC 4330) on this PC's loopback, answering every request with this
@@ -403,17 +400,11 @@ fn long_polls(log: &str, from: u64) -> (Vec<Span>, Vec<Span>) {
 /// sealed): online over TLS, every point at least 10 times a second; no poll of the main
 /// executor of 3 ms or more while the background executor computed the handshake (QEMU's log:
 /// the figure, the longest stall, printed); the background executor's stack within its
-/// own; 1000 Modbus requests with MQTT off (`measured_off`, the plain check's, when given), then
+/// own; 1000 Modbus requests with MQTT off, then
 /// 1000 while MQTT publishes over TLS, the median within 1.5x or 0.1 ms ([`within`]; the 99th percentile and the worsts
 /// printed: docs/mqtt.md, "Never in the way"); the module lost ([`offline_when_lost`]); set off
 /// at the end.
-pub(crate) async fn mqtt_over_tls(
-    modbus: SocketAddr,
-    web: SocketAddr,
-    log: &str,
-    measured_off: Option<Latencies>,
-    qemu: &Qemu,
-) -> Result<(), String> {
+pub(crate) async fn mqtt_over_tls(modbus: SocketAddr, web: SocketAddr, log: &str, qemu: &Qemu) -> Result<(), String> {
     use remodaq_mqtt::testing::{make_pki, HOST, PASSWORD as BROKER_PASSWORD, USER};
     const TLS_PREFIX: &str = "test/qemu-tls";
     let broker = tokio::task::spawn_blocking(|| {
@@ -440,10 +431,7 @@ pub(crate) async fn mqtt_over_tls(
     })
     .await
     .map_err(|e| e.to_string())?;
-    let off = match measured_off {
-        Some(off) => off,
-        None => latencies(modbus, log).await?,
-    };
+    let off = latencies(modbus, log).await?;
 
     // The settings, the CA, then the credentials: the handshake starts with the last.
     let pem = std::fs::read_to_string(broker.dir.join("ca.pem")).map_err(|e| e.to_string())?;
@@ -527,6 +515,10 @@ pub(crate) async fn mqtt_over_tls(
         on.worst().as_secs_f64() / off.worst().as_secs_f64().max(1e-9),
         off.stalled,
         on.stalled
+    );
+    println!(
+        "  the same measured in the guest (its clock counting its instructions): {}",
+        compared(off.guest, on.guest)
     );
     let sub = offline_when_lost(qemu, sub, format!("{TLS_PREFIX}/status")).await?;
     put(web, settings(false, port, 0)).await?;

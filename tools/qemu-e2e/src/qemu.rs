@@ -113,7 +113,20 @@ impl Ports {
 /// QEMU started as the module starts: the board's bootloader (next to the image) as QEMU's
 /// image, the application's raw binary (`IMAGE.bin`, from scripts/qemu build) as its seed.
 pub(crate) fn start_qemu(image: &str, ports: &Ports) -> Result<Qemu, String> {
-    start_qemu_with(image, ports, None)
+    start_qemu_with(image, ports, None, false)
+}
+
+/// QEMU's instruction counting for [`start_qemu_counted`]: the guest's clock advances 8 ns an
+/// instruction while the guest runs (125 million a second, the M4's order at 180 MHz) and with
+/// the wall clock while it sleeps (WFI).
+const ICOUNT: &str = "shift=3,sleep=on";
+
+/// [`start_qemu`] with the guest's clock counting the instructions it runs ([`ICOUNT`]): a
+/// time the guest measures between two of its own events (a Modbus request's interrupt and its
+/// answer, the QEMU board's `probe`) is then the firmware's work, whatever this PC did to
+/// QEMU's threads meanwhile.
+pub(crate) fn start_qemu_counted(image: &str, ports: &Ports) -> Result<Qemu, String> {
+    start_qemu_with(image, ports, None, true)
 }
 
 /// The trial of a new image on the QEMU board, s (`remodaq_update::TRIAL` with the feature
@@ -127,8 +140,14 @@ const TEST_SWITCHES_ADDR: u32 = 0x003F_F000;
 pub(crate) const FRONT_END_FAULT: u32 = 0x4645_4E44;
 
 /// [`start_qemu`], with the board's test switches word set to `switches` at every reset
-/// (a hardware fault every image on this machine sees).
-pub(crate) fn start_qemu_with(image: &str, ports: &Ports, switches: Option<u32>) -> Result<Qemu, String> {
+/// (a hardware fault every image on this machine sees), the guest's clock counting
+/// instructions if `counted` ([`start_qemu_counted`]).
+pub(crate) fn start_qemu_with(
+    image: &str,
+    ports: &Ports,
+    switches: Option<u32>,
+    counted: bool,
+) -> Result<Qemu, String> {
     let log = std::fs::File::create(format!("{image}.qemu.log")).map_err(|e| e.to_string())?;
     let bootloader = std::path::Path::new(image).with_file_name("remodaq-qemu-bootloader");
     // An image built before the board had a bootloader (for `latency` comparisons with older
@@ -147,6 +166,7 @@ pub(crate) fn start_qemu_with(image: &str, ports: &Ports, switches: Option<u32>)
         .args(["-semihosting-config", "enable=on,target=native"])
         .args(["-nic", &ports.nic()])
         .args(capture)
+        .args(if counted { ["-icount", ICOUNT].as_slice() } else { &[] })
         .args(boot)
         .args(switches.map_or(vec![], |word| {
             vec!["-device".to_string(), format!("loader,addr={TEST_SWITCHES_ADDR:#x},data={word:#x},data-len=4")]

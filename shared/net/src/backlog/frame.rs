@@ -68,6 +68,37 @@ fn segment(frame: &[u8]) -> Option<(Peer, u16, u8)> {
     Some((Peer { ip: source, port: source_port }, destination_port, flags))
 }
 
+/// A TCP segment as a frame carries it: its ports, flags and how many bytes of data.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Segment {
+    /// Source port.
+    pub source: u16,
+    /// Destination port.
+    pub destination: u16,
+    /// TCP flags (RFC 9293 §3.1: FIN 0x01, SYN 0x02, RST 0x04, ACK 0x10).
+    pub flags: u8,
+    /// Data bytes: the IPv4 total length less both headers.
+    pub data: usize,
+}
+
+impl Segment {
+    /// Whether the segment ends its connection (FIN or RST).
+    pub fn ends(&self) -> bool {
+        self.flags & (FIN | RST) != 0
+    }
+}
+
+/// The TCP segment `frame` carries, if it is an Ethernet II frame with a whole IPv4 TCP segment
+/// (the QEMU board's measure of Modbus requests, which looks at both directions).
+pub fn tcp_segment(frame: &[u8]) -> Option<Segment> {
+    let at = tcp_at(frame)?;
+    let (peer, destination, flags) = segment(frame)?;
+    let total = usize::from(u16::from_be_bytes([*frame.get(16)?, *frame.get(17)?]));
+    let offset = usize::from(frame.get(at + 12)? >> 4) * 4;
+    let data = (14 + total).checked_sub(at + offset)?;
+    Some(Segment { source: peer.port, destination, flags, data })
+}
+
 /// The RFC 1071 ones'-complement sum of `parts` (as one byte string), folded to 16 bits.
 fn ones_sum(parts: &[&[u8]]) -> u16 {
     let mut sum = 0u32;

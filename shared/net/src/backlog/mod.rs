@@ -35,7 +35,7 @@ mod queue;
 mod tests;
 
 pub use driver::{Backlogged, Rx};
-pub use frame::{destination_port, for_me, syn_to, Peer};
+pub use frame::{destination_port, for_me, syn_to, tcp_segment, Peer, Segment};
 pub use gate::{identify, Gate, ModbusGate, SynGate, GATES, MODBUS_BACKLOG};
 #[cfg(feature = "web")]
 pub use gate::{WebGate, WEB_BACKLOG, WEB_HELD};

@@ -58,6 +58,29 @@ fn recognises_only_a_connection_request_to_the_port() {
 }
 
 #[test]
+fn a_segment_says_its_ports_flags_and_data_length() {
+    // A Modbus request of 12 bytes (MBAP 7 + function 1 + 4) with PSH+ACK, after 12 bytes of
+    // TCP options (timestamps): IPv4 total length 20 + 32 + 12.
+    let mut request = segment(40000, PORT, 0x18, 12);
+    request.extend_from_slice(&[0, 1, 0, 0, 0, 6, 1, 3, 0, 0, 0, 1]);
+    request[16..18].copy_from_slice(&64u16.to_be_bytes());
+    let expected = Segment { source: 40000, destination: PORT, flags: 0x18, data: 12 };
+    assert_eq!(tcp_segment(&request), Some(expected));
+    assert!(!expected.ends());
+    // An answer's FIN without data; an RST.
+    let fin = tcp_segment(&segment(PORT, 40000, 0x11, 0));
+    assert_eq!(fin.map(|s| (s.source, s.data, s.ends())), Some((PORT, 0, true)));
+    assert_eq!(tcp_segment(&segment(PORT, 40000, 0x04, 0)).map(|s| s.ends()), Some(true));
+    // A total length shorter than its own headers is no segment; UDP neither.
+    let mut short = segment(40000, PORT, 0x10, 0);
+    short[16..18].copy_from_slice(&30u16.to_be_bytes());
+    assert_eq!(tcp_segment(&short), None);
+    let mut udp = segment(40000, PORT, 0x10, 0);
+    udp[14 + 9] = 17;
+    assert_eq!(tcp_segment(&udp), None);
+}
+
+#[test]
 fn an_ip_header_with_options_moves_the_tcp_header() {
     // IHL 6: four option bytes (NOP x4) before TCP.
     let plain = segment(40001, PORT, SYN, 0);
