@@ -10,7 +10,8 @@
 //!
 //! The driver wrapper [`Probed`] sees every frame the stack takes and writes: a request is a
 //! segment with data to the Modbus port, its answer the next segment with data back to the same
-//! client port. A request is taken as having arrived at the first interrupt since the chip's
+//! client port. One client is measured at a time: the last to send a request while no request
+//! was pending (the requests of others meanwhile are not measured), until its connection ends. A request is taken as having arrived at the first interrupt since the chip's
 //! receive FIFO was last found empty: frames before it in the FIFO (another connection's) count
 //! as its wait, so the figure errs long, never short (but by the few µs a frame's interrupt waits
 //! while the FIFO is looked at).
@@ -56,7 +57,12 @@ impl Measure {
     /// A frame the stack took.
     fn received(&mut self, frame: &[u8]) {
         let Some(segment) = tcp_segment(frame).filter(|s| s.destination == self.port) else { return };
-        if segment.data > 0 && self.client.is_none() {
+        // A request from another client while none is pending: that client is measured from
+        // now on, so that a connection left open and idle does not keep the measure from the
+        // next. The last one's figures are dropped, not said: the log's write would stop the
+        // machine inside the new request's time.
+        if segment.data > 0 && self.client != Some(segment.source) && self.arrived.is_none() {
+            self.restart();
             self.client = Some(segment.source);
         }
         if self.client != Some(segment.source) {
@@ -108,6 +114,11 @@ impl Measure {
                 );
             }
         }
+        self.restart();
+    }
+
+    /// No client measured.
+    fn restart(&mut self) {
         self.client = None;
         self.arrived = None;
         self.answered = 0;
