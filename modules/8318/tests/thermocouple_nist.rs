@@ -56,6 +56,30 @@ fn forward_matches_every_table_point() {
     }
 }
 
+/// A cold junction outside a type's range is taken at the range's end (`emf_clamped_mv`): the
+/// NIST table's first and last points, by type (R's and S's ranges end at 1768.1 °C, past
+/// their tables' last whole degree: their lower ends only); a NaN stays NaN.
+#[test]
+fn a_cold_junction_outside_the_range_takes_the_ends_emf() {
+    let points = table_points();
+    for tc in ["E", "J", "K", "N", "R", "S", "T"].map(nist_type) {
+        let of = points.iter().filter(|p| p.0 == tc);
+        let (first, last) = (of.clone().min_by_key(|p| p.1).unwrap(), of.max_by_key(|p| p.1).unwrap());
+        let ends = [(f64::from(first.1) - 40.0, first), (f64::from(last.1) + 40.0, last)];
+        let ends = if matches!(tc, TcType::R | TcType::S) { &ends[..1] } else { &ends[..] };
+        for &(t, end) in ends {
+            let e = tc.emf_clamped_mv(t);
+            assert!(
+                (e - end.2).abs() <= 0.0005 + 1e-9,
+                "{tc:?} at {t} °C: {e:.6} mV, table's {} °C {:.3}",
+                end.1,
+                end.2
+            );
+        }
+        assert!(tc.emf_clamped_mv(f64::NAN).is_nan(), "{tc:?}");
+    }
+}
+
 #[test]
 fn inverse_matches_every_table_point() {
     let mut checked = 0;

@@ -111,7 +111,17 @@ impl Reference for TcType {
 
     fn emf_clamped_mv(self, t: f64) -> f64 {
         let (lo, hi) = self.defined_range();
-        self.emf_and_slope(t.clamp(lo, hi)).0
+        // Not `f64::clamp`, whose panic for bounds it cannot prove ordered (these come from a
+        // table) formats both floats: 9 KB of float formatting in the image for a panic that
+        // cannot happen. The same value (a NaN stays NaN).
+        let t = if t < lo {
+            lo
+        } else if t > hi {
+            hi
+        } else {
+            t
+        };
+        self.emf_and_slope(t).0
     }
 
     fn emf_and_slope(self, t: f64) -> (f64, f64) {
