@@ -175,7 +175,7 @@ async fn main(spawner: Spawner) {
 
 /// The target boards run their own executors (`remodaq_board_qemu::executor`,
 /// `remodaq_board_stm32::executor`): the main one polled from an interrupt, the background one
-/// in thread mode, below it (MQTT's TLS worker).
+/// in thread mode, below it (the services' long computations, MQTT's TLS worker).
 #[cfg(target_os = "none")]
 #[cortex_m_rt::entry]
 fn main() -> ! {
@@ -183,10 +183,11 @@ fn main() -> ! {
     use {remodaq_board_qemu::executor::run, remodaq_shared::app::spawn as spawn_main};
     #[cfg(not(feature = "board-qemu"))]
     use {remodaq_board_stm32::executor::run, remodaq_shared::app::spawn_send as spawn_main};
-    run(|_background, main| {
+    run(|background, main| {
         spawn_main(main, main_task(), "main");
+        remodaq_shared::app::spawn(background, offload_worker(), "offload");
         #[cfg(feature = "mqtt-tls")]
-        remodaq_shared::app::spawn(_background, tls_worker(), "tls");
+        remodaq_shared::app::spawn(background, tls_worker(), "tls");
     })
 }
 
@@ -199,6 +200,14 @@ async fn main_task() {
     // SAFETY: awaited in a task of an embassy executor, with the context it polls it with.
     let spawner = unsafe { Spawner::for_current_executor() }.await;
     start(spawner).await;
+}
+
+/// The services' long computations (`remodaq_shared::offload`: key agreements, an update's
+/// signature check), on the board's background executor, which every other task preempts.
+#[cfg(target_os = "none")]
+#[embassy_executor::task]
+async fn offload_worker() -> ! {
+    remodaq_shared::offload::work().await
 }
 
 /// MQTT's TLS worker (`remodaq_mqtt::relay`), on the board's background executor, which every

@@ -27,6 +27,7 @@ pub mod module;
 pub mod mqtt;
 pub mod net;
 pub mod nonces;
+pub mod offload;
 pub mod password;
 pub mod points;
 pub mod ram_flash;

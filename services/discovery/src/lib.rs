@@ -20,12 +20,13 @@ use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::mutex::Mutex;
 use embedded_storage_async::nor_flash::NorFlash;
 
-use remodaq_protocol::auth::{fingerprint, open_credential, x25519, BASE_POINT};
+use remodaq_protocol::auth::{fingerprint, open_credential, BASE_POINT};
 use remodaq_shared::access::AllowList;
 use remodaq_shared::budget::Budget;
 use remodaq_shared::module::{commit_change, CommonSettings, SettingsAccess, Store};
 use remodaq_shared::net::NETWORK_STORED;
 use remodaq_shared::nonces::Nonces;
+use remodaq_shared::offload::x25519;
 use remodaq_shared::password::{Check, Credential, AUTH, KEY_LEN};
 use remodaq_shared::settings::StoreError;
 
@@ -47,13 +48,17 @@ impl Service {
         Self { identity, nonces: Nonces::new(NONCE_LIFETIME_S * 1000), agreement: None }
     }
 
-    /// The key-agreement key, made when first needed.
-    fn agreement(&mut self, now_ms: u64) -> ([u8; KEY_LEN], [u8; KEY_LEN]) {
-        *self.agreement.get_or_insert_with(|| {
-            let mut secret = [0u8; KEY_LEN];
-            AUTH.random(&now_ms.to_le_bytes(), &mut secret);
-            (secret, x25519(&secret, &BASE_POINT))
-        })
+    /// The key-agreement key, made when first needed (its public half by the worker off the
+    /// main executor, `remodaq_shared::offload`).
+    async fn agreement(&mut self, now_ms: u64) -> ([u8; KEY_LEN], [u8; KEY_LEN]) {
+        if let Some(keys) = self.agreement {
+            return keys;
+        }
+        let mut secret = [0u8; KEY_LEN];
+        AUTH.random(&now_ms.to_le_bytes(), &mut secret);
+        let keys = (secret, x25519(&secret, &BASE_POINT).await);
+        self.agreement = Some(keys);
+        keys
     }
 
     /// Handles one datagram from `from` at `now_ms` (ms since start): the reply's length in
@@ -80,7 +85,7 @@ impl Service {
             }
             Request::Challenge { mac, cnonce } if mac == me => {
                 let snonce = self.nonces.issue(from, now_ms);
-                let (_, public) = self.agreement(now_ms);
+                let (_, public) = self.agreement(now_ms).await;
                 let c = Challenge {
                     id,
                     mac: me,
@@ -159,8 +164,8 @@ impl Service {
             Command::SetAccess(_) if credential.is_factory() => Status::SetPasswordFirst,
             Command::SetAccess(new) => commit(map, store, |s| s.set_allow_list(new)).await,
             Command::SetPassword { public, sealed } => {
-                let (secret, _) = self.agreement(now_ms);
-                let shared = x25519(&secret, &public);
+                let (secret, _) = self.agreement(now_ms).await;
+                let shared = x25519(&secret, &public).await;
                 // A seal made for any other key (a substituted one, an older one) does not open
                 // (security review finding 8): refused, nothing committed.
                 let Some(new) = open_credential(&shared, &[SEAL_LABEL, &auth.cnonce, &auth.snonce], &sealed) else {

@@ -109,7 +109,7 @@ where
             offset += n as u32;
             embassy_futures::yield_now().await;
         }
-        match header.verify(&hash.finalize(), &self.public_key) {
+        match verified(header, &hash.finalize(), &self.public_key).await {
             true => Ok(()),
             false => Err(Status::BadSignature),
         }
@@ -123,4 +123,28 @@ where
         self.write(self.manifest_at, &manifest).await?;
         self.state.mark_updated().await.map_err(|_| Status::StoreFailed)
     }
+}
+
+/// [`Header::verify`] by the worker off the main executor (`remodaq_shared::offload`): an
+/// ed25519 check holds a processor for milliseconds.
+async fn verified(header: &Header, digest: &[u8; 64], key: &[u8; 32]) -> bool {
+    use remodaq_shared::offload::{run, Bytes, BYTES};
+    const DIGEST: usize = HEADER_LEN;
+    const KEY: usize = DIGEST + 64;
+    const _: () = assert!(KEY + 32 <= BYTES);
+    fn compute(bytes: &mut Bytes) {
+        let header = bytes[..HEADER_LEN].try_into().ok().and_then(Header::decode);
+        let digest: Option<[u8; 64]> = bytes[DIGEST..KEY].try_into().ok();
+        let key: Option<[u8; 32]> = bytes[KEY..KEY + 32].try_into().ok();
+        let good = match (header, digest, key) {
+            (Some(header), Some(digest), Some(key)) => header.verify(&digest, &key),
+            _ => false,
+        };
+        bytes[0] = u8::from(good);
+    }
+    let mut bytes = [0u8; BYTES];
+    bytes[..HEADER_LEN].copy_from_slice(&header.encode());
+    bytes[DIGEST..KEY].copy_from_slice(digest);
+    bytes[KEY..KEY + 32].copy_from_slice(key);
+    run(compute, bytes).await[0] == 1
 }

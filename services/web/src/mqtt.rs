@@ -173,7 +173,7 @@ impl<R: RawMutex, M: remodaq_shared::modbus::RegisterMap + SettingsAccess, F: No
         session: [u8; SESSION_ID_LEN],
         body: &[u8],
     ) -> Answer {
-        let bytes = match unsealed::<MQTT_CREDENTIALS_LEN>(session, body, MQTT_CREDENTIALS_LABEL) {
+        let bytes = match unsealed::<MQTT_CREDENTIALS_LEN>(session, body, MQTT_CREDENTIALS_LABEL).await {
             Ok(bytes) => bytes,
             Err(why) => return why.answer(out, "the keys are 64 hex digits, the credentials 196"),
         };

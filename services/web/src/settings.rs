@@ -15,9 +15,10 @@ use embassy_sync::blocking_mutex::Mutex as Blocking;
 use embedded_storage_async::nor_flash::NorFlash;
 use picoserve::response::StatusCode;
 use remodaq_protocol::access::{AllowList, Network, MAX_NETWORKS};
-use remodaq_protocol::auth::{seal, x25519, Credential, BASE_POINT, CREDENTIAL_LEN, KEY_LEN};
+use remodaq_protocol::auth::{seal, Credential, BASE_POINT, CREDENTIAL_LEN, KEY_LEN};
 use remodaq_protocol::net::{parse_ipv4, NetConfig};
 use remodaq_protocol::web::{agreement_proof, hex, unhex, PASSWORD_SEAL_LABEL, SESSION_ID_LEN};
+use remodaq_shared::offload::x25519;
 
 use crate::service::api::{Answer, Api, Json};
 use remodaq_shared::json::Object;
@@ -180,13 +181,13 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
 
     /// `POST /api/v1/password/key` (signed): a new ephemeral key for this session's password
     /// change, proved with the session key.
-    pub(super) fn password_key(&self, out: &mut Json, session: [u8; SESSION_ID_LEN]) -> Answer {
+    pub(super) async fn password_key(&self, out: &mut Json, session: [u8; SESSION_ID_LEN]) -> Answer {
         let Some(session_key) = self.sessions.lock(|s| s.borrow().key(&session)) else {
             return Answer::error(out, StatusCode::UNAUTHORIZED, "no session", None);
         };
         let mut secret = [0u8; KEY_LEN];
         remodaq_shared::password::AUTH.random(&(self.now_ms)().to_le_bytes(), &mut secret);
-        let public = x25519(&secret, &BASE_POINT);
+        let public = x25519(&secret, &BASE_POINT).await;
         AGREEMENT.lock(|a| a.set(Some((secret, public, session))));
         let (mut key, mut proof) = ([0u8; 2 * KEY_LEN], [0u8; 2 * KEY_LEN]);
         let a = Answer::new(out, StatusCode::OK);
@@ -202,7 +203,7 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
     /// `PUT /api/v1/password` (signed): the new credential, sealed under the key agreed with
     /// this session's ephemeral key (used once). Every session ends with the old password.
     pub(super) async fn set_password(&self, out: &mut Json, session: [u8; SESSION_ID_LEN], body: &[u8]) -> Answer {
-        let bytes = match unsealed::<CREDENTIAL_LEN>(session, body, PASSWORD_SEAL_LABEL) {
+        let bytes = match unsealed::<CREDENTIAL_LEN>(session, body, PASSWORD_SEAL_LABEL).await {
             Ok(bytes) => bytes,
             Err(why) => return why.answer(out, "the keys are 64 hex digits, the credential 168"),
         };
@@ -256,7 +257,7 @@ impl Unsealed {
 /// The `N` bytes sealed in `body` (`{module, public, sealed}`) under the key this session was
 /// offered (`POST /api/v1/password/key`, used once) and `label`: a new password, or MQTT's
 /// credentials.
-pub(crate) fn unsealed<const N: usize>(
+pub(crate) async fn unsealed<const N: usize>(
     session: [u8; SESSION_ID_LEN],
     body: &[u8],
     label: &[u8],
@@ -280,7 +281,8 @@ pub(crate) fn unsealed<const N: usize>(
         _ => None,
     });
     let (secret, module_public) = offered.ok_or(Unsealed::NoOffer)?;
-    seal(&x25519(&secret, &public), &[label, &module_public], &mut bytes);
+    // The key agreement by the worker off the main executor (`remodaq_shared::offload`).
+    seal(&x25519(&secret, &public).await, &[label, &module_public], &mut bytes);
     Ok(bytes)
 }
 
