@@ -284,6 +284,32 @@ fn over_tls_with_stored_settings() {
         r#"{"pem":"x"}"#,
     );
     assert_eq!(not_json.status, 422, "{}", not_json.body);
+    // A CA the module's TLS cannot take is refused when it is installed, with why: RSA ones
+    // (made here by openssl: of 2048 bits, larger than the record; of 1024, read and refused),
+    // and a P-256 private key where the certificate belongs.
+    for bits in [2048, 1024] {
+        let made = std::process::Command::new("openssl")
+            .args(["req", "-x509", "-newkey", &format!("rsa:{bits}"), "-nodes", "-subj", "/CN=rsa ca", "-days", "2"])
+            .args(["-keyout", &format!("rsa{bits}.key"), "-out", &format!("rsa{bits}.pem")])
+            .current_dir(&broker.dir)
+            .output()
+            .expect("openssl");
+        assert!(made.status.success(), "{}", String::from_utf8_lossy(&made.stderr));
+    }
+    let key_as_certificate = std::fs::read_to_string(broker.dir.join("ca.key"))
+        .expect("the CA's key")
+        .replace("EC PRIVATE KEY", "CERTIFICATE");
+    std::fs::write(broker.dir.join("key.pem"), key_as_certificate).expect("written");
+    for (file, why) in [
+        ("rsa2048.pem", "an RSA one is larger"),
+        ("rsa1024.pem", "not ECDSA P-256 with SHA-256"),
+        ("key.pem", "not a certificate this module reads"),
+    ] {
+        let body = pem(file);
+        let refused = request(web, "PUT", "/api/v1/mqtt/ca", &page.sign("PUT", "/api/v1/mqtt/ca", &body), &body);
+        assert_eq!(refused.status, 422, "{file}: {}", refused.body);
+        assert!(refused.body.contains(why) && refused.body.contains(r#""pem""#), "{file}: {}", refused.body);
+    }
     put(&mut page, "/api/v1/mqtt/ca", &pem("other.pem"));
     until("another CA: the certificate refused", &|d| d[7] >= 1);
     put(&mut page, "/api/v1/mqtt/ca", &pem("ca.pem"));

@@ -6,7 +6,7 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use remodaq_mqtt::certificate::{check, handshake_signed, signature, Certificate};
+use remodaq_mqtt::certificate::{check, handshake_signed, signature, Certificate, Keys};
 
 /// The seeds' CA (fuzz/seeds/certificate/ca.der: `openssl req -x509` with a P-256 key).
 const CA: &[u8] = include_bytes!("../seeds/certificate/ca.der");

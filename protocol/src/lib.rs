@@ -21,6 +21,7 @@ pub mod resources;
 mod status;
 pub mod update;
 pub mod web;
+pub mod x509;
 
 /// The two Modbus data tables of the RemoDAQ modules. Codes 01/02/05/15 use `Bits` (0X),
 /// codes 03/04/06/16 use `Registers` (4X).

@@ -9,13 +9,21 @@
 //! connection's deadline) leaves nothing borrowed behind, and its job's result, numbered, is
 //! never taken for the next one's. One job at a time; the others wait their turn. Without a
 //! worker (the host build, the tests) [`run`] computes at once, as before.
+//!
+//! A key pair for a key agreement ([`key_pair`]: a password change's, discovery's) is made by the
+//! worker ahead of the request, so that taking it is no await at all.
 
+use core::cell::Cell;
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
+use embassy_futures::select::{select, Either};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex as Cs;
+use embassy_sync::blocking_mutex::Mutex as Blocking;
 use embassy_sync::mutex::Mutex;
 use embassy_sync::signal::Signal;
-use remodaq_protocol::auth::KEY_LEN;
+use remodaq_protocol::auth::{BASE_POINT, KEY_LEN};
+
+use crate::password::AUTH;
 
 /// The bytes a job works on: its inputs, then its result (an update's check: the header, 146
 /// bytes, the digest and the key).
@@ -57,15 +65,56 @@ pub async fn run(work: Work, mut bytes: Bytes) -> Bytes {
     }
 }
 
-/// The worker: computes the jobs [`run`] hands it, forever. A task of the board's background
-/// executor (boards/image.rs), spawned before the services start.
+/// The worker: computes the jobs [`run`] hands it, and a key pair ahead when one is asked
+/// for ([`key_pair`]), forever. A task of the board's background executor (boards/image.rs),
+/// spawned before the services start.
 pub async fn work() -> ! {
     RUNNING.store(true, Ordering::Release);
     loop {
-        let (number, work, mut bytes) = REQUEST.wait().await;
-        work(&mut bytes);
-        DONE.signal((number, bytes));
+        match select(REQUEST.wait(), WANT_SPARE.wait()).await {
+            Either::First((number, work, mut bytes)) => {
+                work(&mut bytes);
+                DONE.signal((number, bytes));
+            }
+            Either::Second(()) => {
+                if SPARE.lock(|s| s.get().is_none()) {
+                    let pair = make_key_pair(&embassy_time::Instant::now().as_ticks().to_le_bytes());
+                    SPARE.lock(|s| s.set(Some(pair)));
+                }
+            }
+        }
     }
+}
+
+/// An X25519 key pair: the secret scalar and its public key.
+pub type KeyPair = ([u8; KEY_LEN], [u8; KEY_LEN]);
+
+/// The key pair the worker made ahead, until taken.
+static SPARE: Blocking<Cs, Cell<Option<KeyPair>>> = Blocking::new(Cell::new(None));
+/// Asks the worker for a key pair ahead.
+static WANT_SPARE: Signal<Cs, ()> = Signal::new();
+
+/// A fresh key pair for one key agreement (a password change's, discovery's): the one the
+/// worker made ahead, and another asked for at once; made here when none is ready (no worker,
+/// or two asked in a row). Made ahead, a password change's key costs the main executor nothing
+/// and its request no await (each await of the web console's router is flash: docs/web.md).
+pub fn key_pair(context: &[u8]) -> KeyPair {
+    let spare = SPARE.lock(Cell::take);
+    WANT_SPARE.signal(());
+    spare.unwrap_or_else(|| make_key_pair(context))
+}
+
+/// Asks the worker for a key pair ahead: a service at its start, once the board has seeded the
+/// module's random numbers.
+pub fn prepare_key_pair() {
+    WANT_SPARE.signal(());
+}
+
+/// A secret from the module's random numbers (`context` stirred in) and its public key.
+fn make_key_pair(context: &[u8]) -> KeyPair {
+    let mut secret = [0u8; KEY_LEN];
+    AUTH.random(context, &mut secret);
+    (secret, remodaq_protocol::auth::x25519(&secret, &BASE_POINT))
 }
 
 /// [`remodaq_protocol::auth::x25519`] by the worker: `scalar` times the point `u`.
@@ -134,5 +183,16 @@ mod tests {
         let alice = hex("77076d0a7318a57d3c16c17251b26645df4c2f87ebc0992ab177fba51db92c2a");
         let public = embassy_futures::block_on(x25519(&alice, &remodaq_protocol::auth::BASE_POINT));
         assert_eq!(public, hex("8520f0098930a754748b7ddcb43ef75a0dbf3a0d26381af4eba4a98eaa9b4e6a"));
+
+        // Key pairs made ahead by the worker: each a pair (two agree on one secret, RFC 7748
+        // §6.1's property), none given twice.
+        prepare_key_pair();
+        while SPARE.lock(|s| s.get().is_none()) {
+            std::thread::yield_now();
+        }
+        let (a, b) = (key_pair(b"a"), key_pair(b"b"));
+        assert_ne!(a, b);
+        let ab = embassy_futures::block_on(x25519(&a.0, &b.1));
+        assert_eq!(ab, embassy_futures::block_on(x25519(&b.0, &a.1)));
     }
 }

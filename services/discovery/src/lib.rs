@@ -20,13 +20,13 @@ use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::mutex::Mutex;
 use embedded_storage_async::nor_flash::NorFlash;
 
-use remodaq_protocol::auth::{fingerprint, open_credential, BASE_POINT};
+use remodaq_protocol::auth::{fingerprint, open_credential};
 use remodaq_shared::access::AllowList;
 use remodaq_shared::budget::Budget;
 use remodaq_shared::module::{commit_change, CommonSettings, SettingsAccess, Store};
 use remodaq_shared::net::NETWORK_STORED;
 use remodaq_shared::nonces::Nonces;
-use remodaq_shared::offload::x25519;
+use remodaq_shared::offload::{key_pair, x25519};
 use remodaq_shared::password::{Check, Credential, AUTH, KEY_LEN};
 use remodaq_shared::settings::StoreError;
 
@@ -48,17 +48,10 @@ impl Service {
         Self { identity, nonces: Nonces::new(NONCE_LIFETIME_S * 1000), agreement: None }
     }
 
-    /// The key-agreement key, made when first needed (its public half by the worker off the
-    /// main executor, `remodaq_shared::offload`).
-    async fn agreement(&mut self, now_ms: u64) -> ([u8; KEY_LEN], [u8; KEY_LEN]) {
-        if let Some(keys) = self.agreement {
-            return keys;
-        }
-        let mut secret = [0u8; KEY_LEN];
-        AUTH.random(&now_ms.to_le_bytes(), &mut secret);
-        let keys = (secret, x25519(&secret, &BASE_POINT).await);
-        self.agreement = Some(keys);
-        keys
+    /// The key-agreement key, taken when first needed (made ahead by the worker off the main
+    /// executor, `remodaq_shared::offload::key_pair`).
+    fn agreement(&mut self, now_ms: u64) -> ([u8; KEY_LEN], [u8; KEY_LEN]) {
+        *self.agreement.get_or_insert_with(|| key_pair(&now_ms.to_le_bytes()))
     }
 
     /// Handles one datagram from `from` at `now_ms` (ms since start): the reply's length in
@@ -85,7 +78,7 @@ impl Service {
             }
             Request::Challenge { mac, cnonce } if mac == me => {
                 let snonce = self.nonces.issue(from, now_ms);
-                let (_, public) = self.agreement(now_ms).await;
+                let (_, public) = self.agreement(now_ms);
                 let c = Challenge {
                     id,
                     mac: me,
@@ -164,7 +157,7 @@ impl Service {
             Command::SetAccess(_) if credential.is_factory() => Status::SetPasswordFirst,
             Command::SetAccess(new) => commit(map, store, |s| s.set_allow_list(new)).await,
             Command::SetPassword { public, sealed } => {
-                let (secret, _) = self.agreement(now_ms).await;
+                let (secret, _) = self.agreement(now_ms);
                 let shared = x25519(&secret, &public).await;
                 // A seal made for any other key (a substituted one, an older one) does not open
                 // (security review finding 8): refused, nothing committed.
@@ -281,6 +274,9 @@ where
     D: Datagrams,
 {
     let mut service = Service::new(identity);
+    // The first login's key made ahead, off the main executor (the board has seeded the
+    // module's random numbers by now).
+    remodaq_shared::offload::prepare_key_pair();
     let mut broadcasts = Budget::new(BROADCAST_BURST, BROADCAST_REFILL_MS);
     let mut rx = [0u8; MAX_DATAGRAM + 1];
     let mut tx = [0u8; MAX_DATAGRAM];

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{SystemTime, UNIX_EPOCH};
 
-use remodaq_mqtt::certificate::{check, handshake_signed, Certificate, Problem};
+use remodaq_mqtt::certificate::{check, handshake_signed, Certificate, Keys, Problem};
 
 const DAY: u64 = 86_400;
 

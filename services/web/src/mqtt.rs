@@ -17,6 +17,7 @@ use picoserve::response::StatusCode;
 use remodaq_protocol::m8318::CHANNELS;
 use remodaq_protocol::net::parse_ipv4;
 use remodaq_protocol::web::{mqtt_credentials_of, MQTT_CREDENTIALS_LABEL, MQTT_CREDENTIALS_LEN, SESSION_ID_LEN};
+use remodaq_protocol::x509::Certificate;
 use remodaq_shared::json::Object;
 use remodaq_shared::module::{commit_raw_record, commit_service_record, SettingsAccess};
 use remodaq_shared::mqtt::{binding, der_of_pem, Config, Credentials, Invalid, CA_VERSION, SNTP_PORT};
@@ -139,25 +140,34 @@ impl<R: RawMutex, M: remodaq_shared::modbus::RegisterMap + SettingsAccess, F: No
 
     /// `PUT /api/v1/mqtt/ca` (signed, not with the factory password): `{"pem": "..."}`, the CA
     /// certificate the broker's chain must lead to (PEM, at most `MAX_CA` bytes as DER; an empty
-    /// string removes it), decoded straight into the store's record and committed.
+    /// string removes it), decoded straight into the store's record and committed. A
+    /// certificate the module's TLS cannot take (not one `remodaq_protocol::x509` reads: an RSA
+    /// or P-384 CA, a key, a version 1 certificate) is refused here, 422 with why, rather than
+    /// at every connection.
     pub(super) async fn set_mqtt_ca(&self, out: &mut Json, body: &[u8]) -> Answer {
         let Some(pem) = Object::parse(body).and_then(|o| o.str("pem")) else {
             return Answer::error(out, StatusCode::BAD_REQUEST, "expected {pem}", None);
         };
-        let mut usable = true;
+        let mut refused = None;
         let fill = |der: &mut [u8]| {
-            let n = if pem.is_empty() { Some(0) } else { der_of_pem(pem.as_bytes(), der) };
-            usable = n.is_some();
-            n
+            if pem.is_empty() {
+                return Some(0);
+            }
+            let Some(n) = der_of_pem(pem.as_bytes(), der) else {
+                refused = Some("not a PEM certificate of at most 768 bytes: an ECDSA P-256 CA (an RSA one is larger)");
+                return None;
+            };
+            match Certificate::read(der.get(..n)?) {
+                Ok(_) => Some(n),
+                Err(problem) => {
+                    refused = Some(problem.what());
+                    None
+                }
+            }
         };
         let result = commit_raw_record(self.store, key::MQTT_CA, CA_VERSION, fill).await;
-        if !usable {
-            return Answer::error(
-                out,
-                StatusCode::UNPROCESSABLE_ENTITY,
-                "not a PEM certificate of at most 768 bytes",
-                Some("pem"),
-            );
+        if let Some(why) = refused {
+            return Answer::error(out, StatusCode::UNPROCESSABLE_ENTITY, why, Some("pem"));
         }
         crate::settings::committed(out, result)
     }

@@ -15,10 +15,10 @@ use embassy_sync::blocking_mutex::Mutex as Blocking;
 use embedded_storage_async::nor_flash::NorFlash;
 use picoserve::response::StatusCode;
 use remodaq_protocol::access::{AllowList, Network, MAX_NETWORKS};
-use remodaq_protocol::auth::{seal, Credential, BASE_POINT, CREDENTIAL_LEN, KEY_LEN};
+use remodaq_protocol::auth::{seal, Credential, CREDENTIAL_LEN, KEY_LEN};
 use remodaq_protocol::net::{parse_ipv4, NetConfig};
 use remodaq_protocol::web::{agreement_proof, hex, unhex, PASSWORD_SEAL_LABEL, SESSION_ID_LEN};
-use remodaq_shared::offload::x25519;
+use remodaq_shared::offload::{key_pair, x25519};
 
 use crate::service::api::{Answer, Api, Json};
 use remodaq_shared::json::Object;
@@ -181,13 +181,12 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
 
     /// `POST /api/v1/password/key` (signed): a new ephemeral key for this session's password
     /// change, proved with the session key.
-    pub(super) async fn password_key(&self, out: &mut Json, session: [u8; SESSION_ID_LEN]) -> Answer {
+    pub(super) fn password_key(&self, out: &mut Json, session: [u8; SESSION_ID_LEN]) -> Answer {
         let Some(session_key) = self.sessions.lock(|s| s.borrow().key(&session)) else {
             return Answer::error(out, StatusCode::UNAUTHORIZED, "no session", None);
         };
-        let mut secret = [0u8; KEY_LEN];
-        remodaq_shared::password::AUTH.random(&(self.now_ms)().to_le_bytes(), &mut secret);
-        let public = x25519(&secret, &BASE_POINT).await;
+        // Made ahead by the offload worker (`remodaq_shared::offload::key_pair`).
+        let (secret, public) = key_pair(&(self.now_ms)().to_le_bytes());
         AGREEMENT.lock(|a| a.set(Some((secret, public, session))));
         let (mut key, mut proof) = ([0u8; 2 * KEY_LEN], [0u8; 2 * KEY_LEN]);
         let a = Answer::new(out, StatusCode::OK);

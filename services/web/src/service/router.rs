@@ -241,7 +241,7 @@ impl<R: RawMutex, M: RegisterMap + SettingsAccess, F: NorFlash> Api<'_, R, M, F>
                     #[cfg(feature = "mqtt")]
                     ("PUT", "mqtt", None) => self.set_mqtt(out, signed.body).await,
                     // A verified request names its session.
-                    ("POST", "password", Some(_)) => self.password_key(out, signed.session.unwrap_or_default()).await,
+                    ("POST", "password", Some(_)) => self.password_key(out, signed.session.unwrap_or_default()),
                     ("PUT", "password", _) => {
                         self.set_password(out, signed.session.unwrap_or_default(), signed.body).await
                     }
