@@ -402,8 +402,9 @@ fn long_polls(log: &str, from: u64) -> (Vec<Span>, Vec<Span>) {
 /// the figure, the longest stall, printed); the background executor's stack within its
 /// own; 1000 Modbus requests with MQTT off, then
 /// 1000 while MQTT publishes over TLS, the median within 1.5x or 0.1 ms ([`within`]; the 99th percentile and the worsts
-/// printed: docs/mqtt.md, "Never in the way"); the module lost ([`offline_when_lost`]); set off
-/// at the end.
+/// printed: docs/mqtt.md, "Never in the way"), and the guest's own measure of each request
+/// beside (`crate::guest`: the whole run starts it on a QEMU counting instructions); the module
+/// lost ([`offline_when_lost`]); set off at the end.
 pub(crate) async fn mqtt_over_tls(modbus: SocketAddr, web: SocketAddr, log: &str, qemu: &Qemu) -> Result<(), String> {
     use remodaq_mqtt::testing::{make_pki, HOST, PASSWORD as BROKER_PASSWORD, USER};
     const TLS_PREFIX: &str = "test/qemu-tls";
