@@ -341,6 +341,10 @@ fn over_tls_with_stored_settings() {
     let online = sub.next_on("test/tls/status", Duration::from_secs(20)).expect("online over TLS");
     assert!(online.1.contains(r#""state":"online""#), "{online:?}");
     assert!(sub.next_on("test/tls/di/0", Duration::from_secs(5)).is_some(), "a value over TLS");
+    // The first look's last point too, before the settings change below ends the session: the
+    // capture then holds every point's record (the count checked below), however fast this
+    // test goes on.
+    assert!(sub.next_on("test/tls/do/5", Duration::from_secs(5)).is_some(), "every point over TLS");
     assert_eq!(mqtt_diagnostics(modbus_port)[..2], [2, 1], "connected, one session");
     let shown = request(web, "GET", "/api/v1/mqtt", &page.sign("GET", "/api/v1/mqtt", ""), "");
     assert!(shown.body.contains(r#""credentials":true"#) && !shown.body.contains(PASSWORD), "{}", shown.body);
@@ -360,7 +364,11 @@ fn over_tls_with_stored_settings() {
         Some(link) => {
             let tls_records = link.windows(3).filter(|w| *w == [0x17, 0x03, 0x03]).count();
             eprintln!("capture: {} bytes of the broker's port, {tls_records} TLS application records", link.len());
-            assert!(tls_records > 10, "TLS application data in the capture");
+            // After the handshake every byte is application data: the module's CONNECT, its
+            // status and points, the broker's CONNACK and acknowledgments. How many records
+            // they make depends on how the writes were batched (5 to 166 seen for the same
+            // session): at least the four kinds, whatever the batching.
+            assert!(tls_records >= 4, "TLS application data in the capture");
             for secret in [PASSWORD.as_bytes(), b"test/tls/status", b"online"] {
                 assert!(
                     !link.windows(secret.len()).any(|w| w == secret),

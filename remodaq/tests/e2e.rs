@@ -375,10 +375,37 @@ fn mqtt_settings_through_the_tool() {
     let (code, _, err) = remodaq(&["mqtt", "set", &web, "--qos", "2", "--password", "line 2 secret"]);
     assert_eq!(code, 1);
     assert!(err.contains("qos"), "{err}");
-    // The CA (a DER file: 30 03 02 01 01, a SEQUENCE the module stores as given) and the
-    // broker's credentials (the password from REMODAQ_MQTT_PASSWORD): stored, never shown.
+    // A DER file that is no certificate (30 03 02 01 01, a SEQUENCE): the module refuses it, and
+    // the tool says why.
+    let junk = temp("mqtt-junk.der");
+    std::fs::write(&junk, [0x30, 3, 2, 1, 1]).expect("write");
+    let junk_arg = junk.display().to_string();
+    let (code, _, err) = remodaq(&["mqtt", "set", &web, "--ca", &junk_arg, "--password", "line 2 secret"]);
+    assert_eq!(code, 1);
+    assert!(err.contains("not a certificate this module reads"), "{err}");
+    // The CA (a P-256 one made by openssl, as DER) and the broker's credentials (the password
+    // from REMODAQ_MQTT_PASSWORD): stored, never shown.
     let ca = temp("mqtt-ca.der");
-    std::fs::write(&ca, [0x30, 3, 2, 1, 1]).expect("write");
+    let key = temp("mqtt-ca.key");
+    let openssl = |args: &[&str]| {
+        let made = std::process::Command::new("openssl").args(args).output().expect("openssl");
+        assert!(made.status.success(), "{}", String::from_utf8_lossy(&made.stderr));
+    };
+    openssl(&["ecparam", "-name", "prime256v1", "-genkey", "-noout", "-out", &key.display().to_string()]);
+    openssl(&[
+        "req",
+        "-x509",
+        "-key",
+        &key.display().to_string(),
+        "-subj",
+        "/CN=test ca",
+        "-days",
+        "2",
+        "-outform",
+        "DER",
+        "-out",
+        &ca.display().to_string(),
+    ]);
     let ca_arg = ca.display().to_string();
     let tls = ["mqtt", "set", &web, "--tls", "on", "--host", "broker.test", "--ca", &ca_arg, "--user", "plant"];
     let (code, out, err) = common::remodaq(
