@@ -87,8 +87,6 @@ mod transport {
     pub use remodaq_update::embassy::serve as update;
     #[cfg(feature = "web")]
     pub use remodaq_web::embassy::serve as web;
-    #[cfg(feature = "mqtt")]
-    pub use remodaq_mqtt::embassy::serve as mqtt;
 }
 #[cfg(not(target_os = "none"))]
 use remodaq_board_host::services as transport;
@@ -135,13 +133,49 @@ async fn web(app: &'static Running) -> ! {
     core::pin::pin!(transport::web(app.net(), app.map(), app.store(), app.identity())).await
 }
 
-/// MQTT (docs/mqtt.md), with the stored settings: on the host board (or `--mqtt`'s) and in an
-/// image built with the feature `mqtt` (the QEMU board's).
-#[cfg(any(not(target_os = "none"), feature = "mqtt"))]
+/// MQTT (docs/mqtt.md), with the stored settings, on the host board (or `--mqtt`'s).
+#[cfg(not(target_os = "none"))]
 #[embassy_executor::task]
 async fn mqtt(app: &'static Running) -> ! {
     // Made in place, as the web console's (its buffers would be copied through the stack).
     core::pin::pin!(transport::mqtt(app.net(), app.map(), app.store(), app.identity())).await
+}
+
+/// MQTT on the target boards (in an image built with the feature `mqtt`: every one by default),
+/// in two tasks (docs/mqtt.md, "Never in the way"): the service on the background executor,
+/// which every other task preempts ([`mqtt`], given these parts of the running module once the
+/// start-up made it), and its socket on the main one ([`mqtt_link`]).
+#[cfg(all(target_os = "none", feature = "mqtt"))]
+mod mqtt_parts {
+    use super::{Board, Module};
+    use remodaq_shared::board::Shared;
+    use remodaq_shared::module::Store;
+
+    type Flash = <Board as remodaq_shared::board::Board>::Flash;
+    /// The register map, the settings' store and the identity.
+    pub type Parts = (
+        &'static Shared<<Module as remodaq_shared::board::Module>::Map<Flash>>,
+        &'static Store<Flash, <Module as remodaq_shared::board::Module>::Settings>,
+        remodaq_shared::identity::Identity,
+    );
+    pub static PARTS: embassy_sync::signal::Signal<embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex, Parts> =
+        embassy_sync::signal::Signal::new();
+}
+
+/// MQTT's service, on the background executor (see [`mqtt_parts`]).
+#[cfg(all(target_os = "none", feature = "mqtt"))]
+#[embassy_executor::task]
+async fn mqtt() -> ! {
+    let (map, store, identity) = mqtt_parts::PARTS.wait().await;
+    // Made in place: it holds TLS's record buffers.
+    core::pin::pin!(remodaq_mqtt::embassy::serve(map, store, identity)).await
+}
+
+/// MQTT's socket and the SNTP client, on the main executor (see [`mqtt_parts`]).
+#[cfg(all(target_os = "none", feature = "mqtt"))]
+#[embassy_executor::task]
+async fn mqtt_link(app: &'static Running) -> ! {
+    core::pin::pin!(remodaq_mqtt::embassy::link(app.net())).await
 }
 
 /// Brings the module up, then starts its tasks: a Modbus connection task per slot, discovery,
@@ -149,15 +183,20 @@ async fn mqtt(app: &'static Running) -> ! {
 /// executor, by the image crate), and the web console's connection tasks. A task that cannot be spawned is logged, not
 /// a panic.
 async fn start(spawner: Spawner) {
-    use remodaq_shared::app::spawn;
+    use remodaq_shared::app::{spawn, spawn_at, Priority};
     remodaq_shared::identity::set_build(build::BUILD);
     let (app, io) = remodaq_shared::app::start(spawner, &STATICS).await;
     for slot in 0..remodaq_modbus::server::SOCKETS {
-        spawn(spawner, modbus(app, slot), "modbus");
+        spawn_at(spawner, modbus(app, slot), "modbus", Priority::Modbus);
     }
     spawn(spawner, discovery(app), "discovery");
-    #[cfg(any(not(target_os = "none"), feature = "mqtt"))]
+    #[cfg(not(target_os = "none"))]
     spawn(spawner, mqtt(app), "mqtt");
+    #[cfg(all(target_os = "none", feature = "mqtt"))]
+    {
+        spawn(spawner, mqtt_link(app), "mqtt");
+        mqtt_parts::PARTS.signal((app.map(), app.store(), app.identity()));
+    }
     #[cfg(target_os = "none")]
     spawn(spawner, update(app), "update");
     spawn_application(spawner, app, io);
@@ -175,7 +214,7 @@ async fn main(spawner: Spawner) {
 
 /// The target boards run their own executors (`remodaq_board_qemu::executor`,
 /// `remodaq_board_stm32::executor`): the main one polled from an interrupt, the background one
-/// in thread mode, below it (the services' long computations, MQTT's TLS worker).
+/// in thread mode, below it (the services' long computations, MQTT's service).
 #[cfg(target_os = "none")]
 #[cortex_m_rt::entry]
 fn main() -> ! {
@@ -186,8 +225,8 @@ fn main() -> ! {
     run(|background, main| {
         spawn_main(main, main_task(), "main");
         remodaq_shared::app::spawn(background, offload_worker(), "offload");
-        #[cfg(feature = "mqtt-tls")]
-        remodaq_shared::app::spawn(background, tls_worker(), "tls");
+        #[cfg(feature = "mqtt")]
+        remodaq_shared::app::spawn(background, mqtt(), "mqtt");
     })
 }
 
@@ -208,13 +247,4 @@ async fn main_task() {
 #[embassy_executor::task]
 async fn offload_worker() -> ! {
     remodaq_shared::offload::work().await
-}
-
-/// MQTT's TLS worker (`remodaq_mqtt::relay`), on the board's background executor, which every
-/// other task preempts.
-#[cfg(all(target_os = "none", feature = "mqtt-tls"))]
-#[embassy_executor::task]
-async fn tls_worker() -> ! {
-    // Made in place: it holds TLS's record buffers.
-    core::pin::pin!(remodaq_mqtt::relay::work()).await
 }

@@ -134,10 +134,34 @@ impl<B: Board, M: Module> App<B, M> {
     }
 }
 
+/// Which of an executor's ready tasks is polled first (embassy-executor's `scheduler-priority`:
+/// at each step, the ready task of the highest priority, those woken by the last poll included).
+/// The order within one executor only: a task never preempts another's poll, and an executor of a
+/// higher interrupt priority preempts them all (docs/design.md, "The executors").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+pub enum Priority {
+    /// Every other task.
+    Other = 0,
+    /// The network stack's runner: every socket's segments.
+    Network = 1,
+    /// The Modbus server's connections: a request taken by the runner is answered before any
+    /// other task's work goes on (MQTT's socket, the web console: issue #40).
+    Modbus = 2,
+}
+
 /// Spawns a task, logging (instead of panicking) if its pool is exhausted.
 pub fn spawn<S>(spawner: Spawner, token: Result<SpawnToken<S>, SpawnError>, name: &str) {
+    spawn_at(spawner, token, name, Priority::Other);
+}
+
+/// [`spawn`] at a [`Priority`].
+pub fn spawn_at<S>(spawner: Spawner, token: Result<SpawnToken<S>, SpawnError>, name: &str, priority: Priority) {
     match token {
-        Ok(token) => spawner.spawn(token),
+        Ok(token) => {
+            token.metadata().set_priority(priority as u8);
+            spawner.spawn(token)
+        }
         Err(_) => crate::error!("cannot start task {}", name),
     }
 }

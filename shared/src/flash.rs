@@ -48,8 +48,12 @@ impl<F: ReadNorFlash> ReadNorFlash for Serialized<F> {
     const READ_SIZE: usize = F::READ_SIZE;
 
     async fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
-        let _controller = self.controller.lock().await;
-        self.inner.read(offset, bytes).await
+        let read = {
+            let _controller = self.controller.lock().await;
+            self.inner.read(offset, bytes).await
+        };
+        yield_to_waiters().await;
+        read
     }
 
     fn capacity(&self) -> usize {

@@ -42,7 +42,6 @@ struct StdConnector;
 
 impl Connector for StdConnector {
     type Io<'a> = FromFutures<Async<TcpStream>>;
-    type Tls<'a> = remodaq_mqtt::tls::Tls<'a, remodaq_mqtt::tls::Whole<Self::Io<'a>, { remodaq_mqtt::tls::WHOLE }>>;
 
     async fn connect(&mut self, broker: [u8; 4], port: u16) -> Option<Self::Io<'_>> {
         let broker = SocketAddr::V4(SocketAddrV4::new(broker.into(), port));
@@ -53,17 +52,6 @@ impl Connector for StdConnector {
                 None
             }
         }
-    }
-
-    async fn connect_tls<'a>(
-        &'a mut self,
-        broker: [u8; 4],
-        port: u16,
-        ca: &[u8],
-        host: &str,
-        buffer: &'a mut [u8],
-    ) -> Result<Self::Tls<'a>, Option<remodaq_mqtt::tls::Refused>> {
-        remodaq_mqtt::tls::in_place(self.connect(broker, port).await, ca, host, buffer).await
     }
 }
 

@@ -129,16 +129,16 @@ extern "C" fn background_loop() -> ! {
     }
 }
 
-/// The main executor's interrupt handler: each poll timed (`crate::time::main_poll`).
+/// The main executor's interrupt handler: each poll's longest task poll said if long
+/// (`crate::time::main_poll`).
 pub(crate) extern "C" fn main_interrupt() {
     let executor = MAIN.load(Ordering::Acquire);
     if !executor.is_null() {
-        let started = crate::time::counter_us();
         crate::trace::poll_begins();
         // SAFETY: the executor is 'static (`run`); this handler is its only poller and an
         // interrupt does not preempt itself, so the poll is never re-entered.
         unsafe { (*executor).poll() };
-        crate::time::main_poll(crate::time::counter_us().wrapping_sub(started), crate::trace::longest());
+        crate::time::main_poll(crate::trace::longest());
     }
 }
 

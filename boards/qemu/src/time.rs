@@ -159,10 +159,13 @@ const STALL_US: u64 = 5_000;
 /// A critical section at least this long is said in the log when it is the longest yet.
 const LONG_SECTION_US: u32 = 1_000;
 
-/// A poll of the main executor at least this long is said in the log, each one: a task that
-/// holds the executor (MQTT's TLS handshake's arithmetic, docs/mqtt.md "Never in the way") delays
-/// every other task of it by as much. 3 ms: rare in normal running, so that the log's writes
-/// (each one stops the machine) do not disturb the latency checks.
+/// A task poll of the main executor at least this long is said in the log, each one: it delays
+/// every other task of the executor by as much (MQTT's TLS handshake's arithmetic held it 20-400
+/// ms before it ran on the background executor: docs/mqtt.md "Never in the way"). A poll of the
+/// executor itself runs every ready task, the highest priority first and again after each
+/// (`remodaq_shared::app::Priority`): its length says nothing of what any one task waited. 3 ms:
+/// rare in normal running, so that the log's writes (each one stops the machine) do not disturb
+/// the latency checks.
 const LONG_POLL_US: u32 = 3_000;
 
 /// The FPGAIO's microsecond counter (wraps every 71 minutes: subtract with `wrapping_sub`).
@@ -170,18 +173,16 @@ pub(crate) fn counter_us() -> u32 {
     fpgaio_read(COUNTER)
 }
 
-/// A poll of the main executor that took `took` µs: said in the log if long ([`LONG_POLL_US`]),
-/// with its longest task poll, µs, and that task's address (`crate::trace::longest`).
-/// The time includes what preempted it (interrupts, the realtime executor) and any stall of
-/// the machine by this PC, which the log's stall lines say.
-pub(crate) fn main_poll(took: u32, (longest, task): (u32, u32)) {
-    // A poll across `start`, which sets the counter going from 0, wraps: it says nothing.
-    if (LONG_POLL_US..1 << 31).contains(&took) {
+/// After a poll of the main executor whose longest task poll took `longest` µs: said in the log
+/// if long ([`LONG_POLL_US`]), with the task's address (`crate::trace::longest`), at the
+/// executor poll's end. The time includes what preempted the task (interrupts, the realtime
+/// executor) and any stall of the machine by this PC, which the log's stall lines say.
+pub(crate) fn main_poll((longest, task): (u32, u32)) {
+    if (LONG_POLL_US..1 << 31).contains(&longest) {
         cortex_m_semihosting::hprintln!(
-            "qemu board: a poll of the main executor took {} us, at {} us; its longest task poll {} us, the task at {:#010x}",
-            took,
-            DRIVER.now(),
+            "qemu board: a task poll of the main executor took {} us, at {} us; the task at {:#010x}",
             longest,
+            DRIVER.now(),
             task
         );
     }

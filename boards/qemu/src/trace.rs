@@ -1,8 +1,8 @@
-//! embassy-executor's trace hooks (its feature `trace`, turned on by this board alone): which
-//! task a long poll of the main executor spent its time in. The board's log names the task by
-//! its address (`llvm-nm -C` of the image gives the pool it lies in), beside the poll's length
-//! (`crate::time::main_poll`): what to split when Modbus waits behind a task (issue #40, the
-//! worst latency under QEMU). Only the main executor's tasks are timed: their hooks run in its
+//! embassy-executor's trace hooks (its feature `trace`, turned on by this board alone): the
+//! longest task poll of each poll of the main executor, which the board's log says when long
+//! (`crate::time::main_poll`), naming the task by its address (`llvm-nm -C` of the image gives the
+//! pool it lies in): what to split when Modbus waits behind a task (issue #40, the worst latency
+//! under QEMU). Only the main executor's tasks are timed: their hooks run in its
 //! interrupt, told from the others' by the active exception (the one [`poll_begins`] saw).
 
 use core::sync::atomic::{AtomicU32, Ordering};

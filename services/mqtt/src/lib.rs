@@ -15,6 +15,8 @@ pub mod certificate;
 pub mod command;
 #[cfg(feature = "embassy-net")]
 pub mod embassy;
+#[cfg(feature = "embassy-net")]
+pub mod link;
 /// MQTT's settings: the record and its checks, in the runtime (`remodaq_shared::mqtt`), which
 /// the services that set them share.
 pub mod config {
@@ -23,8 +25,6 @@ pub mod config {
 pub mod points;
 #[cfg(feature = "tls")]
 pub mod records;
-#[cfg(all(feature = "tls", feature = "embassy-net"))]
-pub mod relay;
 pub mod schedule;
 pub mod service;
 pub mod session;

@@ -104,11 +104,10 @@ impl<T: Write> Write for Guarded<T> {
 
 /// A transport that hands embedded-tls whole records only. Its record reader is not safe to
 /// drop in the middle of a record: the next read would take a header from the middle of the
-/// old one, whose length can then index past its buffer (a panic). The simulator's session
-/// drops reads at each look (`select` with its ticker) over TLS run in its own task
-/// (`crate::tls::in_place`); here a read waits, and may be dropped, only while no whole record
-/// has come, and then nothing of one was handed on: every byte that came stays here. The
-/// embassy-net boards' worker never drops a read (`crate::relay`).
+/// old one, whose length can then index past its buffer (a panic). The session drops reads at
+/// each look (`select` with its ticker) over TLS run in its own task (`crate::service`); here a
+/// read waits, and may be dropped, only while no whole record has come, and then nothing of one
+/// was handed on: every byte that came stays here.
 pub struct Whole<T, const N: usize> {
     inner: T,
     /// Room for the longest record taken, its header with it (`crate::tls::WHOLE`).

@@ -56,27 +56,9 @@ pub trait Connector {
     type Io<'a>: Io
     where
         Self: 'a;
-    /// A TLS connection.
-    #[cfg(feature = "tls")]
-    type Tls<'a>: Io
-    where
-        Self: 'a;
     /// Opens a TCP connection to `broker`:`port`; `None` (logged by the board) if it could not.
+    /// TLS, where the settings ask for it, is the service's, over this connection.
     async fn connect(&mut self, broker: [u8; 4], port: u16) -> Option<Self::Io<'_>>;
-    /// Opens a TLS connection to `broker`:`port`, the broker named `host`, its chain checked
-    /// against `ca` (`crate::tls`): TCP as [`connect`](Self::connect), then the handshake, in
-    /// the caller's task over the record buffers `buffer` ([`TLS_BUFFER`] bytes:
-    /// `crate::tls::in_place`) or elsewhere (`crate::relay`). `Err(None)`: the broker was not
-    /// reached.
-    #[cfg(feature = "tls")]
-    async fn connect_tls<'a>(
-        &'a mut self,
-        broker: [u8; 4],
-        port: u16,
-        ca: &[u8],
-        host: &str,
-        buffer: &'a mut [u8],
-    ) -> Result<Self::Tls<'a>, Option<crate::tls::Refused>>;
     /// Closes the connection the last [`connect`](Self::connect) opened, if it is still open
     /// (the session was dropped: the settings changed), so that the broker gives the will at
     /// once. A connection that closes itself when dropped has nothing to do.
@@ -89,8 +71,7 @@ pub struct Board<'a> {
     pub time_ms: fn() -> Option<u64>,
     /// Settings that override the stored ones (the simulator's `--mqtt`).
     pub imposed: Option<Config>,
-    /// TLS's record buffers, [`TLS_BUFFER`] bytes (none without TLS, or where TLS runs
-    /// elsewhere: `crate::relay`): the caller's, in its task's storage, so that no future
+    /// TLS's record buffers, [`TLS_BUFFER`] bytes (none without TLS): the caller's, in its task's storage, so that no future
     /// holding them is moved through the stack.
     pub tls_buffer: &'a mut [u8],
 }
@@ -145,9 +126,14 @@ pub async fn run<A: RegisterMap + SettingsAccess, F: NorFlash, C: Connector>(
             DIAGNOSTICS.mqtt_state(mqtt::CONNECTING);
             let configured = Configured { config: &config, credentials: &credentials, ca: &ca, time_ms: board.time_ms };
             let tls = &mut *board.tls_buffer;
-            match select(sessions(&configured, tls, connector, map, identity), CHANGED.wait()).await {
-                Either::First(never) => match never {},
-                Either::Second(()) => info!("mqtt: the settings changed: starting again"),
+            {
+                // Made in place: passed by value, this large future would be copied through the
+                // stack.
+                let sessions = core::pin::pin!(sessions(&configured, tls, connector, map, identity));
+                match select(sessions, CHANGED.wait()).await {
+                    Either::First(never) => match never {},
+                    Either::Second(()) => info!("mqtt: the settings changed: starting again"),
+                }
             }
             connector.close().await;
             continue;
@@ -228,23 +214,38 @@ async fn sessions<A: RegisterMap, C: Connector>(
     loop {
         if config.tls {
             #[cfg(feature = "tls")]
-            match connector.connect_tls(config.broker, config.port, ca, &config.host, &mut *tls_buffer).await {
-                Ok(tls) => {
-                    let ended = serve(&mut session, tls, &settings, &mut module, &mut schedules).await;
-                    warn!("mqtt: the TLS connection to the broker ended ({})", ended.as_str());
-                    back_off = BACK_OFF_MIN;
-                }
-                Err(None) => warn!("mqtt: the broker could not be reached"),
-                Err(Some(why)) => {
-                    use crate::tls::Refused;
-                    let (n, text) = match why {
-                        Refused::NoTime => (mqtt::NO_TIME, "no time yet: a certificate cannot be checked"),
-                        Refused::Certificate => (mqtt::CERTIFICATE, "the broker's certificate was refused"),
-                        Refused::Handshake => (mqtt::HANDSHAKE, "the TLS handshake failed"),
+            match connector.connect(config.broker, config.port).await {
+                Some(io) => {
+                    use crate::tls::{BoardClock, ModuleRng, Refused, Whole, WHOLE, WRITE};
+                    // The connection and its handshake made in place (this future holds them):
+                    // returned or awaited by value, each was copied through the stack at every
+                    // level (a frame of 41 KB).
+                    let (read, write) = tls_buffer.split_at_mut(tls_buffer.len().saturating_sub(WRITE));
+                    // Whole records: the session drops a read at each look.
+                    let mut tls = crate::tls::connection(Whole::<_, WHOLE>::new(io), read, write);
+                    let opened = {
+                        let handshake =
+                            crate::tls::handshake::<_, _, BoardClock>(&mut tls, ca, &config.host, ModuleRng);
+                        core::pin::pin!(handshake).await
                     };
-                    DIAGNOSTICS.mqtt_event(n);
-                    warn!("mqtt: TLS: {}", text);
+                    match opened {
+                        Ok(()) => {
+                            let ended = serve(&mut session, &mut tls, &settings, &mut module, &mut schedules).await;
+                            warn!("mqtt: the TLS connection to the broker ended ({})", ended.as_str());
+                            back_off = BACK_OFF_MIN;
+                        }
+                        Err(why) => {
+                            let (n, text) = match why {
+                                Refused::NoTime => (mqtt::NO_TIME, "no time yet: a certificate cannot be checked"),
+                                Refused::Certificate => (mqtt::CERTIFICATE, "the broker's certificate was refused"),
+                                Refused::Handshake => (mqtt::HANDSHAKE, "the TLS handshake failed"),
+                            };
+                            DIAGNOSTICS.mqtt_event(n);
+                            warn!("mqtt: TLS: {}", text);
+                        }
+                    }
                 }
+                None => warn!("mqtt: the broker could not be reached"),
             }
             // `run` does not start sessions over TLS in an image without it.
             #[cfg(not(feature = "tls"))]

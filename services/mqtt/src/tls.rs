@@ -199,22 +199,6 @@ pub enum Refused {
 /// A TLS connection to the broker, over `transport` (a TCP connection already open to it).
 pub type Tls<'b, T> = TlsConnection<'b, Guarded<T>, Aes128GcmSha256>;
 
-/// TLS to the broker named `host` on `io` (`None`: the broker was not reached), run by the
-/// caller's task, with the record buffers in `buffer` ([`BUFFER`] bytes), the board's time of
-/// day ([`BoardClock`]) and randomness ([`ModuleRng`]), the broker's bytes in whole records
-/// ([`Whole`]: the session drops a read at each look). The simulator's way; the embassy-net
-/// boards run TLS off the main executor (`crate::relay`).
-pub async fn in_place<'b, T: Read + Write + 'b>(
-    io: Option<T>,
-    ca: &[u8],
-    host: &str,
-    buffer: &'b mut [u8],
-) -> Result<Tls<'b, Whole<T, WHOLE>>, Option<Refused>> {
-    let io = Whole::new(io.ok_or(None)?);
-    let (read, write) = buffer.split_at_mut(buffer.len().saturating_sub(WRITE));
-    open::<_, _, BoardClock>(io, read, write, ca, host, ModuleRng).await.map_err(Some)
-}
-
 /// Opens TLS on `transport` to the broker named `host`, its chain checked against `ca` (DER),
 /// with the record buffers `read` (up to 16 KiB: TLS's largest record) and `write`: a
 /// [`connection`] and its [`handshake`].
@@ -232,9 +216,9 @@ pub async fn open<'b, T: Read + Write + 'b, R: CryptoRngCore, C: Clock>(
 }
 
 /// A TLS connection on `transport` with the record buffers `read` and `write`, not open yet
-/// ([`handshake`]). Made where it stays (the worker's future): the connection is 1.3 KB, and
-/// returned through the handshake's futures by value it was copied through the worker's stack
-/// at each (issue #40: its stack).
+/// ([`handshake`]). Made where it stays (the service's future, `crate::service`): the connection
+/// is 1.3 KB, and returned through the handshake's futures by value it was copied through the
+/// stack at each (issue #40: its stack).
 pub fn connection<'b, T: Read + Write + 'b>(transport: T, read: &'b mut [u8], write: &'b mut [u8]) -> Tls<'b, T> {
     TlsConnection::new(Guarded::new(transport), read, write)
 }

@@ -73,6 +73,6 @@ mod tests {
     fn reads_the_boards_line() {
         let line = "qemu board: Modbus answers to the client at port 41810: 1000 requests, median 103 us, 99 % 425 us, worst 523 us";
         assert_eq!(parse(line), Some(Guest { requests: 1000, median: 103, p99: 425, worst: 523 }));
-        assert_eq!(parse("qemu board: a poll of the main executor took 3221 us, at 8544 us"), None);
+        assert_eq!(parse("qemu board: a task poll of the main executor took 3221 us, at 8544 us"), None);
     }
 }

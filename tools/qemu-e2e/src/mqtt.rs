@@ -365,8 +365,8 @@ const SLACK: Duration = Duration::from_micros(100);
 /// A span of the guest's time in QEMU's log: its length and its end, µs.
 type Span = (u64, u64);
 
-/// The polls of the main and the background executor that QEMU's log says took long (`a poll
-/// of the main executor took N us, at T us`, boards/qemu `time.rs`) in `log` from byte `from`
+/// The polls of the background executor and the main one's tasks that QEMU's log says took long
+/// (`a task poll of the main executor took N us, at T us`, boards/qemu `time.rs`) in `log` from byte `from`
 /// on: the background's (the TLS handshake's arithmetic) as they are, and the main executor's
 /// during one of them, but those during which this PC stalled the machine (`the machine
 /// stalled`). Each (length, end), µs of the guest's clock.
@@ -387,7 +387,7 @@ fn long_polls(log: &str, from: u64) -> (Vec<Span>, Vec<Span>) {
     let overlap = |(a, at): Span, (b, bt): Span| at.saturating_sub(a) < bt && bt.saturating_sub(b) < at;
     let stalls = spans("qemu board: the machine stalled ");
     let background = spans("qemu board: a poll of the background executor took ");
-    let main = spans("qemu board: a poll of the main executor took ")
+    let main = spans("qemu board: a task poll of the main executor took ")
         .into_iter()
         .filter(|&p| background.iter().any(|&b| overlap(p, b)) && !stalls.iter().any(|&s| overlap(p, s)))
         .collect();
