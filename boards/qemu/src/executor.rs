@@ -5,8 +5,8 @@
 //!   services, the 8318's acquisition;
 //! - the background one, in thread mode on a stack of its own ([`BACKGROUND_STACK`], the process
 //!   stack), which sleeps with WFI between polls (Embassy's WFE loop never sleeps under QEMU):
-//!   work every other task preempts, MQTT's TLS (`remodaq_mqtt::relay`, docs/mqtt.md "Never in
-//!   the way").
+//!   work every other task preempts, MQTT's service with its TLS (`remodaq_mqtt::link`,
+//!   docs/mqtt.md "Never in the way") and the services' offload worker.
 //!
 //! One pender serves them all: the background executor's context is null, the others' their
 //! interrupt number. The main executor's interrupt and every other handler run on the main

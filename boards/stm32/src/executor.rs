@@ -4,9 +4,9 @@
 //! - the main one, polled from UART5's interrupt at the lowest priority ([`MAIN_PRIORITY`]): the
 //!   network, the services, the 8318's acquisition; every other interrupt preempts it;
 //! - the background one, embassy's thread-mode executor (WFE between polls), below every
-//!   interrupt: work every other task preempts, MQTT's TLS worker (`remodaq_mqtt::relay`, docs/
-//!   mqtt.md "Never in the way"), whose P-256 arithmetic would otherwise hold the main executor
-//!   for tens of ms.
+//!   interrupt: work every other task preempts, MQTT's service with its TLS (`remodaq_mqtt::link`,
+//!   docs/mqtt.md "Never in the way"), whose P-256 arithmetic would otherwise hold the main
+//!   executor for tens of ms, and the services' offload worker.
 //!
 //! Neither UART4 nor UART5 is used on this board, so only the executors' pender requests their
 //! interrupts (NVIC STIR, PM0214 §4.3.8; embassy-executor 0.10 `platform/cortex_m.rs`, whose
@@ -20,7 +20,7 @@
 //! bind UART4 or UART5 (`bind_interrupts!` would clash with these handlers: a link error).
 //!
 //! One stack for all (the main stack, MSP): thread mode and every handler run on it (ARMv7-M
-//! ARM B1.4.4: CONTROL.SPSEL is left 0), so the TLS worker's deepest calls add to those of
+//! ARM B1.4.4: CONTROL.SPSEL is left 0), so MQTT's deepest calls (TLS's handshake) add to those of
 //! whatever preempts it. The memory plan's 32 KiB holds both (docs/mqtt.md, "Sizes":
 //! `qemu-e2e` holds the main stack's high-water mark plus the background's to it).
 

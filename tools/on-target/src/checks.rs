@@ -126,7 +126,7 @@ pub async fn run(spawner: Spawner) {
         realtime(spawner).await,
     );
     report.check(
-        "background executor: the main executor's 1 ms ticker keeps time while the background one (MQTT's TLS worker's) checks ed25519 signatures",
+        "background executor: the main executor's 1 ms ticker keeps time while the background one (MQTT's and its TLS's) checks ed25519 signatures",
         background().await,
     );
     board_checks(&mut report, spawner, board, resources).await;
@@ -402,8 +402,8 @@ fn kept_time(checks: u32, wakes: u32, gap: u64, busy: Duration, behind: &'static
 static BACKGROUND_GO: Signal<CriticalSectionRawMutex, ()> = Signal::new();
 static BACKGROUND_DONE: Signal<CriticalSectionRawMutex, (u32, Duration)> = Signal::new();
 
-/// On the board's background executor (thread mode, below the main one: where MQTT's TLS worker
-/// runs): [`busy`] at each [`BACKGROUND_GO`], as the worker computes a handshake's P-256.
+/// On the board's background executor (thread mode, below the main one: where MQTT's service
+/// runs): [`busy`] at each [`BACKGROUND_GO`], as MQTT computes a TLS handshake's P-256.
 #[embassy_executor::task]
 pub async fn background_busy() -> ! {
     loop {
