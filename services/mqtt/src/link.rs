@@ -24,7 +24,7 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex as Cs;
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::pipe::Pipe;
 use embassy_sync::signal::Signal;
-use embassy_time::Duration;
+use embassy_time::{Duration, Instant, Timer};
 use embedded_io_async::{ErrorKind, ErrorType, Read, Write};
 use remodaq_net::reset;
 use remodaq_shared::warn;
@@ -32,6 +32,11 @@ use remodaq_shared::warn;
 /// The broker's bytes on their way to the service, and the service's to the socket: a few
 /// publications (or TLS records) in flight in each direction.
 const PIPE: usize = 1024;
+/// The service's bytes wait in their pipe this long (or until it is half full) before they go
+/// to the socket together: a look's publications leave in a few segments instead of one each,
+/// and the network's runner handles that many fewer frames, each of which a Modbus request
+/// arriving with it waits for (issue #40, docs/mqtt.md "Never in the way").
+const GATHER: Duration = Duration::from_millis(2);
 
 /// The broker's bytes, from the socket to the service.
 static FROM_BROKER: Pipe<Cs, PIPE> = Pipe::new();
@@ -90,6 +95,15 @@ pub async fn carry(socket: &mut TcpSocket<'_>, timeout: Duration) -> ! {
         let (broker, port) = match state() {
             State::Connecting(broker, port) => (broker, port),
             State::Closing => {
+                // What the service wrote last, gathering still, goes first.
+                if !TO_BROKER.is_empty() && socket.can_send() {
+                    let _ = socket
+                        .write_with(|b| {
+                            let n = TO_BROKER.try_read(b).unwrap_or(0);
+                            (n, n)
+                        })
+                        .await;
+                }
                 remodaq_net::close(socket).await;
                 advance(State::Closing, State::Idle);
                 continue;
@@ -130,13 +144,26 @@ async fn changed(now: State) {
 /// Moves the bytes between `socket` and the pipes while the link is open; at the socket's end,
 /// the link has [`State::Ended`].
 async fn pump(socket: &mut TcpSocket<'_>) {
+    // When the service's bytes waiting began to.
+    let mut waiting: Option<Instant> = None;
     loop {
         if state() != State::Open {
             return;
         }
+        let due = match (TO_BROKER.is_empty(), waiting) {
+            (true, _) => {
+                waiting = None;
+                false
+            }
+            (false, None) => {
+                waiting = Some(Instant::now());
+                TO_BROKER.len() >= PIPE / 2
+            }
+            (false, Some(since)) => TO_BROKER.len() >= PIPE / 2 || since.elapsed() >= GATHER,
+        };
         // What can move now moves: the closures run at once (the socket can take or give), so
         // nothing is held between a pipe and the socket when this is dropped.
-        if !TO_BROKER.is_empty() && socket.can_send() {
+        if due && socket.can_send() {
             let sent = socket.write_with(|b| {
                 let n = TO_BROKER.try_read(b).unwrap_or(0);
                 (n, n)
@@ -144,8 +171,9 @@ async fn pump(socket: &mut TcpSocket<'_>) {
             if sent.await.is_err() {
                 break;
             }
-            // Room again: a write or a flush may be waiting for it.
+            // Room again: a write may be waiting for it.
             TO_SERVICE.signal(());
+            waiting = None;
             continue;
         }
         if socket.can_recv() && !FROM_BROKER.is_full() {
@@ -170,8 +198,11 @@ async fn pump(socket: &mut TcpSocket<'_>) {
             socket.wait_read_ready().await;
         };
         let writable = async {
-            if TO_BROKER.is_empty() {
-                core::future::pending::<()>().await;
+            match waiting {
+                None => core::future::pending::<()>().await,
+                // Gathered long enough (or the pipe half full: `TO_MAIN` says so).
+                Some(since) if !due => Timer::at(since + GATHER).await,
+                Some(_) => {}
             }
             socket.wait_write_ready().await;
         };
@@ -244,23 +275,24 @@ impl Write for Link {
             if state() != State::Open {
                 return Err(ErrorKind::ConnectionReset);
             }
+            let was_empty = TO_BROKER.is_empty();
             if let Either::First(n) = select(TO_BROKER.write(buf), TO_SERVICE.wait()).await {
-                TO_MAIN.signal(());
+                // `carry` looks when the bytes begin to wait, and when they fill half the pipe.
+                if was_empty || TO_BROKER.len() >= PIPE / 2 {
+                    TO_MAIN.signal(());
+                }
                 return Ok(n);
             }
         }
     }
 
-    /// Until the socket took all that was written.
+    /// What was written is on its way: `carry` gives it to the socket within [`GATHER`] (the
+    /// pipe is the transport's buffer, as the socket's own is). Waiting here for the socket to
+    /// take it would send every publication alone (minimq flushes after each).
     async fn flush(&mut self) -> Result<(), ErrorKind> {
-        loop {
-            if TO_BROKER.is_empty() {
-                return Ok(());
-            }
-            if state() != State::Open {
-                return Err(ErrorKind::ConnectionReset);
-            }
-            TO_SERVICE.wait().await;
+        match state() {
+            State::Open => Ok(()),
+            _ => Err(ErrorKind::ConnectionReset),
         }
     }
 }
