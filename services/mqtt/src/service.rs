@@ -71,8 +71,8 @@ pub struct Board<'a> {
     pub time_ms: fn() -> Option<u64>,
     /// Settings that override the stored ones (the simulator's `--mqtt`).
     pub imposed: Option<Config>,
-    /// TLS's record buffers, [`TLS_BUFFER`] bytes (none without TLS): the caller's, in its task's storage, so that no future
-    /// holding them is moved through the stack.
+    /// TLS's record buffers, [`TLS_BUFFER`] bytes (none without TLS): the caller's, in its
+    /// task's storage, so that no future holding them is moved through the stack.
     pub tls_buffer: &'a mut [u8],
 }
 
