@@ -249,16 +249,13 @@ impl Read for Link {
             return Ok(0);
         }
         loop {
-            if let Ok(n) = FROM_BROKER.try_read(buf) {
-                // Room again for what the socket holds.
-                TO_MAIN.signal(());
-                return Ok(n);
-            }
-            if state() != State::Open {
+            // What the broker sent before the end is read first.
+            if state() != State::Open && FROM_BROKER.is_empty() {
                 return Err(ErrorKind::ConnectionReset);
             }
             // A pipe's read is cancel-safe: dropped, it took nothing.
             if let Either::First(n) = select(FROM_BROKER.read(buf), TO_SERVICE.wait()).await {
+                // Room again for what the socket holds.
                 TO_MAIN.signal(());
                 return Ok(n);
             }
