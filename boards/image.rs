@@ -183,18 +183,19 @@ async fn mqtt_link(app: &'static Running) -> ! {
 /// executor, by the image crate), and the web console's connection tasks. A task that cannot be spawned is logged, not
 /// a panic.
 async fn start(spawner: Spawner) {
-    use remodaq_shared::app::{spawn, spawn_at, Priority};
+    use remodaq_shared::app::spawn;
     remodaq_shared::identity::set_build(build::BUILD);
     let (app, io) = remodaq_shared::app::start(spawner, &STATICS).await;
     for slot in 0..remodaq_modbus::server::SOCKETS {
-        spawn_at(spawner, modbus(app, slot), "modbus", Priority::Modbus);
+        spawn(spawner, modbus(app, slot), "modbus");
     }
     spawn(spawner, discovery(app), "discovery");
     #[cfg(not(target_os = "none"))]
     spawn(spawner, mqtt(app), "mqtt");
     #[cfg(all(target_os = "none", feature = "mqtt"))]
     {
-        spawn(spawner, mqtt_link(app), "mqtt");
+        use remodaq_shared::app::{spawn_at, Priority};
+        spawn_at(spawner, mqtt_link(app), "mqtt", Priority::Last);
         mqtt_parts::PARTS.signal((app.map(), app.store(), app.identity()));
     }
     #[cfg(target_os = "none")]

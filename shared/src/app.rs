@@ -135,24 +135,23 @@ impl<B: Board, M: Module> App<B, M> {
 }
 
 /// Which of an executor's ready tasks is polled first (embassy-executor's `scheduler-priority`:
-/// at each step, the ready task of the highest priority, those woken by the last poll included).
-/// The order within one executor only: a task never preempts another's poll, and an executor of a
-/// higher interrupt priority preempts them all (docs/design.md, "The executors").
+/// at each step the ready task of the highest priority, and among equals the one woken first,
+/// those the last poll woke included; docs/design.md, "Three executors"). Every task but one has
+/// the same: they take turns in the order they were woken, none can keep another waiting. MQTT's
+/// socket task waits while any other is ready: the service it carries runs on the background
+/// executor, which waits for them all anyway.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[repr(u8)]
 pub enum Priority {
+    /// Polled only when no other task is ready (MQTT's socket: issue #40).
+    Last = 0,
     /// Every other task.
-    Other = 0,
-    /// The network stack's runner: every socket's segments.
-    Network = 1,
-    /// The Modbus server's connections: a request taken by the runner is answered before any
-    /// other task's work goes on (MQTT's socket, the web console: issue #40).
-    Modbus = 2,
+    Turn = 1,
 }
 
 /// Spawns a task, logging (instead of panicking) if its pool is exhausted.
 pub fn spawn<S>(spawner: Spawner, token: Result<SpawnToken<S>, SpawnError>, name: &str) {
-    spawn_at(spawner, token, name, Priority::Other);
+    spawn_at(spawner, token, name, Priority::Turn);
 }
 
 /// [`spawn`] at a [`Priority`].

@@ -37,7 +37,7 @@ use embassy_net::{Ipv4Address, Ipv4Cidr, StackResources, StaticConfigV4};
 use remodaq_lan9118::{Lan9118, Registers};
 use remodaq_net::backlog::{Backlogged, GATES};
 use remodaq_net::EmbassyNet;
-use remodaq_shared::app::{spawn, spawn_at, Priority};
+use remodaq_shared::app::spawn;
 use remodaq_shared::board::Effect;
 use remodaq_shared::board::{Board, Effects};
 use remodaq_shared::info;
@@ -252,7 +252,7 @@ impl Board for QemuBoard {
         // through the start-up's stack once more, 6.4 KB at the start-up's deepest (issue #40,
         // docs/design.md "Three executors").
         static RUNNER: StaticCell<embassy_net::Runner<'static, Backlogged<probe::Probed<Device>>>> = StaticCell::new();
-        spawn_at(spawner, net_task(RUNNER.init(runner)), "net", Priority::Network);
+        spawn(spawner, net_task(RUNNER.init(runner)), "net");
         spawn(spawner, stack_task(), "stack");
         info!("network: {}.{}.{}.{}", running.ip[0], running.ip[1], running.ip[2], running.ip[3]);
         (EmbassyNet { stack, port: stored.port, effects: QemuEffects }, running)

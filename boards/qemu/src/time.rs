@@ -162,10 +162,10 @@ const LONG_SECTION_US: u32 = 1_000;
 /// A task poll of the main executor at least this long is said in the log, each one: it delays
 /// every other task of the executor by as much (MQTT's TLS handshake's arithmetic held it 20-400
 /// ms before it ran on the background executor: docs/mqtt.md "Never in the way"). A poll of the
-/// executor itself runs every ready task, the highest priority first and again after each
-/// (`remodaq_shared::app::Priority`): its length says nothing of what any one task waited. 3 ms:
-/// rare in normal running, so that the log's writes (each one stops the machine) do not disturb
-/// the latency checks.
+/// executor itself runs every ready task, and those they wake, in turn
+/// (`remodaq_shared::app::Priority`): its length says nothing of how long any one task held
+/// the others. 3 ms: rare in normal running, so that the
+/// log's writes (each one stops the machine) do not disturb the latency checks.
 const LONG_POLL_US: u32 = 3_000;
 
 /// The FPGAIO's microsecond counter (wraps every 71 minutes: subtract with `wrapping_sub`).

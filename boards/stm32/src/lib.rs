@@ -34,7 +34,7 @@ use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Instant, Timer};
 use remodaq_net::backlog::{Backlogged, GATES};
 use remodaq_net::EmbassyNet;
-use remodaq_shared::app::{spawn, spawn_at, Priority};
+use remodaq_shared::app::spawn;
 use remodaq_shared::board::Effect;
 use remodaq_shared::board::{Board, Effects};
 use remodaq_shared::flash::{Serialized, CONTROLLER};
@@ -360,7 +360,7 @@ impl Board for Stm32Board {
         static RESOURCES: StaticCell<StackResources<STACK_SOCKETS>> = StaticCell::new();
         let (stack, runner) =
             embassy_net::new(Backlogged::new(eth, GATES, isn_key), config, RESOURCES.init(StackResources::new()), seed);
-        spawn_at(spawner, net_task(runner), "net", Priority::Network);
+        spawn(spawner, net_task(runner), "net");
         spawn(spawner, identify_task(led), "identify");
         info!("network: {}.{}.{}.{}/{} port {}", net.ip[0], net.ip[1], net.ip[2], net.ip[3], prefix, net.port);
         (EmbassyNet { stack, port: net.port, effects: Stm32Effects }, net)
