@@ -169,7 +169,8 @@ pub async fn serve<IO: Io, M: Module>(
             // One inbound packet a poll: the acknowledgments come in bursts, one a publication
             // of the look before, and each moves the publications still in flight behind it in
             // the session's buffer; handled all in one poll they held Modbus 0.2 ms under QEMU
-            // (docs/mqtt.md, "Never in the way").
+            // when the session shared its executor (docs/mqtt.md, "Never in the way"), as it still
+            // does on the host build (the embassy boards run it on the background executor).
             yield_now().await;
         }
     }
@@ -187,8 +188,8 @@ async fn publish_due<IO: Io, M: Module>(
     let mut payload = Payload::new();
     let tick = module.tick().as_millis();
     for (i, schedule) in schedules.iter_mut().enumerate().take(module.points()) {
-        // One point a poll: the tasks that share the executor (Modbus) wait at most one point's
-        // reading and publication, never the whole look.
+        // One point a poll: the tasks that share the executor (Modbus, on the host build) wait
+        // at most one point's reading and publication, never the whole look.
         yield_now().await;
         let r = module.read(i).await;
         let now = Instant::now().as_millis();
